@@ -1,0 +1,35 @@
+# Two commands do everything on a fresh machine: `make reproduce` and `make test`.
+PYTHON ?= python3
+VENV   ?= .venv
+BIN    := $(VENV)/bin
+STAMP  := $(VENV)/.installed
+
+.PHONY: reproduce test lint format install clean
+
+$(BIN)/python:
+	$(PYTHON) -m venv $(VENV)
+
+$(STAMP): pyproject.toml | $(BIN)/python
+	$(BIN)/python -m pip install --quiet --upgrade pip
+	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	touch $(STAMP)
+
+install: $(STAMP)
+
+reproduce: $(STAMP)
+	$(BIN)/qpatrol train configs/paper.yaml --out results/runs/paper --force
+
+test: $(STAMP)
+	$(BIN)/ruff check qpatrol tests
+	$(BIN)/ruff format --check qpatrol tests
+	$(BIN)/python -m pytest
+
+lint: $(STAMP)
+	$(BIN)/ruff check qpatrol tests
+
+format: $(STAMP)
+	$(BIN)/ruff format qpatrol tests
+	$(BIN)/ruff check --fix qpatrol tests
+
+clean:
+	rm -rf $(VENV) results/runs results/scratch .pytest_cache .ruff_cache

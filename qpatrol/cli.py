@@ -1,0 +1,165 @@
+"""``qpatrol`` command line: a thin layer over the Python API.
+
+Bad input (config, map, file) ends with one line on stderr and exit code 2.
+"""
+
+from __future__ import annotations
+
+import json
+import sys
+from pathlib import Path
+from typing import Annotated
+
+import typer
+
+from qpatrol import config as config_mod
+from qpatrol.config import ConfigError
+from qpatrol.maps import MapError, available_maps, load_map, render_states, resolve_map
+from qpatrol.progress import Bar
+
+app = typer.Typer(
+    help="Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.",
+    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+)
+maps_app = typer.Typer(help="List, show and check maps.", no_args_is_help=True)
+config_app = typer.Typer(help="Config keys and resolved configs.", no_args_is_help=True)
+app.add_typer(maps_app, name="maps")
+app.add_typer(config_app, name="config")
+
+SetOpt = Annotated[
+    list[str] | None,
+    typer.Option("--set", "-s", metavar="KEY=VALUE",
+                 help="Override a config key, e.g. --set learning.gamma=0.5 (repeatable)."),
+]
+
+
+def fail(message: str, code: int = 2) -> None:
+    """Print one line to stderr and exit."""
+    typer.echo(f"qpatrol: error: {message}", err=True)
+    raise typer.Exit(code)
+
+
+@app.command()
+def train(
+    config: Annotated[Path, typer.Argument(help="YAML experiment config.")],
+    set_: SetOpt = None,
+    out: Annotated[Path | None, typer.Option(
+        "--out", "-o", help="Output folder [default: results/runs/<config>-<hash>].")] = None,
+    force: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
+    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
+) -> None:
+    """Train a team on CONFIG and write config.yaml, episodes.csv, summary.json, q_table.npz."""
+    from qpatrol.run import default_out_dir, prepare, simulate, write_run
+
+    try:
+        cfg = config_mod.load_config(config, set_ or [])
+        prepared = prepare(cfg)
+    except (ConfigError, MapError) as e:
+        fail(str(e))
+    target = out or default_out_dir(cfg, config)
+    if target.exists() and not force:
+        fail(f"{target} already exists; pass --force to replace it or --out to choose another")
+    bar = Bar(f"train {config.name}")
+    result = simulate(cfg, progress=bar, prepared=prepared)
+    bar.close()
+    write_run(result, target, replace=force)
+    if not quiet:
+        _print_summary(result.summary)
+    typer.echo(f"wrote {target}")
+
+
+def _print_summary(rows: list[dict]) -> None:
+    import numpy as np
+
+    keys = ["steps", "episodes_completed", "mean_steps_per_episode", "coverage",
+            "avg_idleness", "worst_idleness", "division_of_labour"]
+    typer.echo(f"{'measure':24s} {'mean':>12s} {'min':>12s} {'max':>12s}   over {len(rows)} runs")
+    for k in keys:
+        vals = np.array([r[k] for r in rows if r[k] is not None], dtype=float)
+        if vals.size:
+            typer.echo(f"{k:24s} {vals.mean():12.4g} {vals.min():12.4g} {vals.max():12.4g}")
+        else:
+            typer.echo(f"{k:24s} {'-':>12s}")
+
+
+@maps_app.command("list")
+def maps_list() -> None:
+    """Maps found by name in ./maps and the shipped maps/ folder."""
+    for name, path in available_maps().items():
+        try:
+            m = load_map(path)
+            typer.echo(f"{name:12s} {m.shape[1]:3d}x{m.shape[0]:<3d} {m.n_cells:5d} cells  "
+                       f"{len(m.starts)} starts  {len(m.homes)} H   {m.description[:60]}")
+        except MapError as e:
+            typer.echo(f"{name:12s} BROKEN: {e}")
+
+
+@maps_app.command("show")
+def maps_show(
+    name: Annotated[str, typer.Argument(help="Map name or path.")],
+    png: Annotated[Path | None, typer.Option(help="Draw the map to this image file.")] = None,
+) -> None:
+    """Print the grid with each free cell's state number, or draw it to an image."""
+    try:
+        m = load_map(resolve_map(name))
+    except MapError as e:
+        fail(str(e))
+    if png is not None:
+        from qpatrol.plots import plot_map
+
+        plot_map(m, png)
+        typer.echo(f"wrote {png}")
+        return
+    typer.echo(f"{m.name}: {m.description}")
+    typer.echo(f"{m.shape[1]} x {m.shape[0]} grid, {m.n_cells} free cells, starts "
+               f"{m.starts.tolist()}, charging stations {m.homes.tolist()}")
+    typer.echo(render_states(m))
+
+
+@maps_app.command("check")
+def maps_check(files: Annotated[list[Path], typer.Argument(help="Map files.")]) -> None:
+    """Check map files; print one line per problem and exit 2 if any is broken."""
+    bad = 0
+    for f in files:
+        try:
+            m = load_map(f)
+            typer.echo(f"{f}: ok ({m.n_cells} free cells, {len(m.starts)} starts, "
+                       f"{len(m.homes)} H)")
+        except MapError as e:
+            typer.echo(f"qpatrol: error: {e}", err=True)
+            bad += 1
+    if bad:
+        raise typer.Exit(2)
+
+
+@config_app.command("keys")
+def config_keys() -> None:
+    """Every config key with its default, allowed values and meaning."""
+    typer.echo(config_mod.keys_table())
+
+
+@config_app.command("show")
+def config_show(
+    config: Annotated[Path, typer.Argument(help="YAML experiment config.")],
+    set_: SetOpt = None,
+    as_json: Annotated[bool, typer.Option("--json", help="JSON instead of YAML.")] = False,
+) -> None:
+    """Print the fully resolved config (defaults filled in, overrides applied)."""
+    try:
+        cfg = config_mod.load_config(config, set_ or [])
+    except ConfigError as e:
+        fail(str(e))
+    typer.echo(json.dumps(cfg.tree(), indent=2) if as_json else cfg.to_yaml().rstrip())
+
+
+def main() -> None:
+    """Console entry point."""
+    try:
+        app()
+    except KeyboardInterrupt:
+        typer.echo("qpatrol: interrupted", err=True)
+        sys.exit(130)
+
+
+if __name__ == "__main__":
+    main()

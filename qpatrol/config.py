@@ -1,0 +1,308 @@
+"""Experiment configuration: one schema, validated on load.
+
+Every key is a dotted name (``learning.gamma``) with a type, a default, an allowed
+range and a help line. The same schema validates YAML files, ``--set KEY=VALUE``
+overrides and sweep values, and is printed by ``qpatrol config keys``. A bad value
+raises :class:`ConfigError` whose message is one line naming the key and what is
+allowed.
+"""
+
+from __future__ import annotations
+
+import copy
+import hashlib
+import json
+from collections.abc import Callable, Iterable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+
+class ConfigError(ValueError):
+    """An invalid configuration; the message names the key and what is allowed."""
+
+
+@dataclass(frozen=True)
+class Field:
+    """One config key: its type, default, allowed values and help text."""
+
+    key: str
+    kind: str  # "int", "float", "bool", "str", "choice", "cells"
+    default: Any
+    help: str
+    low: float | None = None
+    high: float | None = None
+    low_open: bool = False  # low bound excluded
+    choices: tuple[str, ...] = ()
+    nullable: bool = False
+
+    def allowed(self) -> str:
+        """Plain words for what values this key takes."""
+        if self.kind == "choice":
+            text = "one of " + ", ".join(self.choices)
+        elif self.kind == "bool":
+            text = "true or false (on/off)"
+        elif self.kind == "cells":
+            text = "a list of state numbers (ints >= 0)"
+        elif self.kind == "str":
+            text = "a string"
+        else:
+            noun = "an integer" if self.kind == "int" else "a number"
+            if self.low is not None and self.high is not None:
+                lo = "(" if self.low_open else "["
+                text = f"{noun} in {lo}{_num(self.low)}, {_num(self.high)}]"
+            elif self.low is not None:
+                text = f"{noun} {'>' if self.low_open else '>='} {_num(self.low)}"
+            else:
+                text = noun
+        if self.nullable:
+            text += " or null"
+        return text
+
+
+def _num(x: float) -> str:
+    return str(int(x)) if float(x).is_integer() else str(x)
+
+
+F = Field
+SCHEMA: tuple[Field, ...] = (
+    F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
+    F("agents", "int", 4, "robots in the team", low=1, high=64),
+    F("runs", "int", 1, "independent runs, each with its own seed", low=1, high=100000),
+    F("seed", "int", 0, "root seed; run r draws from SeedSequence(seed, spawn_key=(r,))", low=0),
+    F("steps", "int", 5000, "team steps per run (an upper bound when `episodes` is set)",
+      low=1, high=10**9),
+    F("episodes", "int", None, "stop a run after this many episodes have ended (null: run "
+      "all `steps`)", low=1, nullable=True),
+    F("max_episode_steps", "int", 10000, "an episode still running after this many team "
+      "steps ends as truncated (null: never)", low=1, nullable=True),
+    F("learning.gamma", "float", 0.1, "discount factor", low=0.0, high=1.0, low_open=False),
+    F("learning.multiplier", "float", 100.0, "scale of the initial Q-values", low=0.0,
+      low_open=True, high=1e12),
+    F("learning.q_init.north", "float", 3.0, "initial Q of North (before multiplier)"),
+    F("learning.q_init.east", "float", 2.0, "initial Q of East (before multiplier)"),
+    F("learning.q_init.south", "float", 1.0, "initial Q of South (before multiplier)"),
+    F("learning.q_init.west", "float", 2.0, "initial Q of West (before multiplier)"),
+    F("learning.epsilon", "float", 0.0, "probability of a uniformly random legal move",
+      low=0.0, high=1.0),
+    F("learning.state_space", "choice", "cell_heading", "Q-table state: (cell, heading) as "
+      "in the paper, or cell alone (ablation)", choices=("cell_heading", "cell")),
+    F("learning.initial_heading", "choice", "north", "heading an agent has before its first "
+      "move", choices=("north", "east", "south", "west")),
+    F("reward.dot_value", "float", 1.0, "reward for eating a dot", low=0.0),
+    F("reward.big_dot_value", "float", 5.0, "reward for eating a big dot (`o`)", low=0.0),
+    F("reward.incremental_value", "float", 1.0, "maximum of incrementalDot, reached when a "
+      "cell has been unvisited for `idle_horizon` steps", low=0.0),
+    F("reward.idle_horizon", "float", 100.0, "team steps of idleness at which incrementalDot "
+      "saturates", low=0.0, low_open=True),
+    F("reward.lambda", "float", 1.0, "weight of lambda = dots eaten / state visits in the "
+      "episode (0 turns it off)", low=0.0),
+    F("team.communication", "bool", True, "share one dot map and one last-visit map "
+      "(off: each agent has private ones)"),
+    F("team.avoid_collisions", "bool", True, "mask moves into occupied or claimed cells"),
+    F("battery.enabled", "bool", True, "simulate battery, homing and charging"),
+    F("battery.capacity", "int", 1000, "moves on a full charge", low=1),
+    F("battery.margin", "int", 5, "spare moves kept when deciding to go home", low=0),
+    F("battery.charge_steps", "int", 50, "team steps spent charging at `H`", low=0),
+    F("record.transitions", "bool", False, "write transitions.csv, one row per Q-update"),
+    F("record.watch", "cells", [], "states whose Q-updates are traced to watch.csv"),
+    F("record.warmup", "int", 0, "team steps before the patrolling measures start", low=0),
+)
+FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
+KEYS: tuple[str, ...] = tuple(FIELDS)
+
+
+def defaults() -> dict[str, Any]:
+    """Flat mapping of every key to its default."""
+    return {f.key: copy.deepcopy(f.default) for f in SCHEMA}
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for k, v in tree.items():
+        if not isinstance(k, str):
+            raise ConfigError(f"{prefix}{k!r}: keys must be strings")
+        key = f"{prefix}{k}"
+        is_group = any(f.startswith(key + ".") for f in FIELDS)
+        if key == "battery" and isinstance(v, bool):  # shorthand `battery: off`
+            flat["battery.enabled"] = v
+        elif is_group and key not in FIELDS:
+            if not isinstance(v, Mapping):
+                raise ConfigError(f"{key}: expected a mapping of sub-keys, got {v!r}")
+            flat.update(_flatten(v, key + "."))
+        else:
+            flat[key] = v
+    return flat
+
+
+def _unflatten(flat: Mapping[str, Any]) -> dict[str, Any]:
+    tree: dict[str, Any] = {}
+    for key, v in flat.items():
+        node = tree
+        parts = key.split(".")
+        for p in parts[:-1]:
+            node = node.setdefault(p, {})
+        node[parts[-1]] = v
+    return tree
+
+
+def _unknown(key: str) -> ConfigError:
+    near = [k for k in KEYS if k.split(".")[-1] == key.split(".")[-1] or k.startswith(key)]
+    hint = f"; did you mean {', '.join(near[:3])}?" if near else ""
+    return ConfigError(f"unknown config key '{key}'{hint} (see `qpatrol config keys`)")
+
+
+def check_value(key: str, value: Any) -> Any:
+    """Validate and normalise one value; raise :class:`ConfigError` naming ``key``."""
+    if key not in FIELDS:
+        raise _unknown(key)
+    f = FIELDS[key]
+
+    def bad(why: str = "") -> ConfigError:
+        got = f" ({why})" if why else ""
+        return ConfigError(f"{key}: got {value!r}{got}; allowed: {f.allowed()}")
+
+    if value is None:
+        if f.nullable:
+            return None
+        raise bad()
+    if f.kind == "bool":
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("on", "off", "true", "false", "yes", "no"):
+            return value.lower() in ("on", "true", "yes")
+        raise bad()
+    if f.kind == "str":
+        if isinstance(value, str) and value:
+            return value
+        raise bad()
+    if f.kind == "choice":
+        if isinstance(value, str) and value in f.choices:
+            return value
+        raise bad()
+    if f.kind == "cells":
+        if isinstance(value, int) and not isinstance(value, bool):
+            value = [value]
+        if isinstance(value, list) and all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
+        ):
+            return sorted(set(value))
+        raise bad()
+    if isinstance(value, bool):
+        raise bad()
+    if f.kind == "int":
+        if isinstance(value, float) and value.is_integer():
+            value = int(value)
+        if not isinstance(value, int):
+            raise bad()
+    else:
+        if not isinstance(value, int | float):
+            raise bad()
+        value = float(value)
+        if value != value or value in (float("inf"), float("-inf")):
+            raise bad()
+    if f.low is not None and (value < f.low or (f.low_open and value == f.low)):
+        raise bad("out of range")
+    if f.high is not None and value > f.high:
+        raise bad("out of range")
+    return value
+
+
+def parse_assignment(text: str) -> tuple[str, Any]:
+    """Split ``KEY=VALUE`` and read VALUE as YAML (``0.5``, ``on``, ``[3, 4]``)."""
+    if "=" not in text:
+        raise ConfigError(f"--set {text!r}: expected KEY=VALUE")
+    key, raw = text.split("=", 1)
+    key = key.strip()
+    try:
+        value = yaml.safe_load(raw) if raw.strip() else None
+    except yaml.YAMLError:
+        value = raw
+    if key not in FIELDS:
+        raise _unknown(key)
+    if FIELDS[key].kind == "str" and value is not None:
+        value = raw.strip()
+    return key, value
+
+
+@dataclass(frozen=True)
+class Config:
+    """A validated configuration: a flat mapping from every key to its value."""
+
+    values: Mapping[str, Any]
+
+    def __getitem__(self, key: str) -> Any:
+        return self.values[key]
+
+    def replace(self, **changes: Any) -> Config:
+        """A copy with keys (dotted names given as ``**{"learning.gamma": 0.5}``) changed."""
+        return from_flat({**self.values, **changes})
+
+    def with_overrides(self, assignments: Iterable[str]) -> Config:
+        """A copy with ``KEY=VALUE`` strings applied."""
+        changes = dict(parse_assignment(a) for a in assignments)
+        return self.replace(**changes)
+
+    def tree(self) -> dict[str, Any]:
+        """The nested mapping, as written to ``config.yaml``."""
+        return _unflatten(self.values)
+
+    def to_yaml(self) -> str:
+        """The fully resolved config as YAML text (keys in schema order)."""
+        return yaml.safe_dump(self.tree(), sort_keys=False, default_flow_style=None)
+
+    def digest(self) -> str:
+        """A short hash of the resolved values, used to name run folders."""
+        blob = json.dumps(dict(self.values), sort_keys=True, default=str).encode()
+        return hashlib.sha256(blob).hexdigest()[:10]
+
+
+def from_flat(flat: Mapping[str, Any]) -> Config:
+    """Validate a flat ``{key: value}`` mapping on top of the defaults."""
+    values = defaults()
+    for key, v in flat.items():
+        values[key] = check_value(key, v)
+    return Config(values)
+
+
+def from_mapping(tree: Mapping[str, Any]) -> Config:
+    """Validate a nested mapping (as read from YAML)."""
+    if not isinstance(tree, Mapping):
+        raise ConfigError(f"a config must be a mapping of keys, got {type(tree).__name__}")
+    return from_flat(_flatten(tree))
+
+
+def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
+    """Read a YAML config (``yaml.safe_load``), apply ``KEY=VALUE`` overrides, validate."""
+    p = Path(path)
+    try:
+        text = p.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise ConfigError(f"{p}: no such config file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise ConfigError(f"{p}: cannot read config ({e})") from None
+    try:
+        tree = yaml.safe_load(text)
+    except yaml.YAMLError as e:
+        mark = getattr(e, "problem_mark", None)
+        where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
+        problem = getattr(e, "problem", None) or "invalid YAML"
+        raise ConfigError(f"{p}{where}: {problem}") from None
+    if tree is None:
+        tree = {}
+    try:
+        cfg = from_mapping(tree)
+        overrides = list(overrides)
+        return cfg.with_overrides(overrides) if overrides else cfg
+    except ConfigError as e:
+        raise ConfigError(f"{p}: {e}") from None
+
+
+def keys_table(fmt: Callable[[Field], str] | None = None) -> str:
+    """One line per key: name, default, allowed values, help."""
+    lines = []
+    for f in SCHEMA:
+        lines.append(f"{f.key:28s} {json.dumps(f.default):>14s}  {f.help} [{f.allowed()}]")
+    return "\n".join(lines)

@@ -1,0 +1,89 @@
+"""Tabular Q-learning, as in §3-§4 of the paper, over a batch of runs.
+
+Each agent owns a table ``Q[cell, heading, action]`` and a visit count ``N`` of the
+same shape. The agent acts greedily over its *legal* actions (moves into walls are
+not choices; moves into occupied cells are masked by the simulator), ties broken by
+the run's own random stream, with an optional epsilon of uniformly random legal
+moves. After a move ``s -a-> s'`` with reward ``r``::
+
+    N(s,a) <- N(s,a) + 1
+    alpha   = 1 / N(s,a)
+    Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a' legal in s'} Q(s',a') - Q(s,a))
+
+The initial table is ``q_init * multiplier`` for every state: with the defaults
+North 3, West 2, East 2, South 1, a state is left North first, then West or East,
+South last.
+
+Functions here are pure array functions over a leading batch axis ``B`` (the runs
+whose agent acts this step); the simulator gathers and scatters the rows.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def choose(
+    q_row: np.ndarray, legal: np.ndarray, u_explore: np.ndarray, u_pick: np.ndarray,
+    epsilon: float,
+) -> tuple[np.ndarray, np.ndarray]:
+    """Greedy action with random tie-breaks, or a random legal one with probability epsilon.
+
+    Args:
+        q_row: float ``[B, 4]``, Q(s, a) for the four directions.
+        legal: bool ``[B, 4]``, the actions that may be taken.
+        u_explore: float ``[B]`` in [0, 1): explore when ``u_explore < epsilon``.
+        u_pick: float ``[B]`` in [0, 1): picks among the candidates, in N, E, S, W order.
+        epsilon: probability of choosing uniformly among legal actions.
+
+    Returns:
+        ``(action [B] int, has_move [B] bool)``; action is 0 where there is no legal move.
+    """
+    masked = np.where(legal, q_row, -np.inf)
+    best = masked.max(axis=1)
+    cand = legal & (masked == best[:, None])
+    if epsilon > 0.0:
+        cand = np.where((u_explore < epsilon)[:, None], legal, cand)
+    return pick(cand, u_pick)
+
+
+def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Choose uniformly among the True entries of each row of ``cand`` ``[B, 4]``.
+
+    The j-th candidate (in N, E, S, W order) is taken, ``j = floor(u * n_candidates)``.
+    Returns ``(action [B], has_move [B])``.
+    """
+    count = cand.sum(axis=1)
+    j = np.minimum((u * count).astype(np.int64), np.maximum(count - 1, 0))
+    action = np.argmax(np.cumsum(cand, axis=1) > j[:, None], axis=1)
+    return action, count > 0
+
+
+def td_target(
+    reward: np.ndarray, q_next: np.ndarray, legal_next: np.ndarray, gamma: float
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(r + gamma * max_a' Q(s', a'), gamma * max_a' Q(s', a'))`` over legal ``a'``.
+
+    Args:
+        reward: float ``[B]``.
+        q_next: float ``[B, 4]``, Q(s', .).
+        legal_next: bool ``[B, 4]``, the non-wall moves out of s'.
+    """
+    bootstrap = gamma * np.where(legal_next, q_next, -np.inf).max(axis=1)
+    return reward + bootstrap, bootstrap
+
+
+def update(q_sa: np.ndarray, n_sa: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, ...]:
+    """One Q-learning step with ``alpha = 1/N``, N counted after this choice.
+
+    Args:
+        q_sa: float ``[B]``, Q(s, a) before the update.
+        n_sa: int ``[B]``, N(s, a) before this choice.
+        target: float ``[B]``, ``r + gamma * max Q(s', .)``.
+
+    Returns:
+        ``(q_after [B], n_after [B], alpha [B])``.
+    """
+    n_after = n_sa + 1
+    alpha = 1.0 / n_after
+    return q_sa + alpha * (target - q_sa), n_after, alpha

@@ -1,0 +1,113 @@
+"""What a run leaves behind: Q-updates, traced states and episodes, as tables.
+
+The simulator calls a :class:`Recorder` during each step with arrays over the runs
+involved; the recorder keeps only what the config asks for and turns it into
+``pandas.DataFrame`` tables at the end. CSV files are written with one fixed float
+format so the same config and seed give byte-identical files.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pandas as pd
+
+from qpatrol.env import State
+
+#: printf format of every float written to CSV.
+FLOAT_FORMAT = "%.12g"
+
+TRANSITION_COLUMNS = [
+    "run", "step", "agent", "cell", "heading", "action", "reward", "next_cell",
+    "next_heading", "alpha", "q_before", "q_after",
+]
+WATCH_COLUMNS = TRANSITION_COLUMNS + ["bootstrap", "q_north", "q_east", "q_south", "q_west"]
+EPISODE_COLUMNS = [
+    "run", "episode", "start_step", "steps", "dots_eaten", "distinct_cells",
+    "distinct_states", "complete", "group",
+]
+
+
+class Recorder:
+    """Collects Q-updates (all, and those of watched cells) and episode ends.
+
+    Args:
+        run_ids: int ``[R]``, the run number written for each batch row.
+        transitions: keep every Q-update.
+        watch: states whose Q-updates are kept with the bootstrap term and Q row.
+    """
+
+    def __init__(self, run_ids: np.ndarray, transitions: bool = False,
+                 watch: list[int] | tuple[int, ...] = ()):
+        self.run_ids = np.asarray(run_ids, dtype=np.int64)
+        self.transitions = transitions
+        self.watch = np.asarray(sorted(watch), dtype=np.int64)
+        self.wants_updates = transitions or self.watch.size > 0
+        self._updates: list[list[np.ndarray]] = []
+        self._episodes: list[list[np.ndarray]] = []
+
+    def updates(self, t, agent, runs, cell, heading, action, reward, next_cell,
+                next_heading, alpha, q_before, q_after, bootstrap, q_row) -> None:
+        if not self.transitions:
+            keep = np.isin(cell, self.watch)
+            if not keep.any():
+                return
+            runs, cell, heading, action, reward = (x[keep] for x in (runs, cell, heading,
+                                                                      action, reward))
+            next_cell, next_heading, alpha, q_before, q_after, bootstrap, q_row = (
+                x[keep] for x in (next_cell, next_heading, alpha, q_before, q_after,
+                                  bootstrap, q_row))
+        m = runs.size
+        self._updates.append([
+            self.run_ids[runs], np.full(m, t), np.full(m, agent), cell, heading, action,
+            reward, next_cell, next_heading, alpha, q_before, q_after, bootstrap,
+            q_row[:, 0], q_row[:, 1], q_row[:, 2], q_row[:, 3],
+        ])
+
+    def episodes(self, t: int, runs: np.ndarray, groups: np.ndarray, state: State,
+                 complete: np.ndarray) -> None:
+        start = state.ep_start[runs, groups]
+        self._episodes.append([
+            self.run_ids[runs], state.ep_count[runs, groups], start + 1, t - start,
+            state.ep_dots[runs, groups], state.ep_seen[runs, groups].sum(axis=1),
+            state.ep_seen_state[runs, groups].sum(axis=(1, 2)), complete.astype(np.int64),
+            groups,
+        ])
+
+    def _table(self, parts: list[list[np.ndarray]], columns: list[str],
+               order: list[str]) -> pd.DataFrame:
+        if parts:
+            cols = [np.concatenate([p[i] for p in parts]) for i in range(len(columns))]
+        else:
+            cols = [np.zeros(0, dtype=np.int64) for _ in columns]
+        df = pd.DataFrame(dict(zip(columns, cols, strict=True)))
+        return df.sort_values(order, kind="stable").reset_index(drop=True)
+
+    def episode_table(self) -> pd.DataFrame:
+        """One row per ended episode (complete or truncated), by run, group, episode."""
+        df = self._table(self._episodes, EPISODE_COLUMNS, ["run", "group", "episode"])
+        df["truncated"] = 1 - df["complete"]
+        return df
+
+    def update_table(self) -> pd.DataFrame:
+        """All recorded Q-updates (``WATCH_COLUMNS``), by run, step and agent."""
+        df = self._table(self._updates, WATCH_COLUMNS, ["run", "step", "agent"])
+        for col in ("reward", "alpha", "q_before", "q_after", "bootstrap", "q_north",
+                    "q_east", "q_south", "q_west"):
+            df[col] = df[col].astype(np.float64)
+        return df
+
+    def transition_table(self) -> pd.DataFrame | None:
+        """``transitions.csv``: one row per Q-update, or None if not recorded."""
+        return self.update_table()[TRANSITION_COLUMNS] if self.transitions else None
+
+    def watch_table(self) -> pd.DataFrame | None:
+        """``watch.csv``: the Q-updates of watched states, or None if none are watched."""
+        if not self.watch.size:
+            return None
+        df = self.update_table()
+        return df[df["cell"].isin(self.watch)].reset_index(drop=True)
+
+
+def to_csv_text(df: pd.DataFrame) -> str:
+    """CSV text with the fixed float format and Unix newlines."""
+    return df.to_csv(index=False, float_format=FLOAT_FORMAT, lineterminator="\n")

@@ -1,0 +1,45 @@
+"""Random streams: one ``numpy.random.Generator`` per run, from ``SeedSequence`` children.
+
+Run ``r`` of sweep point ``p`` draws from ``SeedSequence(seed, spawn_key=(p, r))``
+(``train`` is point 0), so a run's numbers depend only on the root seed and its
+coordinates, never on which other runs share its batch, on ``--jobs`` or on the
+backend. Each step consumes exactly ``2 * agents`` uniforms from every run's
+stream, whether they are used or not, so the streams stay aligned.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+
+def run_seeds(seed: int, runs: int | range, point: int = 0) -> list[np.random.SeedSequence]:
+    """``SeedSequence(seed, spawn_key=(point, r))`` for each run index r."""
+    idx = range(runs) if isinstance(runs, int) else runs
+    return [np.random.SeedSequence(seed, spawn_key=(point, r)) for r in idx]
+
+
+class Streams:
+    """Per-step uniforms ``[R, K, 2]`` for a batch of runs, drawn in blocks.
+
+    The Python loop over runs happens once per ``block`` steps, not in every step.
+    Drawing ``(B, K, 2)`` doubles twice gives the same numbers as ``(2B, K, 2)`` once,
+    so the block size never changes a result.
+    """
+
+    def __init__(self, seeds: list[np.random.SeedSequence], agents: int, block: int = 512):
+        self.generators = [np.random.Generator(np.random.PCG64(s)) for s in seeds]
+        self.agents = agents
+        self.block = block
+        self._buf = np.empty((len(seeds), 0, agents, 2))
+        self._i = 0
+
+    def next(self) -> np.ndarray:
+        """float ``[R, K, 2]``: the uniforms of the next step."""
+        if self._i >= self._buf.shape[1]:
+            self._buf = np.stack(
+                [g.random((self.block, self.agents, 2)) for g in self.generators], axis=0
+            )
+            self._i = 0
+        u = self._buf[:, self._i]
+        self._i += 1
+        return u

@@ -1,0 +1,140 @@
+"""Run an experiment: config -> map -> simulator + learners -> records -> files.
+
+The Python API behind ``qpatrol train``::
+
+    from qpatrol.config import load_config
+    from qpatrol.run import simulate, write_run
+
+    cfg = load_config("configs/paper.yaml", ["runs=4"])
+    result = simulate(cfg)            # all runs of the config as one batch
+    result.summary[0]["avg_idleness"]
+    write_run(result, "results/runs/demo")
+"""
+
+from __future__ import annotations
+
+import json
+from collections.abc import Callable
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from qpatrol import atomic, env, metrics
+from qpatrol.config import Config
+from qpatrol.maps import Map, get_map
+from qpatrol.records import Recorder, to_csv_text
+from qpatrol.rng import Streams, run_seeds
+
+Progress = Callable[[int, int], None]
+
+
+@dataclass
+class RunResult:
+    """Everything one batch of runs produced.
+
+    Attributes:
+        config: the resolved config.
+        map: the map it ran on.
+        params: the simulator parameters.
+        state: the final simulator state (Q-tables, visit counts, measures).
+        run_ids: int ``[R]``, the run number of each batch row.
+        episodes: one row per ended episode.
+        transitions: one row per Q-update (None unless ``record.transitions``).
+        watch: Q-updates of the watched states (None unless ``record.watch``).
+        summary: one dict of measures per run.
+    """
+
+    config: Config
+    map: Map
+    params: env.Params
+    state: env.State
+    run_ids: np.ndarray
+    episodes: pd.DataFrame
+    transitions: pd.DataFrame | None
+    watch: pd.DataFrame | None
+    summary: list[dict[str, Any]]
+
+
+def prepare(cfg: Config) -> tuple[Map, env.Params]:
+    """Load the map and build the parameters; raises ConfigError/MapError on bad input."""
+    m = get_map(cfg["map"])
+    return m, env.make_params(cfg, m)
+
+
+def simulate(cfg: Config, point: int = 0, runs: range | None = None,
+             progress: Progress | None = None,
+             prepared: tuple[Map, env.Params] | None = None) -> RunResult:
+    """Run ``runs`` (default: all of ``cfg['runs']``) of one config as one batch.
+
+    Run r draws from ``SeedSequence(cfg['seed'], spawn_key=(point, r))``; the result
+    of a run does not depend on which other runs share the batch. ``progress`` is
+    called as ``progress(steps_done, steps_total)``.
+    """
+    m, p = prepared or prepare(cfg)
+    idx = runs if runs is not None else range(cfg["runs"])
+    streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
+    starts = np.stack([env.place_agents(p, m, g) for g in streams.generators])
+    state = env.init_state(p, starts)
+    rec = Recorder(np.array(list(idx)), transitions=cfg["record.transitions"],
+                   watch=cfg["record.watch"])
+    total = cfg["steps"]
+    every = max(1, total // 200)
+    for i in range(total):
+        if not state.active.any():
+            break
+        env.step(state, p, streams.next(), rec)
+        if progress is not None and (i + 1) % every == 0:
+            progress(i + 1, total)
+    if progress is not None:
+        progress(total, total)
+    episodes = rec.episode_table()
+    return RunResult(
+        config=cfg, map=m, params=p, state=state, run_ids=rec.run_ids, episodes=episodes,
+        transitions=rec.transition_table(), watch=rec.watch_table(),
+        summary=metrics.summarize(state, episodes, rec.run_ids),
+    )
+
+
+def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path:
+    """Write a run folder atomically: it appears complete or not at all.
+
+    Files: ``config.yaml``, ``episodes.csv``, ``summary.json``, ``q_table.npz`` (``q``
+    float64 and ``n`` int64, ``[runs, agents, cells, heading, action]``),
+    ``visits.npz`` (``visits`` int64 ``[runs, agents, cells]``), and when recorded
+    ``transitions.csv`` and ``watch.csv``.
+    """
+    out = Path(out)
+    s = result.state
+    with atomic.staged_dir(out, replace=replace) as tmp:
+        (tmp / "config.yaml").write_text(result.config.to_yaml())
+        (tmp / "episodes.csv").write_text(to_csv_text(result.episodes))
+        summary = {"map": result.map.name, "cells": result.map.n_cells,
+                   "runs": result.summary}
+        (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+        _save_npz(tmp / "q_table.npz", q=s.q, n=s.n)
+        _save_npz(tmp / "visits.npz", visits=s.visits)
+        if result.transitions is not None:
+            (tmp / "transitions.csv").write_text(to_csv_text(result.transitions))
+        if result.watch is not None:
+            (tmp / "watch.csv").write_text(to_csv_text(result.watch))
+    return out
+
+
+def _save_npz(path: Path, **arrays: np.ndarray) -> None:
+    """Uncompressed npz with fixed zip timestamps, so equal arrays give equal bytes."""
+    import zipfile
+
+    with zipfile.ZipFile(path, "w", compression=zipfile.ZIP_STORED) as zf:
+        for name, arr in arrays.items():
+            info = zipfile.ZipInfo(f"{name}.npy", date_time=(1980, 1, 1, 0, 0, 0))
+            with zf.open(info, "w", force_zip64=True) as f:
+                np.lib.format.write_array(f, np.ascontiguousarray(arr), allow_pickle=False)
+
+
+def default_out_dir(cfg: Config, config_path: str | Path | None = None) -> Path:
+    """``results/runs/<config name>-<hash of the resolved config>``."""
+    stem = Path(config_path).stem if config_path else "run"
+    return Path("results") / "runs" / f"{stem}-{cfg.digest()}"
