@@ -46,6 +46,9 @@ def staged_dir(target: str | Path, replace: bool = False) -> Iterator[Path]:
     t = Path(target)
     t.parent.mkdir(parents=True, exist_ok=True)
     tmp = Path(tempfile.mkdtemp(prefix=f".{t.name}.", suffix=".tmp", dir=t.parent))
+    umask = os.umask(0)
+    os.umask(umask)
+    os.chmod(tmp, 0o777 & ~umask)
     try:
         yield tmp
         if t.exists():

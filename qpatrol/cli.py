@@ -19,7 +19,9 @@ from qpatrol.progress import Bar
 
 app = typer.Typer(
     help="Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.",
-    no_args_is_help=True, add_completion=False, pretty_exceptions_enable=False,
+    no_args_is_help=True,
+    add_completion=False,
+    pretty_exceptions_enable=False,
 )
 maps_app = typer.Typer(help="List, show and check maps.", no_args_is_help=True)
 config_app = typer.Typer(help="Config keys and resolved configs.", no_args_is_help=True)
@@ -28,8 +30,12 @@ app.add_typer(config_app, name="config")
 
 SetOpt = Annotated[
     list[str] | None,
-    typer.Option("--set", "-s", metavar="KEY=VALUE",
-                 help="Override a config key, e.g. --set learning.gamma=0.5 (repeatable)."),
+    typer.Option(
+        "--set",
+        "-s",
+        metavar="KEY=VALUE",
+        help="Override a config key, e.g. --set learning.gamma=0.5 (repeatable).",
+    ),
 ]
 
 
@@ -43,8 +49,10 @@ def fail(message: str, code: int = 2) -> None:
 def train(
     config: Annotated[Path, typer.Argument(help="YAML experiment config.")],
     set_: SetOpt = None,
-    out: Annotated[Path | None, typer.Option(
-        "--out", "-o", help="Output folder [default: results/runs/<config>-<hash>].")] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Output folder [default: results/runs/<config>-<hash>]."),
+    ] = None,
     force: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
 ) -> None:
@@ -71,8 +79,15 @@ def train(
 def _print_summary(rows: list[dict]) -> None:
     import numpy as np
 
-    keys = ["steps", "episodes_completed", "mean_steps_per_episode", "coverage",
-            "avg_idleness", "worst_idleness", "division_of_labour"]
+    keys = [
+        "steps",
+        "episodes_completed",
+        "mean_steps_per_episode",
+        "coverage",
+        "avg_idleness",
+        "worst_idleness",
+        "division_of_labour",
+    ]
     typer.echo(f"{'measure':24s} {'mean':>12s} {'min':>12s} {'max':>12s}   over {len(rows)} runs")
     for k in keys:
         vals = np.array([r[k] for r in rows if r[k] is not None], dtype=float)
@@ -88,8 +103,10 @@ def maps_list() -> None:
     for name, path in available_maps().items():
         try:
             m = load_map(path)
-            typer.echo(f"{name:12s} {m.shape[1]:3d}x{m.shape[0]:<3d} {m.n_cells:5d} cells  "
-                       f"{len(m.starts)} starts  {len(m.homes)} H   {m.description[:60]}")
+            typer.echo(
+                f"{name:12s} {m.shape[1]:3d}x{m.shape[0]:<3d} {m.n_cells:5d} cells  "
+                f"{len(m.starts)} starts  {len(m.homes)} H   {m.description[:60]}"
+            )
         except MapError as e:
             typer.echo(f"{name:12s} BROKEN: {e}")
 
@@ -111,8 +128,10 @@ def maps_show(
         typer.echo(f"wrote {png}")
         return
     typer.echo(f"{m.name}: {m.description}")
-    typer.echo(f"{m.shape[1]} x {m.shape[0]} grid, {m.n_cells} free cells, starts "
-               f"{m.starts.tolist()}, charging stations {m.homes.tolist()}")
+    typer.echo(
+        f"{m.shape[1]} x {m.shape[0]} grid, {m.n_cells} free cells, starts "
+        f"{m.starts.tolist()}, charging stations {m.homes.tolist()}"
+    )
     typer.echo(render_states(m))
 
 
@@ -123,8 +142,9 @@ def maps_check(files: Annotated[list[Path], typer.Argument(help="Map files.")]) 
     for f in files:
         try:
             m = load_map(f)
-            typer.echo(f"{f}: ok ({m.n_cells} free cells, {len(m.starts)} starts, "
-                       f"{len(m.homes)} H)")
+            typer.echo(
+                f"{f}: ok ({m.n_cells} free cells, {len(m.starts)} starts, {len(m.homes)} H)"
+            )
         except MapError as e:
             typer.echo(f"qpatrol: error: {e}", err=True)
             bad += 1

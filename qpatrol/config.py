@@ -72,35 +72,97 @@ SCHEMA: tuple[Field, ...] = (
     F("agents", "int", 4, "robots in the team", low=1, high=64),
     F("runs", "int", 1, "independent runs, each with its own seed", low=1, high=100000),
     F("seed", "int", 0, "root seed; run r draws from SeedSequence(seed, spawn_key=(r,))", low=0),
-    F("steps", "int", 5000, "team steps per run (an upper bound when `episodes` is set)",
-      low=1, high=10**9),
-    F("episodes", "int", None, "stop a run after this many episodes have ended (null: run "
-      "all `steps`)", low=1, nullable=True),
-    F("max_episode_steps", "int", 10000, "an episode still running after this many team "
-      "steps ends as truncated (null: never)", low=1, nullable=True),
+    F(
+        "steps",
+        "int",
+        5000,
+        "team steps per run (an upper bound when `episodes` is set)",
+        low=1,
+        high=10**9,
+    ),
+    F(
+        "episodes",
+        "int",
+        None,
+        "stop a run after this many episodes have ended (null: run all `steps`)",
+        low=1,
+        nullable=True,
+    ),
+    F(
+        "max_episode_steps",
+        "int",
+        10000,
+        "an episode still running after this many team steps ends as truncated (null: never)",
+        low=1,
+        nullable=True,
+    ),
     F("learning.gamma", "float", 0.1, "discount factor", low=0.0, high=1.0, low_open=False),
-    F("learning.multiplier", "float", 100.0, "scale of the initial Q-values", low=0.0,
-      low_open=True, high=1e12),
+    F(
+        "learning.multiplier",
+        "float",
+        100.0,
+        "scale of the initial Q-values",
+        low=0.0,
+        low_open=True,
+        high=1e12,
+    ),
     F("learning.q_init.north", "float", 3.0, "initial Q of North (before multiplier)"),
     F("learning.q_init.east", "float", 2.0, "initial Q of East (before multiplier)"),
     F("learning.q_init.south", "float", 1.0, "initial Q of South (before multiplier)"),
     F("learning.q_init.west", "float", 2.0, "initial Q of West (before multiplier)"),
-    F("learning.epsilon", "float", 0.0, "probability of a uniformly random legal move",
-      low=0.0, high=1.0),
-    F("learning.state_space", "choice", "cell_heading", "Q-table state: (cell, heading) as "
-      "in the paper, or cell alone (ablation)", choices=("cell_heading", "cell")),
-    F("learning.initial_heading", "choice", "north", "heading an agent has before its first "
-      "move", choices=("north", "east", "south", "west")),
+    F(
+        "learning.epsilon",
+        "float",
+        0.0,
+        "probability of a uniformly random legal move",
+        low=0.0,
+        high=1.0,
+    ),
+    F(
+        "learning.state_space",
+        "choice",
+        "cell_heading",
+        "Q-table state: (cell, heading) as in the paper, or cell alone (ablation)",
+        choices=("cell_heading", "cell"),
+    ),
+    F(
+        "learning.initial_heading",
+        "choice",
+        "north",
+        "heading an agent has before its first move",
+        choices=("north", "east", "south", "west"),
+    ),
     F("reward.dot_value", "float", 1.0, "reward for eating a dot", low=0.0),
     F("reward.big_dot_value", "float", 5.0, "reward for eating a big dot (`o`)", low=0.0),
-    F("reward.incremental_value", "float", 1.0, "maximum of incrementalDot, reached when a "
-      "cell has been unvisited for `idle_horizon` steps", low=0.0),
-    F("reward.idle_horizon", "float", 100.0, "team steps of idleness at which incrementalDot "
-      "saturates", low=0.0, low_open=True),
-    F("reward.lambda", "float", 1.0, "weight of lambda = dots eaten / state visits in the "
-      "episode (0 turns it off)", low=0.0),
-    F("team.communication", "bool", True, "share one dot map and one last-visit map "
-      "(off: each agent has private ones)"),
+    F(
+        "reward.incremental_value",
+        "float",
+        1.0,
+        "maximum of incrementalDot, reached when a "
+        "cell has been unvisited for `idle_horizon` steps",
+        low=0.0,
+    ),
+    F(
+        "reward.idle_horizon",
+        "float",
+        100.0,
+        "team steps of idleness at which incrementalDot saturates",
+        low=0.0,
+        low_open=True,
+    ),
+    F(
+        "reward.lambda",
+        "float",
+        1.0,
+        "weight of lambda = dots eaten / state visits in the episode (0 turns it off)",
+        low=0.0,
+    ),
+    F(
+        "team.communication",
+        "bool",
+        True,
+        "share one dot map and one last-visit map (off: each agent has private ones)",
+    ),
     F("team.avoid_collisions", "bool", True, "mask moves into occupied or claimed cells"),
     F("battery.enabled", "bool", True, "simulate battery, homing and charging"),
     F("battery.capacity", "int", 1000, "moves on a full charge", low=1),
@@ -159,10 +221,11 @@ def check_value(key: str, value: Any) -> Any:
     if key not in FIELDS:
         raise _unknown(key)
     f = FIELDS[key]
+    original = value
 
     def bad(why: str = "") -> ConfigError:
         got = f" ({why})" if why else ""
-        return ConfigError(f"{key}: got {value!r}{got}; allowed: {f.allowed()}")
+        return ConfigError(f"{key}: got {original!r}{got}; allowed: {f.allowed()}")
 
     if value is None:
         if f.nullable:

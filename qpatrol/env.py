@@ -109,8 +109,11 @@ def make_params(cfg: Config, m: Map) -> Params:
     if not has_dot.any():
         raise ConfigError(f"map: {m.name} has no dot, so no episode could ever end")
     homes = m.homes
-    home_dist = np.stack([bfs(m.neighbors, int(h)) for h in homes]) if homes.size else (
-        np.zeros((0, c), dtype=np.int64))
+    home_dist = (
+        np.stack([bfs(m.neighbors, int(h)) for h in homes])
+        if homes.size
+        else (np.zeros((0, c), dtype=np.int64))
+    )
     home_dir = np.full((homes.size, c), -1, dtype=np.int64)
     for i in range(homes.size):
         d = home_dist[i]
@@ -296,14 +299,27 @@ class Recorder(Protocol):
 
     wants_updates: bool
 
-    def updates(self, t: int, agent: int, runs: np.ndarray, cell: np.ndarray,
-                heading: np.ndarray, action: np.ndarray, reward: np.ndarray,
-                next_cell: np.ndarray, next_heading: np.ndarray, alpha: np.ndarray,
-                q_before: np.ndarray, q_after: np.ndarray, bootstrap: np.ndarray,
-                q_row: np.ndarray) -> None: ...
+    def updates(
+        self,
+        t: int,
+        agent: int,
+        runs: np.ndarray,
+        cell: np.ndarray,
+        heading: np.ndarray,
+        action: np.ndarray,
+        reward: np.ndarray,
+        next_cell: np.ndarray,
+        next_heading: np.ndarray,
+        alpha: np.ndarray,
+        q_before: np.ndarray,
+        q_after: np.ndarray,
+        bootstrap: np.ndarray,
+        q_row: np.ndarray,
+    ) -> None: ...
 
-    def episodes(self, t: int, runs: np.ndarray, groups: np.ndarray, state: State,
-                 complete: np.ndarray) -> None: ...
+    def episodes(
+        self, t: int, runs: np.ndarray, groups: np.ndarray, state: State, complete: np.ndarray
+    ) -> None: ...
 
 
 def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) -> State:
@@ -338,8 +354,11 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
                 done = resting & (s.rest[:, k] <= 0)
                 s.mode[done, k] = PATROL
                 s.charge[done, k] = p.capacity
-            low = (active & (s.mode[:, k] == PATROL)
-                   & (s.charge[:, k] <= p.nearest_home_dist[c] + p.margin))
+            low = (
+                active
+                & (s.mode[:, k] == PATROL)
+                & (s.charge[:, k] <= p.nearest_home_dist[c] + p.margin)
+            )
             s.mode[low, k] = HOMING
             arrived = active & (s.mode[:, k] == HOMING) & p.is_home[c]
             if arrived.any():
@@ -352,15 +371,14 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
         targets = p.neighbors[c]  # [R, 4]
         legal = targets >= 0
         if p.avoid_collisions and K > 1:
-            others = np.concatenate([start_pos[:, :k], start_pos[:, k + 1:], s.pos[:, :k]],
-                                    axis=1)
+            others = np.concatenate([start_pos[:, :k], start_pos[:, k + 1 :], s.pos[:, :k]], axis=1)
             legal &= ~(targets[:, :, None] == others[:, None, :]).any(axis=2)
 
         # --- choice: learned policy while patrolling, shortest path while homing -----
         q_row = s.q[ar, k, c, hs]  # [R, 4]
         action, can = learner.choose(q_row, legal, u[:, k, 0], u[:, k, 1], p.epsilon)
         if homing.any():
-            occupied = (start_pos[:, :, None] == p.homes[None, None, :])  # [R, K, H]
+            occupied = start_pos[:, :, None] == p.homes[None, None, :]  # [R, K, H]
             occupied[:, k] = False
             dist = p.home_dist[:, c].T + occupied.any(axis=1) * (10 * p.n_cells)  # [R, H]
             goal = dist.argmin(axis=1)
@@ -388,9 +406,11 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
         s.last[movers, g, c1] = t
         s.ep_seen[movers, g, c1] = True
         s.ep_seen_state[movers, g, c1, a] = True
-        reward = (np.where(eaten, p.dot_value[c1], 0.0)
-                  + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
-                  + p.lambda_weight * s.ep_dots[movers, g] / s.ep_visits[movers, g])
+        reward = (
+            np.where(eaten, p.dot_value[c1], 0.0)
+            + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
+            + p.lambda_weight * s.ep_dots[movers, g] / s.ep_visits[movers, g]
+        )
         s.pos[movers, k] = c1
         s.head[movers, k] = a
         if p.battery:
@@ -413,14 +433,29 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
             rl, ca, ha, aa, cb = movers[learn], c0[learn], h0[learn], a[learn], c1[learn]
             hb = aa if p.use_heading else np.zeros_like(aa)
             target, bootstrap = learner.td_target(
-                reward[learn], s.q[rl, k, cb, hb], p.wall_legal[cb], p.gamma)
+                reward[learn], s.q[rl, k, cb, hb], p.wall_legal[cb], p.gamma
+            )
             q_before = s.q[rl, k, ca, ha, aa]
             q_after, n_after, alpha = learner.update(q_before, s.n[rl, k, ca, ha, aa], target)
             s.q[rl, k, ca, ha, aa] = q_after
             s.n[rl, k, ca, ha, aa] = n_after
             if record:
-                rec.updates(t, k, rl, ca, ha, aa, reward[learn], cb, hb, alpha, q_before,
-                            q_after, bootstrap, s.q[rl, k, ca, ha])
+                rec.updates(
+                    t,
+                    k,
+                    rl,
+                    ca,
+                    ha,
+                    aa,
+                    reward[learn],
+                    cb,
+                    hb,
+                    alpha,
+                    q_before,
+                    q_after,
+                    bootstrap,
+                    s.q[rl, k, ca, ha],
+                )
 
         # --- homing agents that reached a station start charging --------------------
         if p.battery:

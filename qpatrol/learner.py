@@ -24,7 +24,10 @@ import numpy as np
 
 
 def choose(
-    q_row: np.ndarray, legal: np.ndarray, u_explore: np.ndarray, u_pick: np.ndarray,
+    q_row: np.ndarray,
+    legal: np.ndarray,
+    u_explore: np.ndarray,
+    u_pick: np.ndarray,
     epsilon: float,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy action with random tie-breaks, or a random legal one with probability epsilon.

@@ -186,8 +186,7 @@ def parse_map(text: str, source: str = "<string>") -> Map:
         for j, ch in enumerate(row):
             if ch not in ALLOWED:
                 raise MapError(
-                    f"{source}:{lineno}:{j + 1}: unknown character {ch!r} "
-                    "(allowed: # . - o H 0-9)"
+                    f"{source}:{lineno}:{j + 1}: unknown character {ch!r} (allowed: # . - o H 0-9)"
                 )
     n_rows = len(rows)
     grid = np.array([list(r) for r in rows])
@@ -212,7 +211,7 @@ def parse_map(text: str, source: str = "<string>") -> Map:
     homes = np.flatnonzero(chars == HOME)
 
     start_at: dict[int, tuple[int, int]] = {}
-    for (r, c) in np.argwhere(np.char.isdigit(grid)):
+    for r, c in np.argwhere(np.char.isdigit(grid)):
         k = int(grid[r, c])
         if k in start_at:
             r0, c0 = start_at[k]

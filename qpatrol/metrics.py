@@ -42,18 +42,20 @@ def summarize(state: State, episodes: pd.DataFrame, run_ids: np.ndarray) -> list
         done = ep[ep["complete"] == 1]
         measured = int(state.measured[i])
         gaps = int(state.gap_count[i])
-        out.append({
-            "run": int(run),
-            "steps": int(state.steps_done[i]),
-            "episodes_completed": int(len(done)),
-            "episodes_truncated": int((ep["complete"] == 0).sum()),
-            "mean_steps_per_episode": float(done["steps"].mean()) if len(done) else None,
-            "coverage": float(coverage[i]),
-            "avg_idleness": float(state.idle_sum[i] / measured) if measured else None,
-            "worst_idleness": int(state.idle_max[i]) if measured else None,
-            "mean_interval": float(state.gap_sum[i] / gaps) if gaps else None,
-            "max_interval": int(state.gap_max[i]) if gaps else None,
-            "division_of_labour": None if np.isnan(dol[i]) else float(dol[i]),
-            "waits": int(state.waits[i].sum()),
-        })
+        out.append(
+            {
+                "run": int(run),
+                "steps": int(state.steps_done[i]),
+                "episodes_completed": int(len(done)),
+                "episodes_truncated": int((ep["complete"] == 0).sum()),
+                "mean_steps_per_episode": float(done["steps"].mean()) if len(done) else None,
+                "coverage": float(coverage[i]),
+                "avg_idleness": float(state.idle_sum[i] / measured) if measured else None,
+                "worst_idleness": int(state.idle_max[i]) if measured else None,
+                "mean_interval": float(state.gap_sum[i] / gaps) if gaps else None,
+                "max_interval": int(state.gap_max[i]) if gaps else None,
+                "division_of_labour": None if np.isnan(dol[i]) else float(dol[i]),
+                "waits": int(state.waits[i].sum()),
+            }
+        )
     return out

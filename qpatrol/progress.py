@@ -14,8 +14,9 @@ class Bar:
     ``force`` is set.
     """
 
-    def __init__(self, label: str, stream: TextIO | None = None, force: bool = False,
-                 unit: str = "steps"):
+    def __init__(
+        self, label: str, stream: TextIO | None = None, force: bool = False, unit: str = "steps"
+    ):
         self.label = label
         self.unit = unit
         self.stream = stream or sys.stderr
@@ -36,8 +37,10 @@ class Bar:
         filled = int(round(frac * width))
         elapsed = now - self.start
         eta = elapsed / frac - elapsed if frac > 0 else 0.0
-        line = (f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
-                f"{done}/{total} {self.unit}  {elapsed:5.1f}s  eta {eta:5.1f}s")
+        line = (
+            f"\r{self.label} [{'#' * filled}{'.' * (width - filled)}] "
+            f"{done}/{total} {self.unit}  {elapsed:5.1f}s  eta {eta:5.1f}s"
+        )
         self.stream.write(line)
         self.stream.flush()
         self._drawn = True

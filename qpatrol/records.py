@@ -3,7 +3,8 @@
 The simulator calls a :class:`Recorder` during each step with arrays over the runs
 involved; the recorder keeps only what the config asks for and turns it into
 ``pandas.DataFrame`` tables at the end. CSV files are written with one fixed float
-format so the same config and seed give byte-identical files.
+format (the shortest round-trip repr) so the same config and seed give byte-identical
+files and a number read back is the number computed.
 """
 
 from __future__ import annotations
@@ -13,17 +14,35 @@ import pandas as pd
 
 from qpatrol.env import State
 
-#: printf format of every float written to CSV.
-FLOAT_FORMAT = "%.12g"
+#: Float format of every CSV: None = Python's shortest repr that reads back to the
+#: same float64, so files are exact, deterministic and replayable.
+FLOAT_FORMAT = None
 
 TRANSITION_COLUMNS = [
-    "run", "step", "agent", "cell", "heading", "action", "reward", "next_cell",
-    "next_heading", "alpha", "q_before", "q_after",
+    "run",
+    "step",
+    "agent",
+    "cell",
+    "heading",
+    "action",
+    "reward",
+    "next_cell",
+    "next_heading",
+    "alpha",
+    "q_before",
+    "q_after",
 ]
 WATCH_COLUMNS = TRANSITION_COLUMNS + ["bootstrap", "q_north", "q_east", "q_south", "q_west"]
 EPISODE_COLUMNS = [
-    "run", "episode", "start_step", "steps", "dots_eaten", "distinct_cells",
-    "distinct_states", "complete", "group",
+    "run",
+    "episode",
+    "start_step",
+    "steps",
+    "dots_eaten",
+    "distinct_cells",
+    "complete",
+    "distinct_states",
+    "group",
 ]
 
 
@@ -36,8 +55,12 @@ class Recorder:
         watch: states whose Q-updates are kept with the bootstrap term and Q row.
     """
 
-    def __init__(self, run_ids: np.ndarray, transitions: bool = False,
-                 watch: list[int] | tuple[int, ...] = ()):
+    def __init__(
+        self,
+        run_ids: np.ndarray,
+        transitions: bool = False,
+        watch: list[int] | tuple[int, ...] = (),
+    ):
         self.run_ids = np.asarray(run_ids, dtype=np.int64)
         self.transitions = transitions
         self.watch = np.asarray(sorted(watch), dtype=np.int64)
@@ -45,36 +68,78 @@ class Recorder:
         self._updates: list[list[np.ndarray]] = []
         self._episodes: list[list[np.ndarray]] = []
 
-    def updates(self, t, agent, runs, cell, heading, action, reward, next_cell,
-                next_heading, alpha, q_before, q_after, bootstrap, q_row) -> None:
+    def updates(
+        self,
+        t,
+        agent,
+        runs,
+        cell,
+        heading,
+        action,
+        reward,
+        next_cell,
+        next_heading,
+        alpha,
+        q_before,
+        q_after,
+        bootstrap,
+        q_row,
+    ) -> None:
         if not self.transitions:
             keep = np.isin(cell, self.watch)
             if not keep.any():
                 return
-            runs, cell, heading, action, reward = (x[keep] for x in (runs, cell, heading,
-                                                                      action, reward))
+            runs, cell, heading, action, reward = (
+                x[keep] for x in (runs, cell, heading, action, reward)
+            )
             next_cell, next_heading, alpha, q_before, q_after, bootstrap, q_row = (
-                x[keep] for x in (next_cell, next_heading, alpha, q_before, q_after,
-                                  bootstrap, q_row))
+                x[keep]
+                for x in (next_cell, next_heading, alpha, q_before, q_after, bootstrap, q_row)
+            )
         m = runs.size
-        self._updates.append([
-            self.run_ids[runs], np.full(m, t), np.full(m, agent), cell, heading, action,
-            reward, next_cell, next_heading, alpha, q_before, q_after, bootstrap,
-            q_row[:, 0], q_row[:, 1], q_row[:, 2], q_row[:, 3],
-        ])
+        self._updates.append(
+            [
+                self.run_ids[runs],
+                np.full(m, t),
+                np.full(m, agent),
+                cell,
+                heading,
+                action,
+                reward,
+                next_cell,
+                next_heading,
+                alpha,
+                q_before,
+                q_after,
+                bootstrap,
+                q_row[:, 0],
+                q_row[:, 1],
+                q_row[:, 2],
+                q_row[:, 3],
+            ]
+        )
 
-    def episodes(self, t: int, runs: np.ndarray, groups: np.ndarray, state: State,
-                 complete: np.ndarray) -> None:
+    def episodes(
+        self, t: int, runs: np.ndarray, groups: np.ndarray, state: State, complete: np.ndarray
+    ) -> None:
         start = state.ep_start[runs, groups]
-        self._episodes.append([
-            self.run_ids[runs], state.ep_count[runs, groups], start + 1, t - start,
-            state.ep_dots[runs, groups], state.ep_seen[runs, groups].sum(axis=1),
-            state.ep_seen_state[runs, groups].sum(axis=(1, 2)), complete.astype(np.int64),
-            groups,
-        ])
+        self._episodes.append(
+            [
+                self.run_ids[runs],
+                state.ep_count[runs, groups],
+                start + 1,
+                t - start,
+                state.ep_dots[runs, groups],
+                state.ep_seen[runs, groups].sum(axis=1),
+                complete.astype(np.int64),
+                state.ep_seen_state[runs, groups].sum(axis=(1, 2)),
+                groups,
+            ]
+        )
 
-    def _table(self, parts: list[list[np.ndarray]], columns: list[str],
-               order: list[str]) -> pd.DataFrame:
+    def _table(
+        self, parts: list[list[np.ndarray]], columns: list[str], order: list[str]
+    ) -> pd.DataFrame:
         if parts:
             cols = [np.concatenate([p[i] for p in parts]) for i in range(len(columns))]
         else:
@@ -91,8 +156,17 @@ class Recorder:
     def update_table(self) -> pd.DataFrame:
         """All recorded Q-updates (``WATCH_COLUMNS``), by run, step and agent."""
         df = self._table(self._updates, WATCH_COLUMNS, ["run", "step", "agent"])
-        for col in ("reward", "alpha", "q_before", "q_after", "bootstrap", "q_north",
-                    "q_east", "q_south", "q_west"):
+        for col in (
+            "reward",
+            "alpha",
+            "q_before",
+            "q_after",
+            "bootstrap",
+            "q_north",
+            "q_east",
+            "q_south",
+            "q_west",
+        ):
             df[col] = df[col].astype(np.float64)
         return df
 

@@ -64,9 +64,13 @@ def prepare(cfg: Config) -> tuple[Map, env.Params]:
     return m, env.make_params(cfg, m)
 
 
-def simulate(cfg: Config, point: int = 0, runs: range | None = None,
-             progress: Progress | None = None,
-             prepared: tuple[Map, env.Params] | None = None) -> RunResult:
+def simulate(
+    cfg: Config,
+    point: int = 0,
+    runs: range | None = None,
+    progress: Progress | None = None,
+    prepared: tuple[Map, env.Params] | None = None,
+) -> RunResult:
     """Run ``runs`` (default: all of ``cfg['runs']``) of one config as one batch.
 
     Run r draws from ``SeedSequence(cfg['seed'], spawn_key=(point, r))``; the result
@@ -78,8 +82,9 @@ def simulate(cfg: Config, point: int = 0, runs: range | None = None,
     streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
     starts = np.stack([env.place_agents(p, m, g) for g in streams.generators])
     state = env.init_state(p, starts)
-    rec = Recorder(np.array(list(idx)), transitions=cfg["record.transitions"],
-                   watch=cfg["record.watch"])
+    rec = Recorder(
+        np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
+    )
     total = cfg["steps"]
     every = max(1, total // 200)
     for i in range(total):
@@ -92,8 +97,14 @@ def simulate(cfg: Config, point: int = 0, runs: range | None = None,
         progress(total, total)
     episodes = rec.episode_table()
     return RunResult(
-        config=cfg, map=m, params=p, state=state, run_ids=rec.run_ids, episodes=episodes,
-        transitions=rec.transition_table(), watch=rec.watch_table(),
+        config=cfg,
+        map=m,
+        params=p,
+        state=state,
+        run_ids=rec.run_ids,
+        episodes=episodes,
+        transitions=rec.transition_table(),
+        watch=rec.watch_table(),
         summary=metrics.summarize(state, episodes, rec.run_ids),
     )
 
@@ -111,8 +122,7 @@ def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / "config.yaml").write_text(result.config.to_yaml())
         (tmp / "episodes.csv").write_text(to_csv_text(result.episodes))
-        summary = {"map": result.map.name, "cells": result.map.n_cells,
-                   "runs": result.summary}
+        summary = {"map": result.map.name, "cells": result.map.n_cells, "runs": result.summary}
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
         _save_npz(tmp / "q_table.npz", q=s.q, n=s.n)
         _save_npz(tmp / "visits.npz", visits=s.visits)

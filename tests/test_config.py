@@ -1,0 +1,109 @@
+from pathlib import Path
+
+import pytest
+
+from qpatrol.config import KEYS, ConfigError, defaults, from_flat, from_mapping, load_config
+
+REQUIRED = [
+    "map",
+    "agents",
+    "runs",
+    "seed",
+    "steps",
+    "max_episode_steps",
+    "learning.gamma",
+    "learning.multiplier",
+    "learning.q_init.north",
+    "learning.q_init.east",
+    "learning.q_init.south",
+    "learning.q_init.west",
+    "learning.epsilon",
+    "learning.state_space",
+    "reward.dot_value",
+    "reward.big_dot_value",
+    "reward.incremental_value",
+    "reward.idle_horizon",
+    "reward.lambda",
+    "team.communication",
+    "team.avoid_collisions",
+    "battery.enabled",
+    "battery.capacity",
+    "battery.margin",
+    "battery.charge_steps",
+    "record.transitions",
+    "record.watch",
+]
+
+
+def test_every_issue_key_exists_with_paper_defaults():
+    assert set(REQUIRED) <= set(KEYS)
+    d = defaults()
+    assert d["learning.gamma"] == 0.1
+    assert d["learning.multiplier"] == 100
+    assert [d[f"learning.q_init.{k}"] for k in ("north", "west", "east", "south")] == [3, 2, 2, 1]
+    assert d["learning.epsilon"] == 0.0
+
+
+def test_nested_yaml_and_overrides(tmp_path: Path):
+    p = tmp_path / "c.yaml"
+    p.write_text("agents: 2\nlearning:\n  gamma: 0.5\nteam:\n  communication: off\nbattery: off\n")
+    cfg = load_config(p, ["learning.gamma=0.7", "record.watch=[13, 4, 13]", "map=map_b"])
+    assert cfg["agents"] == 2
+    assert cfg["learning.gamma"] == 0.7
+    assert cfg["team.communication"] is False
+    assert cfg["battery.enabled"] is False
+    assert cfg["record.watch"] == [4, 13]
+    assert cfg["map"] == "map_b"
+    # the resolved YAML round-trips
+    again = tmp_path / "again.yaml"
+    again.write_text(cfg.to_yaml())
+    assert load_config(again).values == cfg.values
+    assert load_config(again).digest() == cfg.digest()
+
+
+@pytest.mark.parametrize(
+    "flat, words",
+    [
+        (
+            {"learning.gamma": 1.5},
+            "learning.gamma: got 1.5 (out of range); allowed: a number in [0, 1]",
+        ),
+        ({"agents": 0}, "agents: got 0 (out of range); allowed: an integer in [1, 64]"),
+        ({"agents": 2.5}, "agents: got 2.5; allowed: an integer"),
+        ({"agents": True}, "agents: got True"),
+        ({"learning.gama": 0.1}, "unknown config key 'learning.gama'"),
+        ({"team.communication": "maybe"}, "team.communication: got 'maybe'"),
+        ({"learning.state_space": "grid"}, "allowed: one of cell_heading, cell"),
+        ({"record.watch": [-1]}, "record.watch"),
+        ({"learning.multiplier": 0}, "learning.multiplier: got 0 (out of range)"),
+    ],
+)
+def test_bad_values_name_the_key(flat, words):
+    with pytest.raises(ConfigError) as e:
+        from_flat(flat)
+    assert words in str(e.value)
+    assert "\n" not in str(e.value)
+
+
+def test_unknown_nested_key_and_bad_group():
+    with pytest.raises(ConfigError, match="unknown config key 'learning.alpha'"):
+        from_mapping({"learning": {"alpha": 0.5}})
+    with pytest.raises(ConfigError, match="learning: expected a mapping"):
+        from_mapping({"learning": 3})
+
+
+def test_file_errors(tmp_path: Path):
+    with pytest.raises(ConfigError, match="no such config file"):
+        load_config(tmp_path / "missing.yaml")
+    bad = tmp_path / "bad.yaml"
+    bad.write_text("agents: [1,\n")
+    with pytest.raises(ConfigError, match=r"bad.yaml:\d+:\d+"):
+        load_config(bad)
+    with pytest.raises(ConfigError, match="expected KEY=VALUE"):
+        load_config(_ok(tmp_path), ["gamma"])
+
+
+def _ok(tmp_path: Path) -> Path:
+    p = tmp_path / "ok.yaml"
+    p.write_text("agents: 1\n")
+    return p
