@@ -50,16 +50,25 @@ def choose(
     return pick(cand, u_pick)
 
 
+#: Candidate masks as 4-bit numbers (N=1, E=2, S=4, W=8): how many candidates each has,
+#: and the j-th candidate's direction in N, E, S, W order.
+_BITS = np.array([1, 2, 4, 8])
+_COUNT = np.array([bin(m).count("1") for m in range(16)])
+_NTH = np.array(
+    [[d for d in range(4) if m >> d & 1] + [0] * (4 - bin(m).count("1")) for m in range(16)]
+)
+
+
 def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Choose uniformly among the True entries of each row of ``cand`` ``[B, 4]``.
 
     The j-th candidate (in N, E, S, W order) is taken, ``j = floor(u * n_candidates)``.
-    Returns ``(action [B], has_move [B])``.
+    Returns ``(action [B], has_move [B])``; action is 0 where there is no candidate.
     """
-    count = cand.sum(axis=1)
+    mask = cand @ _BITS
+    count = _COUNT[mask]
     j = np.minimum((u * count).astype(np.int64), np.maximum(count - 1, 0))
-    action = np.argmax(np.cumsum(cand, axis=1) > j[:, None], axis=1)
-    return action, count > 0
+    return _NTH[mask, j], count > 0
 
 
 def td_target(

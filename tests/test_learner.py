@@ -44,3 +44,16 @@ def test_update_rule_by_hand():
     q, n, alpha = learner.update(np.array([10.0]), np.array([3]), target)
     assert n[0] == 4 and alpha[0] == 0.25
     assert q[0] == 10.0 + 0.25 * (5.5 - 10.0)
+
+
+def test_pick_takes_the_jth_candidate_for_every_mask():
+    import itertools
+
+    masks = np.array(list(itertools.product([False, True], repeat=4)))
+    for u in np.linspace(0.0, 0.999, 37):
+        action, ok = learner.pick(masks, np.full(16, u))
+        for row, a, has in zip(masks, action, ok, strict=True):
+            cands = np.flatnonzero(row)
+            assert has == (cands.size > 0)
+            if cands.size:
+                assert a == cands[int(u * cands.size)]
