@@ -170,6 +170,14 @@ SCHEMA: tuple[Field, ...] = (
     F("battery.charge_steps", "int", 50, "team steps spent charging at `H`", low=0),
     F("record.transitions", "bool", False, "write transitions.csv, one row per Q-update"),
     F("record.watch", "cells", [], "states whose Q-updates are traced to watch.csv"),
+    F(
+        "record.trajectory",
+        "int",
+        0,
+        "write trajectory.csv: every agent's cell in each run's last N team steps (0: off)",
+        low=0,
+        high=10**6,
+    ),
     F("record.warmup", "int", 0, "team steps before the patrolling measures start", low=0),
 )
 FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}

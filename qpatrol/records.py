@@ -182,6 +182,46 @@ class Recorder:
         return df[df["cell"].isin(self.watch)].reset_index(drop=True)
 
 
+class Tail:
+    """Every agent's cell over each run's last ``n`` team steps (a ring buffer per run)."""
+
+    def __init__(self, n: int, state: State):
+        self.n = n
+        if n:
+            self.pos = np.zeros((state.n_runs, n, state.pos.shape[1]), dtype=np.int64)
+
+    def observe(self, state: State) -> None:
+        """Call after each step: stores the cells of the runs that took this step."""
+        if self.n:
+            ran = np.flatnonzero(state.steps_done == state.t)
+            self.pos[ran, (state.t - 1) % self.n] = state.pos[ran]
+
+    def table(self, state: State, run_ids: np.ndarray, coords: np.ndarray) -> pd.DataFrame | None:
+        """``trajectory.csv``: run, step, agent, cell, row, col (None when off)."""
+        if not self.n:
+            return None
+        parts = []
+        for i, run in enumerate(np.asarray(run_ids).tolist()):
+            last = int(state.steps_done[i])
+            steps = np.arange(max(1, last - self.n + 1), last + 1)
+            cells = self.pos[i, (steps - 1) % self.n]  # [T, K]
+            k = cells.shape[1]
+            parts.append(
+                pd.DataFrame(
+                    {
+                        "run": run,
+                        "step": np.repeat(steps, k),
+                        "agent": np.tile(np.arange(k), steps.size),
+                        "cell": cells.ravel(),
+                    }
+                )
+            )
+        df = pd.concat(parts, ignore_index=True)
+        df["row"] = coords[df["cell"].to_numpy(), 0]
+        df["col"] = coords[df["cell"].to_numpy(), 1]
+        return df
+
+
 def to_csv_text(df: pd.DataFrame) -> str:
     """CSV text with the fixed float format and Unix newlines."""
     return df.to_csv(index=False, float_format=FLOAT_FORMAT, lineterminator="\n")

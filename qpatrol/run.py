@@ -25,7 +25,7 @@ import pandas as pd
 from qpatrol import atomic, env, metrics
 from qpatrol.config import Config
 from qpatrol.maps import Map, get_map
-from qpatrol.records import Recorder, to_csv_text
+from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
 
 Progress = Callable[[int, int], None]
@@ -44,6 +44,8 @@ class RunResult:
         episodes: one row per ended episode.
         transitions: one row per Q-update (None unless ``record.transitions``).
         watch: Q-updates of the watched states (None unless ``record.watch``).
+        trajectory: agents' cells over each run's last steps (None unless
+            ``record.trajectory``).
         summary: one dict of measures per run.
     """
 
@@ -55,6 +57,7 @@ class RunResult:
     episodes: pd.DataFrame
     transitions: pd.DataFrame | None
     watch: pd.DataFrame | None
+    trajectory: pd.DataFrame | None
     summary: list[dict[str, Any]]
 
 
@@ -87,10 +90,12 @@ def simulate(
     )
     total = cfg["steps"]
     every = max(1, total // 200)
+    tail = Tail(cfg["record.trajectory"], state)
     for i in range(total):
         if not state.active.any():
             break
         env.step(state, p, streams.next(), rec)
+        tail.observe(state)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
     if progress is not None:
@@ -105,6 +110,7 @@ def simulate(
         episodes=episodes,
         transitions=rec.transition_table(),
         watch=rec.watch_table(),
+        trajectory=tail.table(state, rec.run_ids, m.coords),
         summary=metrics.summarize(state, episodes, rec.run_ids),
     )
 
@@ -115,7 +121,7 @@ def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path
     Files: ``config.yaml``, ``episodes.csv``, ``summary.json``, ``q_table.npz`` (``q``
     float64 and ``n`` int64, ``[runs, agents, cells, heading, action]``),
     ``visits.npz`` (``visits`` int64 ``[runs, agents, cells]``), and when recorded
-    ``transitions.csv`` and ``watch.csv``.
+    ``transitions.csv``, ``watch.csv`` and ``trajectory.csv``.
     """
     out = Path(out)
     s = result.state
@@ -130,6 +136,10 @@ def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path
             (tmp / "transitions.csv").write_text(to_csv_text(result.transitions))
         if result.watch is not None:
             (tmp / "watch.csv").write_text(to_csv_text(result.watch))
+        if result.trajectory is not None:
+            (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
+        if result.trajectory is not None:
+            (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
     return out
 
 

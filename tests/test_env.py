@@ -287,3 +287,28 @@ def test_episode_quota_stops_each_run(rooms_map):
     assert r.episodes.groupby("run").size().tolist() == [2, 2, 2]
     ends = r.episodes.groupby("run").apply(lambda e: (e.start_step + e.steps - 1).max())
     assert [x["steps"] for x in r.summary] == ends.tolist()
+
+
+def test_trajectory_tail_ends_at_the_final_positions(rooms_map):
+    cfg = from_flat(
+        {
+            "map": str(rooms_map),
+            "agents": 2,
+            "runs": 3,
+            "steps": 5000,
+            "episodes": 2,
+            "record.trajectory": 7,
+            "battery.enabled": False,
+        }
+    )
+    r = simulate(cfg)
+    tr = r.trajectory
+    for i, summary in enumerate(r.summary):
+        mine = tr[tr.run == i]
+        assert mine.step.min() == summary["steps"] - 6 and mine.step.max() == summary["steps"]
+        last = mine[mine.step == summary["steps"]].sort_values("agent")
+        assert last.cell.tolist() == r.state.pos[i].tolist()
+        # consecutive cells of an agent are equal or neighbours
+        for _, a in mine.groupby("agent"):
+            c = a.cell.to_numpy()
+            assert all(y == x or y in r.map.neighbors[x] for x, y in zip(c, c[1:], strict=False))
