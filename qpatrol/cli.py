@@ -76,6 +76,114 @@ def train(
     typer.echo(f"wrote {target}")
 
 
+@app.command(
+    context_settings={"help_option_names": ["-h", "--help"]},
+    epilog="Examples: qpatrol sweep gamma | qpatrol sweep learning.gamma --values 0.1,0.5 "
+    "configs/paper.yaml | qpatrol sweep --grid agents=1,2,4 --grid team.communication=on,off "
+    "configs/team_size.yaml",
+)
+def sweep(
+    args: Annotated[
+        list[str] | None,
+        typer.Argument(
+            metavar="[NAME|PARAM] [CONFIG]",
+            help="A named sweep (gamma, multiplier, team-size) with an optional CONFIG, or a "
+            "config key PARAM with --values and a CONFIG, or just CONFIG with --grid.",
+        ),
+    ] = None,
+    values: Annotated[
+        str | None, typer.Option("--values", "-v", help="Comma-separated values of PARAM.")
+    ] = None,
+    grid: Annotated[
+        list[str] | None,
+        typer.Option("--grid", "-g", metavar="KEY=V1,V2", help="A grid axis (repeatable)."),
+    ] = None,
+    runs: Annotated[int | None, typer.Option(help="Runs per point (sets `runs`).")] = None,
+    jobs: Annotated[
+        int, typer.Option("--jobs", "-j", help="Parallel workers (-1: all cores).")
+    ] = 1,
+    out: Annotated[
+        Path | None,
+        typer.Option("--out", "-o", help="Sweep folder [default: results/sweeps/NAME]."),
+    ] = None,
+    set_: SetOpt = None,
+    backend: Annotated[str, typer.Option(help="joblib or dask.")] = "joblib",
+    scheduler: Annotated[
+        str | None, typer.Option(help="Dask scheduler address (with --backend dask).")
+    ] = None,
+    force: Annotated[bool, typer.Option(help="Discard an existing sweep in --out.")] = False,
+) -> None:
+    """Run a config at many parameter values, each point's runs as one batch, in parallel.
+
+    Resumable: rerunning the same command skips finished points. Writes
+    OUT/points/<id>/ (the files `train` writes) and OUT/results.csv.
+    """
+    from qpatrol import sweep as sw
+
+    args = list(args or [])
+    try:
+        if not grid and args and args[0] in sw.NAMED_SWEEPS and values is None:
+            named = sw.NAMED_SWEEPS[args[0]]
+            name = args[0]
+            config = Path(args[1]) if len(args) > 1 else _repo_path(named.config)
+            points = named.points()
+            if len(args) > 2:
+                fail(f"sweep {name}: too many arguments {args[2:]}")
+        elif grid:
+            if len(args) != 1:
+                fail("sweep --grid: give exactly one CONFIG")
+            config, name = Path(args[0]), "grid"
+            axes = {}
+            for g in grid:
+                if "=" not in g:
+                    fail(f"--grid {g!r}: expected KEY=V1,V2,...")
+                key, text = g.split("=", 1)
+                axes[key.strip()] = sw.parse_values(key.strip(), text)
+            points = sw.grid_points(axes)
+        else:
+            if len(args) != 2 or values is None:
+                known = ", ".join(sw.NAMED_SWEEPS)
+                fail(
+                    f"sweep: give a named sweep ({known}), or PARAM --values V1,V2 CONFIG, "
+                    "or --grid KEY=V1,V2 CONFIG"
+                )
+            name, config = args[0], Path(args[1])
+            points = sw.points_for(name, sw.parse_values(name, values))
+        overrides = list(set_ or []) + ([f"runs={runs}"] if runs is not None else [])
+        base = config_mod.load_config(config, overrides)
+        target = out or Path("results") / "sweeps" / name
+        bar = Bar(f"sweep {name}", unit="runs")
+        result = sw.run_sweep(
+            base,
+            points,
+            target,
+            jobs=jobs,
+            backend=backend,
+            scheduler=scheduler,
+            progress=bar,
+            force=force,
+        )
+        bar.close()
+    except (ConfigError, MapError) as e:
+        fail(str(e))
+    typer.echo(
+        f"{len(result.done)} points run, {len(result.skipped)} already done, "
+        f"{len(result.failed)} failed; results in {result.results}"
+    )
+    if result.failed:
+        for pid in result.failed:
+            typer.echo(f"qpatrol: error: point {pid} failed: {result.errors[pid]}", err=True)
+        raise typer.Exit(1)
+
+
+def _repo_path(relative: str) -> Path:
+    """A file of the qpatrol checkout (configs/...), preferring one in the working dir."""
+    here = Path(relative)
+    if here.exists():
+        return here
+    return Path(__file__).resolve().parent.parent / relative
+
+
 def _print_summary(rows: list[dict]) -> None:
     import numpy as np
 

@@ -293,8 +293,14 @@ def parse_assignment(text: str) -> tuple[str, Any]:
         value = raw
     if key not in FIELDS:
         raise _unknown(key)
-    if FIELDS[key].kind == "str" and value is not None:
+    kind = FIELDS[key].kind
+    if kind == "str" and value is not None:
         value = raw.strip()
+    elif kind in ("int", "float") and isinstance(value, str):
+        try:  # YAML 1.1 reads 1e-3 (no dot) as text
+            value = float(value)
+        except ValueError:
+            pass
     return key, value
 
 

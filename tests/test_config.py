@@ -107,3 +107,8 @@ def _ok(tmp_path: Path) -> Path:
     p = tmp_path / "ok.yaml"
     p.write_text("agents: 1\n")
     return p
+
+
+def test_set_reads_exponent_numbers(tmp_path: Path):
+    cfg = load_config(_ok(tmp_path), ["learning.epsilon=1e-3", "steps=2e3"])
+    assert cfg["learning.epsilon"] == 0.001 and cfg["steps"] == 2000

@@ -1,0 +1,575 @@
+"""Parallel, resumable parameter sweeps.
+
+A sweep runs one base config at several *points*, each a set of overridden keys.
+Every point runs all its ``runs`` as one batch (run r of point p draws from
+``SeedSequence(seed, spawn_key=(p, r))``) and writes its own run folder, so the
+numbers never depend on ``jobs``, on the backend or on which points ran earlier::
+
+    from qpatrol.config import load_config
+    from qpatrol.sweep import points_for, run_sweep, load_results
+
+    base = load_config("configs/gamma.yaml")
+    res = run_sweep(base, points_for("learning.gamma", [0.1, 0.5, 0.9]), "results/sweeps/g",
+                    jobs=4)
+    df = load_results("results/sweeps/g")
+
+Layout of ``out``::
+
+    sweep.json               base config tree and the list of points (written first)
+    points/<id>/             a complete run folder per finished point (see run.write_run)
+    points/<id>.failed.json  error type, message and traceback of a point that raised
+    results.csv              one row per (point, run), rebuilt from every summary.json
+
+A point folder appears atomically (temp dir + rename), so a folder that exists is
+complete: a rerun skips it, redoes the others (failed ones included) and removes the
+temp dirs a killed sweep left behind.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import itertools
+import json
+import os
+import re
+import shutil
+import traceback
+from collections.abc import Callable, Iterator, Mapping, Sequence
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any, NamedTuple
+
+import pandas as pd
+
+from qpatrol import atomic
+from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
+from qpatrol.records import to_csv_text
+
+Progress = Callable[[int, int], None]
+
+BACKENDS = ("joblib", "dask")
+SWEEP_FILE = "sweep.json"
+RESULTS_FILE = "results.csv"
+POINTS_DIR = "points"
+LOCK_FILE = ".sweep.lock"
+FAILED_SUFFIX = ".failed.json"
+_FORMAT = "qpatrol-sweep/1"
+_MAX_ID = 160  # characters; longer ids are cut and get a hash suffix
+
+
+# --------------------------------------------------------------------------- points
+
+
+def _fmt_value(v: Any) -> str:
+    """A value as written in a point id: ``true``, ``0.4``, ``100``, ``null``, ``13+34``."""
+    if isinstance(v, bool):
+        return "true" if v else "false"
+    if v is None:
+        return "null"
+    if isinstance(v, float):
+        return str(int(v)) if v.is_integer() and abs(v) < 1e16 else repr(v)
+    if isinstance(v, list | tuple):
+        return "+".join(_fmt_value(x) for x in v)
+    return str(v)
+
+
+_UNSAFE = re.compile(r"[^A-Za-z0-9._+=,-]")
+
+
+@dataclass(frozen=True)
+class Point:
+    """One point of a sweep.
+
+    Attributes:
+        index: the point number p; run r of this point draws from
+            ``SeedSequence(seed, spawn_key=(p, r))``.
+        overrides: dotted config key -> value applied on top of the base config.
+    """
+
+    index: int
+    overrides: dict[str, Any] = field(default_factory=dict)
+
+    @property
+    def id(self) -> str:
+        """Stable, filesystem-safe name, e.g. ``003-learning.gamma=0.4``."""
+        body = ",".join(f"{k}={_fmt_value(v)}" for k, v in self.overrides.items())
+        text = f"{self.index:03d}-{body}" if body else f"{self.index:03d}"
+        text = _UNSAFE.sub("_", text)
+        if len(text) > _MAX_ID:
+            digest = hashlib.sha256(text.encode()).hexdigest()[:8]
+            text = f"{text[: _MAX_ID - 9]}~{digest}"
+        return text
+
+    def __hash__(self) -> int:
+        return hash((self.index, self.id))
+
+    def describe(self) -> dict[str, Any]:
+        """``{"index", "id", "overrides"}``, as stored in ``sweep.json``."""
+        return {"index": self.index, "id": self.id, "overrides": dict(self.overrides)}
+
+
+def points_for(param: str, values: Sequence[Any]) -> list[Point]:
+    """One point per value of one key: ``Point(i, {param: values[i]})``.
+
+    Values are validated and normalised by the config schema; a bad one raises
+    :class:`ConfigError` naming the key.
+    """
+    return grid_points({param: list(values)})
+
+
+def grid_points(grid: Mapping[str, Sequence[Any]]) -> list[Point]:
+    """The cartesian product of ``{key: values}``, first key slowest, numbered from 0."""
+    if not grid:
+        raise ConfigError("a sweep needs at least one key with values")
+    checked: dict[str, list[Any]] = {}
+    for key, values in grid.items():
+        if isinstance(values, str | bytes) or not isinstance(values, Sequence):
+            raise ConfigError(f"{key}: sweep values must be a list, got {values!r}")
+        if not values:
+            raise ConfigError(f"{key}: no values to sweep")
+        checked[key] = [check_value(key, v) for v in values]
+    keys = list(checked)
+    return [
+        Point(i, dict(zip(keys, combo, strict=True)))
+        for i, combo in enumerate(itertools.product(*checked.values()))
+    ]
+
+
+def parse_values(key: str, text: str) -> list[Any]:
+    """Parse a comma list of values for ``key`` (``"0.1,0.5,0.9"``, ``"on,off"``, ``"1e-3"``).
+
+    Each item is read as YAML like ``--set KEY=VALUE`` and validated by the schema; a
+    number PyYAML reads as text (``1e-3``) is accepted for int and float keys.
+    """
+    items = [s.strip() for s in str(text).split(",")]
+    if not any(items):
+        raise ConfigError(f"{key}: no values given")
+    out = []
+    for item in items:
+        if not item:
+            raise ConfigError(f"{key}: empty value in {text!r}")
+        k, v = parse_assignment(f"{key}={item}")
+        if isinstance(v, str) and FIELDS[k].kind in ("int", "float"):
+            with contextlib.suppress(ValueError):
+                v = float(v)
+        out.append(check_value(k, v))
+    return out
+
+
+class NamedSweep(NamedTuple):
+    """A built-in sweep: ``config`` (path relative to the repo root), ``param`` (one key,
+    or a grid ``{key: values}``) and ``values`` (None for a grid)."""
+
+    config: str
+    param: str | dict[str, list[Any]]
+    values: list[Any] | None
+
+    def points(self) -> list[Point]:
+        """The sweep's points."""
+        if isinstance(self.param, str):
+            return points_for(self.param, self.values or [])
+        return grid_points(self.param)
+
+
+NAMED_SWEEPS: dict[str, NamedSweep] = {
+    "gamma": NamedSweep(
+        "configs/gamma.yaml", "learning.gamma", [round(0.1 * i, 1) for i in range(1, 10)]
+    ),
+    "multiplier": NamedSweep("configs/multiplier.yaml", "learning.multiplier", [1, 10, 100, 1000]),
+    "team-size": NamedSweep(
+        "configs/team_size.yaml",
+        {"agents": [1, 2, 4, 8], "team.communication": [True, False]},
+        None,
+    ),
+}
+
+
+# --------------------------------------------------------------------------- results
+
+
+@dataclass
+class SweepResult:
+    """What :func:`run_sweep` did.
+
+    Attributes:
+        out: the sweep folder.
+        points: all points of the sweep.
+        done: ids of points computed by this call.
+        skipped: ids of points already complete before this call.
+        failed: ids of points whose run raised (see ``points/<id>.failed.json``).
+        errors: point id -> one-line error of each failed point.
+        results: path of ``results.csv`` (rows of every complete point).
+    """
+
+    out: Path
+    points: list[Point]
+    done: list[str] = field(default_factory=list)
+    skipped: list[str] = field(default_factory=list)
+    failed: list[str] = field(default_factory=list)
+    errors: dict[str, str] = field(default_factory=dict)
+    results: Path | None = None
+
+    @property
+    def ok(self) -> bool:
+        """True when every point is complete."""
+        return not self.failed
+
+
+def load_results(out: str | Path) -> pd.DataFrame:
+    """``results.csv`` of a sweep folder (or the CSV path itself) as a DataFrame."""
+    p = Path(out)
+    return pd.read_csv(p / RESULTS_FILE if p.is_dir() else p)
+
+
+# --------------------------------------------------------------------------- the sweep
+
+
+def run_sweep(
+    base: Config,
+    points: list[Point],
+    out: str | Path,
+    jobs: int = 1,
+    backend: str = "joblib",
+    scheduler: str | None = None,
+    progress: Progress | None = None,
+    force: bool = False,
+) -> SweepResult:
+    """Run every point of a sweep not yet complete in ``out``, then write ``results.csv``.
+
+    Args:
+        base: the config each point's overrides apply to.
+        points: the points (see :func:`points_for`, :func:`grid_points`).
+        out: the sweep folder; an existing one holding the same sweep is resumed.
+        jobs: parallel workers (joblib semantics: -1 = all cores); with ``dask`` and no
+            scheduler, the number of local worker processes.
+        backend: ``"joblib"`` (loky processes on this machine) or ``"dask"``.
+        scheduler: address of a running Dask scheduler (``tcp://host:8786``); None starts
+            a local cluster. Workers must see ``out`` at the same absolute path.
+        progress: called as ``progress(runs_done, runs_total)`` as points finish.
+        force: start over: remove ``points/`` and ``results.csv`` even if ``out`` holds
+            a different sweep.
+
+    Raises:
+        ConfigError: a bad override, option, or ``out`` holding a different sweep
+            (one line). A point whose run raises does not raise here: it is recorded
+            in ``points/<id>.failed.json`` and listed in ``SweepResult.failed``.
+    """
+    out = Path(out).resolve()
+    if backend not in BACKENDS:
+        raise ConfigError(f"backend: got {backend!r}; allowed: one of {', '.join(BACKENDS)}")
+    if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs == 0:
+        raise ConfigError(f"jobs: got {jobs!r}; allowed: an integer >= 1 (or -1: all cores)")
+    if scheduler is not None and backend != "dask":
+        raise ConfigError("scheduler: only used with backend 'dask'")
+    configs = _point_configs(base, points)
+    spec = _describe(base, points)
+
+    if not force:
+        _check_same_sweep(out, spec)  # read-only: a mismatch writes nothing
+    out.mkdir(parents=True, exist_ok=True)
+    with _lock(out):
+        pdir = out / POINTS_DIR
+        if force:
+            shutil.rmtree(pdir, ignore_errors=True)
+            (out / RESULTS_FILE).unlink(missing_ok=True)
+        else:
+            _check_same_sweep(out, spec)  # again, now that we hold the lock
+        if force or not (out / SWEEP_FILE).exists():
+            atomic.write_text(out / SWEEP_FILE, json.dumps(spec, indent=2) + "\n")
+        _remove_stray_tmp(out)
+        pdir.mkdir(exist_ok=True)
+        _remove_stray_tmp(pdir)
+
+        result = SweepResult(out=out, points=list(points))
+        total = sum(c["runs"] for c in configs)
+        done_runs = 0
+        todo: list[tuple[Point, Config]] = []
+        for point, cfg in zip(points, configs, strict=True):
+            if (pdir / point.id).is_dir():
+                (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
+                result.skipped.append(point.id)
+                done_runs += cfg["runs"]
+            else:
+                todo.append((point, cfg))
+        if progress is not None:
+            progress(done_runs, total)
+
+        runs_of = {p.id: c["runs"] for p, c in zip(points, configs, strict=True)}
+        for pid, error in _execute(todo, pdir, jobs, backend, scheduler):
+            if error is None:
+                result.done.append(pid)
+            else:
+                result.failed.append(pid)
+                result.errors[pid] = error
+            done_runs += runs_of[pid]
+            if progress is not None:
+                progress(done_runs, total)
+
+        order = {p.id: p.index for p in points}
+        result.done.sort(key=order.__getitem__)
+        result.failed.sort(key=order.__getitem__)
+        result.results = write_results(out, points)
+    return result
+
+
+def write_results(out: str | Path, points: list[Point]) -> Path:
+    """(Re)build ``results.csv`` from the ``summary.json`` of every complete point.
+
+    Columns: ``point``, ``point_id``, one per swept key, ``run``, then the per-run
+    measures in the order the summary lists them. Rows sorted by point, then run.
+    """
+    out = Path(out)
+    swept: list[str] = []
+    for p in points:
+        swept += [k for k in p.overrides if k not in swept]
+    rows: list[dict[str, Any]] = []
+    measures: list[str] = []
+    for p in sorted(points, key=lambda q: q.index):
+        summary_path = out / POINTS_DIR / p.id / "summary.json"
+        if not summary_path.is_file():
+            continue
+        runs = json.loads(summary_path.read_text(encoding="utf-8"))["runs"]
+        for r in sorted(runs, key=lambda d: d["run"]):
+            measures += [k for k in r if k != "run" and k not in measures]
+            row = {"point": p.index, "point_id": p.id}
+            row.update({k: _cell(p.overrides.get(k)) for k in swept})
+            row.update(r)
+            rows.append(row)
+    columns = ["point", "point_id", *swept, "run", *measures]
+    df = pd.DataFrame(rows, columns=columns)
+    target = out / RESULTS_FILE
+    atomic.write_text(target, to_csv_text(df))  # records.FLOAT_FORMAT, Unix newlines
+    return target
+
+
+def _cell(v: Any) -> Any:
+    """A swept value as a CSV cell: lists joined by ``+``, everything else as is."""
+    return _fmt_value(v) if isinstance(v, list | tuple) else v
+
+
+# --------------------------------------------------------------------------- internals
+
+
+def _point_configs(base: Config, points: list[Point]) -> list[Config]:
+    """The resolved config of each point; bad or duplicate points raise ConfigError."""
+    seen_index: set[int] = set()
+    seen_id: set[str] = set()
+    configs = []
+    for p in points:
+        if p.index in seen_index:
+            raise ConfigError(f"sweep: point index {p.index} used twice")
+        if p.id in seen_id:
+            raise ConfigError(f"sweep: point id {p.id} used twice")
+        if p.index < 0:
+            raise ConfigError(f"sweep: point index {p.index} is negative")
+        seen_index.add(p.index)
+        seen_id.add(p.id)
+        try:
+            configs.append(base.replace(**p.overrides))
+        except ConfigError as e:
+            raise ConfigError(f"sweep point {p.id}: {e}") from None
+    if not configs:
+        raise ConfigError("sweep: no points to run")
+    return configs
+
+
+def _describe(base: Config, points: list[Point]) -> dict[str, Any]:
+    """The content of ``sweep.json``, normalised through JSON."""
+    spec = {"format": _FORMAT, "base": base.tree(), "points": [p.describe() for p in points]}
+    return json.loads(json.dumps(spec))
+
+
+def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
+    if not isinstance(tree, Mapping):
+        return {prefix.rstrip("."): tree}
+    flat: dict[str, Any] = {}
+    for k, v in tree.items():
+        flat.update(_flat(v, f"{prefix}{k}."))
+    return flat
+
+
+def _check_same_sweep(out: Path, spec: dict[str, Any]) -> None:
+    """Raise ConfigError if ``out`` holds something other than this sweep."""
+    path = out / SWEEP_FILE
+    hint = "rerun with --force (force=True) to start over, or choose another output folder"
+    if out.exists() and not out.is_dir():
+        raise ConfigError(f"{out} exists and is not a folder; choose another output folder")
+    if not path.exists():
+        if out.is_dir() and (out / POINTS_DIR).exists():
+            raise ConfigError(f"{out} has a points/ folder but no {SWEEP_FILE}; {hint}")
+        return
+    try:
+        old = json.loads(path.read_text(encoding="utf-8"))
+    except (OSError, ValueError) as e:
+        raise ConfigError(f"{path}: unreadable ({e}); {hint}") from None
+    if not isinstance(old, dict) or old.get("format") != _FORMAT:
+        raise ConfigError(f"{path}: not a qpatrol sweep description; {hint}")
+    why = _difference(old, spec)
+    if why:
+        raise ConfigError(f"{out} holds a different sweep ({why}); {hint}")
+
+
+def _difference(old: dict[str, Any], new: dict[str, Any]) -> str:
+    """A short phrase naming the first difference between two sweep descriptions."""
+    a, b = _flat(old.get("base")), _flat(new["base"])
+    for key in [*b, *(k for k in a if k not in b)]:
+        if a.get(key, "<unset>") != b.get(key, "<unset>"):
+            return f"base {key}: {a.get(key, '<unset>')!r} there, {b.get(key, '<unset>')!r} now"
+    pa, pb = old.get("points"), new["points"]
+    if pa == pb:
+        return ""
+    if not isinstance(pa, list) or len(pa) != len(pb):
+        n = len(pa) if isinstance(pa, list) else "?"
+        return f"{n} points there, {len(pb)} now"
+    for x, y in zip(pa, pb, strict=True):
+        if x != y:
+            there = x.get("id") if isinstance(x, dict) else x
+            return f"point {there} there, {y['id']} now"
+    return "points differ"
+
+
+@contextlib.contextmanager
+def _lock(out: Path) -> Iterator[None]:
+    """Hold an exclusive lock on ``out`` so two sweeps never share a folder."""
+    try:
+        import fcntl
+    except ImportError:  # not POSIX: no lock
+        yield
+        return
+    fd = os.open(out / LOCK_FILE, os.O_RDWR | os.O_CREAT, 0o666)
+    try:
+        try:
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        except BlockingIOError:
+            raise ConfigError(f"{out}: another sweep is running in this folder") from None
+        yield
+    finally:
+        os.close(fd)
+
+
+def _remove_stray_tmp(folder: Path) -> None:
+    """Remove ``.NAME.*.tmp`` files and folders left by a killed sweep."""
+    for p in folder.glob(".*.tmp"):
+        if p.is_dir() and not p.is_symlink():
+            shutil.rmtree(p, ignore_errors=True)
+        else:
+            p.unlink(missing_ok=True)
+
+
+def _execute(
+    todo: list[tuple[Point, Config]], pdir: Path, jobs: int, backend: str, scheduler: str | None
+) -> Iterator[tuple[str, str | None]]:
+    """Run the points, yielding ``(point id, None or one-line error)`` as each finishes."""
+    if not todo:
+        return
+    # Maps are loaded here, where relative paths mean what the user meant, and shipped
+    # to the workers with the task (they need not see the map files).
+    maps: dict[str, Any] = {}
+    tasks: list[tuple[Point, Config, Any]] = []
+    for point, cfg in todo:
+        m = _load_map(cfg["map"], maps)
+        if isinstance(m, BaseException):
+            yield point.id, _record_failure(pdir, point, m)
+        else:
+            tasks.append((point, cfg, m))
+    if not tasks:
+        return
+    if backend == "dask":
+        yield from _execute_dask(tasks, pdir, jobs, scheduler)
+        return
+    from joblib import Parallel, delayed, effective_n_jobs
+
+    n = min(effective_n_jobs(jobs), len(tasks))
+    if n == 1:
+        for point, cfg, m in tasks:
+            yield _run_point(point, cfg, m, pdir)
+        return
+    parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
+    yield from parallel(delayed(_run_point)(point, cfg, m, pdir) for point, cfg, m in tasks)
+
+
+def _execute_dask(
+    tasks: list[tuple[Point, Config, Any]], pdir: Path, jobs: int, scheduler: str | None
+) -> Iterator[tuple[str, str | None]]:
+    try:
+        from dask.distributed import Client, LocalCluster, as_completed
+    except ImportError:
+        raise ConfigError(
+            "backend 'dask' needs dask.distributed: pip install 'qpatrol[dask]'"
+        ) from None
+    cluster = None
+    if scheduler is None:
+        from joblib import effective_n_jobs
+
+        cluster = LocalCluster(
+            n_workers=min(effective_n_jobs(jobs), len(tasks)),
+            threads_per_worker=1,
+            processes=True,
+            dashboard_address=None,
+        )
+        client = Client(cluster)
+    else:
+        try:
+            client = Client(scheduler, timeout="30s")
+        except (OSError, TimeoutError, ValueError) as e:
+            raise ConfigError(f"scheduler: cannot connect to {scheduler} ({e})") from None
+    try:
+        futures = {
+            client.submit(_run_point, point, cfg, m, pdir, pure=False): point
+            for point, cfg, m in tasks
+        }
+        for fut in as_completed(futures):
+            point = futures[fut]
+            try:
+                yield fut.result()
+            except Exception as e:  # the worker died (KilledWorker, ...), not the run
+                yield point.id, _record_failure(pdir, point, e)
+    finally:
+        client.close()
+        if cluster is not None:
+            cluster.close()
+
+
+def _load_map(name: str, cache: dict[str, Any]) -> Any:
+    """The Map for ``name``, or the exception loading it raised (cached either way)."""
+    if name not in cache:
+        from qpatrol.maps import get_map
+
+        try:
+            cache[name] = get_map(name)
+        except Exception as e:  # MapError, OSError: recorded as the point's failure
+            cache[name] = e
+    return cache[name]
+
+
+def _run_point(point: Point, cfg: Config, m: Any, pdir: Path) -> tuple[str, str | None]:
+    """Run one point fully and write its folder (in a worker); errors become a
+    ``<id>.failed.json`` and are returned as one line."""
+    from qpatrol import env
+    from qpatrol.run import simulate, write_run
+
+    try:
+        result = simulate(cfg, point=point.index, prepared=(m, env.make_params(cfg, m)))
+        write_run(result, pdir / point.id)
+    except Exception as e:
+        return point.id, _record_failure(pdir, point, e)
+    (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
+    return point.id, None
+
+
+def _record_failure(pdir: Path, point: Point, e: BaseException) -> str:
+    """Write ``<id>.failed.json`` for an exception; return its one-line message."""
+    message = str(e).splitlines()[0] if str(e) else ""
+    info = {
+        "point": point.index,
+        "id": point.id,
+        "overrides": point.overrides,
+        "error": type(e).__name__,
+        "message": str(e),
+        "traceback": "".join(traceback.format_exception(e)),
+    }
+    atomic.write_text(
+        pdir / f"{point.id}{FAILED_SUFFIX}", json.dumps(info, indent=2, default=str) + "\n"
+    )
+    return f"{type(e).__name__}: {message}" if message else type(e).__name__
