@@ -1,4 +1,10 @@
-"""Figures. One function per figure, each reading only its own data."""
+"""Figures. One function per figure, each reading only its own CSV.
+
+Every ``figure_*``/``gamma``/``team_size`` function takes the CSV written by the
+matching function of :mod:`qpatrol.figures` and an output path; the image format
+follows the extension (``.png`` by default, ``.svg`` and ``.pdf`` too; Fig. 5's
+animation is a ``.gif``). Each returns the path(s) it wrote.
+"""
 
 from __future__ import annotations
 
@@ -9,30 +15,85 @@ import matplotlib
 matplotlib.use("Agg")
 import matplotlib.pyplot as plt  # noqa: E402
 import numpy as np  # noqa: E402
+import pandas as pd  # noqa: E402
+from matplotlib.collections import LineCollection  # noqa: E402
+from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
-from qpatrol.maps import BIG, SMALL_DOT, Map  # noqa: E402
+from qpatrol.maps import BIG, SMALL_DOT, Map, get_map  # noqa: E402
+
+#: colours of the actions/directions, used by every Q-value figure.
+DIR_COLOURS = {"N": "tab:green", "E": "tab:orange", "S": "tab:purple", "W": "tab:blue"}
+DIRECTIONS = {"N": "North", "E": "East", "S": "South", "W": "West"}
+#: one colour per agent (Fig. 5, 6), colour-blind friendly first four.
+AGENT_COLOURS = (
+    "#e6194b",
+    "#3cb44b",
+    "#4363d8",
+    "#f58231",
+    "#911eb4",
+    "#42d4f4",
+    "#f032e6",
+    "#9a6324",
+)
+COMM_STYLE = {
+    True: ("tab:blue", "o", "communication on"),
+    False: ("tab:red", "s", "communication off"),
+}
 
 
-def draw_map(ax, m: Map, numbers: bool = True) -> None:
+def draw_map(ax, m: Map, numbers: bool = True, dots: bool = True, starts: bool = True) -> None:
     """Walls, dots, charging stations, start cells and (optionally) state numbers."""
     rows, cols = m.shape
-    ax.imshow(~m.free, cmap="Greys", vmin=-0.3, vmax=1.6, interpolation="nearest",
-              extent=(-0.5, cols - 0.5, rows - 0.5, -0.5))
+    ax.imshow(
+        ~m.free,
+        cmap="Greys",
+        vmin=-0.3,
+        vmax=1.6,
+        interpolation="nearest",
+        extent=(-0.5, cols - 0.5, rows - 0.5, -0.5),
+    )
     r, c = m.coords[:, 0], m.coords[:, 1]
-    small = m.dot_kind == SMALL_DOT
-    ax.scatter(c[small], r[small], s=6, c="#d4a017", zorder=2, label="dot")
-    big = m.dot_kind == BIG
-    ax.scatter(c[big], r[big], s=40, c="#d4a017", edgecolors="k", linewidths=0.5, zorder=2,
-               label="big dot")
+    if dots:
+        small = m.dot_kind == SMALL_DOT
+        ax.scatter(c[small], r[small], s=6, c="#d4a017", zorder=2, label="dot")
+        big = m.dot_kind == BIG
+        ax.scatter(
+            c[big],
+            r[big],
+            s=40,
+            c="#d4a017",
+            edgecolors="k",
+            linewidths=0.5,
+            zorder=2,
+            label="big dot",
+        )
     hr, hc = m.coords[m.homes, 0], m.coords[m.homes, 1]
     ax.scatter(hc, hr, marker="s", s=60, c="tab:green", zorder=3, label="charging H")
-    for k, s in enumerate(m.starts):
-        ax.text(m.coords[s, 1], m.coords[s, 0], str(k), ha="center", va="center",
-                fontsize=9, fontweight="bold", color="tab:blue", zorder=4)
+    if starts:
+        for k, s in enumerate(m.starts):
+            ax.text(
+                m.coords[s, 1],
+                m.coords[s, 0],
+                str(k),
+                ha="center",
+                va="center",
+                fontsize=9,
+                fontweight="bold",
+                color="tab:blue",
+                zorder=4,
+            )
     if numbers:
         for s in range(m.n_cells):
-            ax.text(c[s] + 0.42, r[s] - 0.42, str(s), ha="right", va="top", fontsize=4,
-                    color="0.35", zorder=1)
+            ax.text(
+                c[s] + 0.42,
+                r[s] - 0.42,
+                str(s),
+                ha="right",
+                va="top",
+                fontsize=4,
+                color="0.35",
+                zorder=1,
+            )
     ax.set_xticks([])
     ax.set_yticks([])
     ax.set_xlim(-0.5, cols - 0.5)
@@ -46,8 +107,7 @@ def plot_map(m: Map, path: str | Path) -> Path:
     fig, ax = plt.subplots(figsize=(max(4.0, cols * scale), max(3.5, rows * scale + 0.8)))
     draw_map(ax, m, numbers=m.n_cells <= 400)
     ax.set_title(f"{m.name}: {m.n_cells} free cells (small grey numbers: state)", fontsize=10)
-    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=3, fontsize=8,
-              frameon=False)
+    ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=3, fontsize=8, frameon=False)
     fig.tight_layout()
     p = Path(path)
     p.parent.mkdir(parents=True, exist_ok=True)
@@ -56,4 +116,621 @@ def plot_map(m: Map, path: str | Path) -> Path:
     return p
 
 
-__all__ = ["draw_map", "plot_map", "np"]
+# --- helpers ---------------------------------------------------------------------------
+
+
+def _save(fig, out: str | Path, dpi: int = 150) -> Path:
+    p = Path(out)
+    if not p.suffix:
+        p = p.with_suffix(".png")
+    p.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(p, dpi=dpi, bbox_inches="tight", pad_inches=0.1)
+    plt.close(fig)
+    return p
+
+
+def _fmt_num(x: float) -> str:
+    return f"{x:g}"
+
+
+def _read(csv: str | Path, columns: list[str]) -> pd.DataFrame:
+    df = pd.read_csv(csv)
+    missing = [c for c in columns if c not in df.columns]
+    if missing:
+        raise ValueError(f"{csv}: missing column(s) {', '.join(missing)}")
+    return df
+
+
+def _choice_marks(ax, df: pd.DataFrame, x: str = "update") -> None:
+    """Filled markers on the W/E curves at the updates where that action was taken,
+    and a strip of ticks under the axis for every action taken."""
+    for letter, col in (("W", "q_west"), ("E", "q_east")):
+        sel = df[df["action"] == letter]
+        ax.scatter(
+            sel[x],
+            sel[col],
+            s=14,
+            color=DIR_COLOURS[letter],
+            edgecolors="k",
+            linewidths=0.4,
+            zorder=4,
+        )
+    trans = ax.get_xaxis_transform()
+    for letter in "NESW":
+        sel = df[df["action"] == letter]
+        if len(sel):
+            ax.scatter(
+                sel[x],
+                np.full(len(sel), 0.035),
+                marker="|",
+                s=40,
+                transform=trans,
+                color=DIR_COLOURS[letter],
+                zorder=5,
+            )
+
+
+def _log_y(ax, label: str) -> None:
+    """Log y-axis with plain-number tick labels (1, 2, 5 per decade)."""
+    ax.set_yscale("log")
+    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y:g}"))
+    ax.yaxis.set_minor_formatter(NullFormatter())
+    ax.set_ylabel(label)
+
+
+def _room_below(ax, values: np.ndarray, frac: float = 0.12) -> None:
+    """Log y-limits that leave the bottom ``frac`` of the axes free for the tick strip."""
+    v = np.asarray(values, dtype=np.float64)
+    v = v[np.isfinite(v) & (v > 0)]
+    if not v.size:
+        return
+    lo, hi = float(v.min()), float(v.max())
+    span = max(np.log10(hi / lo), np.log10(3.0))
+    ax.set_ylim(lo / 10 ** (span * frac / (1 - frac - 0.04)), hi * 10 ** (span * 0.04))
+
+
+def _choice_legend(actions: set[str]) -> tuple[list, list[str]]:
+    """Legend entries explaining the dots on the curves and the strip of ticks."""
+    handles = [plt.Line2D([], [], ls="", marker="o", mfc="w", mec="k", ms=4)]
+    labels = ["dot: W/E taken at that update"]
+    for a in "NESW":
+        if a in actions:
+            handles.append(plt.Line2D([], [], ls="", marker="|", color=DIR_COLOURS[a], ms=8))
+            labels.append(f"tick: {DIRECTIONS[a]} taken")
+    return handles, labels
+
+
+def _choice_counts(df: pd.DataFrame) -> str:
+    counts = df["action"].value_counts()
+    return ", ".join(f"{a} {int(counts[a])}" for a in "NESW" if a in counts)
+
+
+# --- Fig. 2 ------------------------------------------------------------------------------
+
+
+def figure_2(csv: str | Path, out: str | Path) -> Path:
+    """Q(34, West) and Q(34, East) over the first updates, one panel per multiplier."""
+    df = _read(csv, ["multiplier", "update", "q_west", "q_east", "action", "heading", "cell"])
+    mults = sorted(df["multiplier"].unique())
+    ncols = 2 if len(mults) > 1 else 1
+    nrows = int(np.ceil(len(mults) / ncols))
+    fig, axes = plt.subplots(nrows, ncols, figsize=(5.2 * ncols, 3.4 * nrows), squeeze=False)
+    xmax = int(df["update"].max()) + 1
+    for ax, mult in zip(axes.flat, mults, strict=False):
+        d = df[df["multiplier"] == mult].sort_values("update")
+        ax.plot(d["update"], d["q_west"], color=DIR_COLOURS["W"], lw=1.4, label="Q(s, West)")
+        ax.plot(d["update"], d["q_east"], color=DIR_COLOURS["E"], lw=1.4, label="Q(s, East)")
+        _choice_marks(ax, d)
+        _log_y(ax, "Q-value (log scale)")
+        _room_below(ax, d[["q_west", "q_east"]].to_numpy())
+        ax.set_title(f"initial Q x{_fmt_num(mult)}  (choices: {_choice_counts(d)})", fontsize=9)
+        ax.grid(alpha=0.3, lw=0.4)
+        ax.set_xlim(0, xmax)
+        ax.set_xlabel("update of the state (n-th time it is left)")
+    for ax in axes.flat[len(mults) :]:
+        ax.set_visible(False)
+    h = df["heading"].iloc[0]
+    cell = int(df["cell"].iloc[0])
+    where = f" of {df['map'].iloc[0]}" if "map" in df.columns else ""
+    handles, labels = axes.flat[0].get_legend_handles_labels()
+    extra = _choice_legend(set(df["action"]))
+    fig.legend(
+        handles + extra[0],
+        labels + extra[1],
+        loc="lower center",
+        ncol=7,
+        fontsize=8,
+        frameon=False,
+        bbox_to_anchor=(0.5, -0.01),
+        handletextpad=0.3,
+    )
+    fig.suptitle(
+        f"Fig. 2: Q-values of West and East at state {cell}{where} (arrived heading {h}), "
+        f"first {int(df['update'].max())} updates, per multiplier of the initial Q",
+        fontsize=10,
+    )
+    fig.tight_layout(rect=(0, 0.04, 1, 1))
+    return _save(fig, out)
+
+
+# --- Fig. 3 and 4 -------------------------------------------------------------------------
+
+
+def figure_3(csv: str | Path, out: str | Path, label: str = "Fig. 3") -> Path:
+    """r, gamma max Q(s', a), Q(s, West) and Q(s, East) over the first updates of a state."""
+    df = _read(csv, ["update", "reward", "bootstrap", "q_west", "q_east", "action", "heading"])
+    df = df.sort_values("update")
+    fig, (top, bottom) = plt.subplots(
+        2, 1, figsize=(7.5, 5.6), sharex=True, gridspec_kw={"height_ratios": [1, 1.2]}
+    )
+    top.plot(
+        df["update"], df["reward"], color="tab:green", lw=1.2, marker=".", ms=4, label="reward r"
+    )
+    top.plot(
+        df["update"],
+        df["bootstrap"],
+        color="0.2",
+        lw=1.2,
+        ls="--",
+        label=r"$\gamma\,\max_a Q(s', a)$",
+    )
+    _log_y(top, "reward / target term (log)")
+    top.legend(fontsize=8, loc="upper right", ncol=2)
+    top.grid(alpha=0.3, lw=0.4)
+    bottom.plot(df["update"], df["q_west"], color=DIR_COLOURS["W"], lw=1.4, label="Q(s, West)")
+    bottom.plot(df["update"], df["q_east"], color=DIR_COLOURS["E"], lw=1.4, label="Q(s, East)")
+    _choice_marks(bottom, df)
+    _log_y(bottom, "Q-value (log scale)")
+    _room_below(bottom, df[["q_west", "q_east"]].to_numpy())
+    bottom.grid(alpha=0.3, lw=0.4)
+    bottom.set_xlabel("update of the state (n-th time it is left)")
+    handles, labels = bottom.get_legend_handles_labels()
+    extra = _choice_legend(set(df["action"]))
+    bottom.legend(handles + extra[0], labels + extra[1], fontsize=7.5, loc="upper right", ncol=2)
+    bottom.set_xlim(0, max(1, df["update"].max()) + 1)
+    cell = int(df["cell"].iloc[0]) if "cell" in df.columns else "?"
+    where = f" of {df['map'].iloc[0]}" if "map" in df.columns else ""
+    gamma = f", gamma {_fmt_num(df['gamma'].iloc[0])}" if "gamma" in df.columns else ""
+    fig.suptitle(
+        f"{label}: state {cell}{where} (arrived heading {df['heading'].iloc[0]}), "
+        f"first {len(df)} updates{gamma}\nchoices: {_choice_counts(df)}",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def figure_4(csv: str | Path, out: str | Path) -> Path:
+    """Fig. 4: the plot of :func:`figure_3` for state 34 of map B."""
+    return figure_3(csv, out, label="Fig. 4")
+
+
+# --- gamma (§4) -----------------------------------------------------------------------------
+
+
+def _errorbar(ax, x, mean, lo, hi, **kw):
+    yerr = np.vstack([mean - lo, hi - mean])
+    yerr = np.where(np.isfinite(yerr), yerr, 0.0)
+    return ax.errorbar(x, mean, yerr=yerr, capsize=3, **kw)
+
+
+def gamma(csv: str | Path, out: str | Path) -> Path:
+    """First episode per gamma: steps to eat all dots, against the shortest walk; states seen."""
+    df = _read(
+        csv,
+        [
+            "gamma",
+            "steps_mean",
+            "steps_lo",
+            "steps_hi",
+            "distinct_states_mean",
+            "lower_bound",
+            "tour",
+            "n",
+        ],
+    )
+    df = df.sort_values("gamma")
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11.5, 4.6))
+    _errorbar(
+        a,
+        df["gamma"],
+        df["steps_mean"],
+        df["steps_lo"],
+        df["steps_hi"],
+        color="tab:blue",
+        marker="o",
+        label="mean over complete runs, 95% t-interval",
+    )
+    if "steps_median" in df.columns:
+        a.plot(
+            df["gamma"],
+            df["steps_median"],
+            ls="",
+            marker="_",
+            ms=12,
+            mew=1.5,
+            color="tab:blue",
+            label="median",
+        )
+    if "steps_min" in df.columns:
+        a.plot(
+            df["gamma"],
+            df["steps_min"],
+            ls="",
+            marker="v",
+            ms=5,
+            color="tab:cyan",
+            label="best run",
+        )
+    cut = df["truncated"] if "truncated" in df.columns else pd.Series(0, index=df.index)
+    cap = df["max_episode_steps"] if "max_episode_steps" in df.columns else None
+    if cap is not None and (cut > 0).any():
+        sel = (cut > 0) & cap.notna()
+        a.plot(
+            df.loc[sel, "gamma"],
+            cap[sel],
+            ls="",
+            marker="^",
+            ms=8,
+            color="tab:red",
+            label="episode cut at max_episode_steps (runs cut/runs)",
+        )
+        for g, c, t, n in zip(
+            df.loc[sel, "gamma"], cap[sel], cut[sel], df.loc[sel, "n"] + cut[sel], strict=True
+        ):
+            a.annotate(
+                f"{int(t)}/{int(n)}",
+                (g, c),
+                textcoords="offset points",
+                xytext=(0, 7),
+                ha="center",
+                fontsize=7,
+                color="tab:red",
+            )
+    lb, tour = int(df["lower_bound"].iloc[0]), int(df["tour"].iloc[0])
+    a.axhline(tour, color="k", ls="--", lw=1, label=f"computed tour: {tour} moves")
+    a.axhline(lb, color="0.4", ls=":", lw=1.2, label=f"lower bound: {lb} moves")
+    _log_y(a, "team steps to eat every dot (1st episode, log)")
+    top = np.nanmax(
+        np.r_[
+            df["steps_hi"].to_numpy(float),
+            df["steps_mean"].to_numpy(float),
+            cap.to_numpy(float) if cap is not None else [],
+            tour,
+        ]
+    )
+    a.set_ylim(lb / 1.6, top * 2.5)
+    a.set_xlabel(r"discount factor $\gamma$")
+    a.set_title("Steps of the first episode vs the shortest dot-eating walk", fontsize=10)
+    a.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    a.grid(alpha=0.3, lw=0.4)
+
+    _errorbar(
+        b,
+        df["gamma"],
+        df["distinct_states_mean"],
+        df["distinct_states_lo"],
+        df["distinct_states_hi"],
+        color="tab:purple",
+        marker="o",
+        label="(cell, heading) states",
+    )
+    if "distinct_cells_mean" in df.columns:
+        _errorbar(
+            b,
+            df["gamma"],
+            df["distinct_cells_mean"],
+            df["distinct_cells_lo"],
+            df["distinct_cells_hi"],
+            color="tab:green",
+            marker="s",
+            label="cells",
+        )
+    if "states" in df.columns:
+        b.axhline(
+            int(df["states"].iloc[0]),
+            color="tab:purple",
+            ls=":",
+            lw=1,
+            label=f"(cell, heading) pairs of the map: {int(df['states'].iloc[0])}",
+        )
+    if "cells" in df.columns:
+        b.axhline(
+            int(df["cells"].iloc[0]),
+            color="k",
+            ls="--",
+            lw=1,
+            label=f"free cells of the map: {int(df['cells'].iloc[0])}",
+        )
+    b.set_ylim(bottom=0)
+    b.set_xlabel(r"discount factor $\gamma$")
+    b.set_ylabel("distinct states entered (1st episode)")
+    b.set_title("Exploration in the first episode (truncated ones included)", fontsize=10)
+    b.legend(fontsize=7.5, loc="upper center", bbox_to_anchor=(0.5, -0.14), ncol=2, frameon=False)
+    b.grid(alpha=0.3, lw=0.4)
+    for ax in (a, b):
+        ax.set_xticks(df["gamma"])
+    n = df["runs"] if "runs" in df.columns else df["n"]
+    runs = f"{int(n.min())}" if n.min() == n.max() else f"{int(n.min())}-{int(n.max())}"
+    where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
+    fig.suptitle(
+        f"Discount factor and the first episode ({where}one agent, {runs} runs per "
+        r"$\gamma$; mean and 95% t-interval over runs)",
+        fontsize=11,
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+# --- team size --------------------------------------------------------------------------------
+
+
+def team_size(csv: str | Path, out: str | Path) -> Path:
+    """Steps per episode and division of labour vs team size, communication on and off."""
+    df = _read(
+        csv, ["agents", "communication", "mean_steps_per_episode_mean", "division_of_labour_mean"]
+    )
+    df["communication"] = df["communication"].astype(str).str.lower().isin(["true", "1", "on"])
+    fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
+    ks = sorted(df["agents"].unique())
+    offsets = {True: -0.03, False: 0.03}
+    for comm in (True, False):
+        d = df[df["communication"] == comm].sort_values("agents")
+        if d.empty:
+            continue
+        colour, marker, label = COMM_STYLE[comm]
+        x = d["agents"] * 2 ** offsets[comm]
+        m = "mean_steps_per_episode"
+        _errorbar(
+            a,
+            x,
+            d[f"{m}_mean"],
+            d[f"{m}_lo"],
+            d[f"{m}_hi"],
+            color=colour,
+            marker=marker,
+            label=label,
+        )
+        m = "division_of_labour"
+        _errorbar(
+            b,
+            x,
+            d[f"{m}_mean"],
+            d[f"{m}_lo"],
+            d[f"{m}_hi"],
+            color=colour,
+            marker=marker,
+            label=label,
+        )
+    xs = np.geomspace(min(ks), max(ks) * 1.1, 100)
+    b.plot(xs, 1 / xs, color="0.4", ls=":", label="1/K (no division)")
+    b.axhline(1.0, color="0.6", lw=0.8, ls="--", label="1 (full partition)")
+    a.set_ylabel("team steps per episode (eat all dots)")
+    a.set_title("Episode length vs team size (mean over runs, 95% t-interval)", fontsize=10)
+    b.set_ylabel("division of labour (share of top visitor)")
+    b.set_title("Division of labour vs team size", fontsize=10)
+    b.set_ylim(0, 1.05)
+    for ax in (a, b):
+        ax.set_xscale("log", base=2)
+        ax.set_xticks(ks, [str(k) for k in ks])
+        ax.minorticks_off()
+        ax.set_xlabel("team size K (agents)")
+        ax.grid(alpha=0.3, lw=0.4)
+        ax.legend(fontsize=8)
+    a.set_ylim(bottom=0)
+    where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
+    runs = f"{int(df['runs'].min())} runs per point; " if "runs" in df.columns else ""
+    fig.suptitle(
+        f"Team size and communication ({where}{runs}without communication an episode "
+        "is one agent clearing its private dot map)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+# --- Fig. 6 ----------------------------------------------------------------------------------
+
+
+ARROW = {"N": (0.0, -1.0), "E": (1.0, 0.0), "S": (0.0, 1.0), "W": (-1.0, 0.0)}
+
+
+def figure_6(csv: str | Path, out: str | Path) -> Path:
+    """Agent 0's greedy action per cell over its visit map; beside it, its share of visits."""
+    df = _read(csv, ["row", "col", "action", "visits_agent", "visits_all", "updates"])
+    rows, cols = int(df["row"].max()) + 2, int(df["col"].max()) + 2
+    r, c = df["row"].to_numpy(), df["col"].to_numpy()
+    visits = np.full((rows, cols), np.nan)
+    visits[r, c] = df["visits_agent"]
+    share = np.full((rows, cols), np.nan)
+    share[r, c] = df["visits_agent"] / df["visits_all"].where(df["visits_all"] > 0)
+    wall = np.ones((rows, cols))
+    wall[r, c] = np.nan
+    k = int(df["agents"].iloc[0]) if "agents" in df.columns else None
+    learnt = df["updates"].to_numpy() > 0
+    u = np.array([ARROW[a][0] for a in df["action"]]) * 0.62
+    v = np.array([ARROW[a][1] for a in df["action"]]) * 0.62
+    cell_in = 0.25
+    fig, axes = plt.subplots(1, 2, figsize=(cell_in * cols * 2 + 3.0, cell_in * rows + 1.3))
+    fair = 1.0 / k if k else 0.5
+    panels = (
+        (
+            visits,
+            "viridis",
+            (0, np.nanmax(visits) if np.isfinite(visits).any() else 1),
+            "visits by agent 0 (cell entries)",
+            "agent 0's visit counts",
+        ),
+        (
+            share,
+            "RdBu_r",
+            (0, min(1.0, 2 * fair)),
+            f"agent 0's share of the team's visits (white: 1/K = {fair:.2g})",
+            "agent 0's share of all visits (red: more than 1/K)",
+        ),
+    )
+    extent = (-0.5, cols - 0.5, rows - 0.5, -0.5)
+    for ax, (img, cmap, (vmin, vmax), clabel, title) in zip(axes, panels, strict=True):
+        ax.imshow(wall, cmap="Greys", vmin=0, vmax=4, extent=extent, interpolation="nearest")
+        im = ax.imshow(img, cmap=cmap, vmin=vmin, vmax=vmax, extent=extent, interpolation="nearest")
+        ax.quiver(
+            c[learnt],
+            r[learnt],
+            u[learnt],
+            v[learnt],
+            angles="xy",
+            scale_units="xy",
+            scale=1,
+            pivot="middle",
+            units="xy",
+            width=0.1,
+            headwidth=3.2,
+            headlength=3.0,
+            headaxislength=2.6,
+            color="w",
+            edgecolor="k",
+            linewidth=0.5,
+        )
+        if (~learnt).any():
+            ax.scatter(c[~learnt], r[~learnt], marker="x", s=14, color="k", linewidths=0.9)
+        ax.set_xticks([])
+        ax.set_yticks([])
+        ax.set_xlim(-0.5, cols - 0.5)
+        ax.set_ylim(rows - 0.5, -0.5)
+        ax.set_title(title, fontsize=9)
+        cb = fig.colorbar(im, ax=ax, fraction=0.035, pad=0.02)
+        cb.set_label(clabel, fontsize=8)
+        cb.ax.tick_params(labelsize=7)
+    what = ""
+    if "map" in df.columns:
+        what = f" on {df['map'].iloc[0]}"
+    if k and "episodes" in df.columns:
+        what += f", team of {k}, after {int(df['episodes'].iloc[0])} episodes"
+    note = "arrow: greedy action (max Q over non-wall moves) at the heading the cell is most often"
+    note += " reached with"
+    if (~learnt).any():
+        note += "; x: never left while patrolling"
+    fig.suptitle(f"Fig. 6: behaviour policy of agent 0{what}\n{note}", fontsize=9.5)
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+# --- Fig. 5 -----------------------------------------------------------------------------------
+
+
+def figure_5(
+    csv: str | Path,
+    out: str | Path,
+    still: str | Path | None = None,
+    map: str | Map | None = None,
+    frames: int = 180,
+    trail: int = 8,
+    fps: int = 8,
+    dpi: int = 90,
+    run: int | None = None,
+) -> tuple[Path, Path]:
+    """Animated GIF of the team patrolling (and a still PNG of its last frame).
+
+    Each agent is a coloured disc with a fading trail of its last ``trail`` cells; a
+    hollow disc is homing or charging (when the CSV has a ``mode`` column). The maze
+    comes from the ``map`` argument or the CSV's ``map`` column. The GIF shows the
+    first ``frames`` steps of the CSV (of run ``run``, default the first, if it has a
+    ``run`` column); ``still`` defaults to ``out`` with a ``.png`` suffix.
+    """
+    df = _read(csv, ["step", "agent", "row", "col"])
+    if "run" in df.columns:  # a trajectory of several runs: show the first (or ``run``)
+        df = df[df["run"] == (df["run"].min() if run is None else run)]
+    if map is None:
+        if "map" not in df.columns:
+            raise ValueError(f"{csv}: no map column; pass map=")
+        map = str(df["map"].iloc[0])
+    m = map if isinstance(map, Map) else get_map(map)
+    steps = np.sort(df["step"].unique())[:frames]
+    df = df[df["step"].isin(steps)].sort_values(["step", "agent"])
+    k = int(df["agent"].max()) + 1
+    pos = np.stack([df["col"].to_numpy(), df["row"].to_numpy()], axis=1).reshape(len(steps), k, 2)
+    busy = np.zeros((len(steps), k), dtype=bool)
+    if "mode" in df.columns:
+        busy = (df["mode"].to_numpy() != "patrol").reshape(len(steps), k)
+
+    rows, cols = m.shape
+    fig, ax = plt.subplots(figsize=(cols * 0.25 + 0.4, rows * 0.25 + 0.9))
+    draw_map(ax, m, numbers=False, dots=False, starts=False)
+    colours = [AGENT_COLOURS[i % len(AGENT_COLOURS)] for i in range(k)]
+    trails = []
+    for _ in range(k):
+        lc = LineCollection([], linewidths=4, capstyle="round", zorder=5)
+        ax.add_collection(lc)
+        trails.append(lc)
+    discs = ax.scatter(
+        pos[0, :, 0], pos[0, :, 1], s=110, c=colours, edgecolors="k", linewidths=0.8, zorder=6
+    )
+    title = ax.set_title("", fontsize=9)
+    handles = [
+        plt.Line2D([], [], ls="", marker="o", mfc=colours[i], mec="k", ms=7, label=f"agent {i}")
+        for i in range(k)
+    ]
+    handles.append(
+        plt.Line2D([], [], ls="", marker="s", mfc="tab:green", mec="none", ms=7, label="charging H")
+    )
+    if busy.any():
+        handles.append(
+            plt.Line2D(
+                [], [], ls="", marker="o", mfc="w", mec="0.3", mew=2, ms=7, label="homing/charging"
+            )
+        )
+    ax.legend(
+        handles=handles,
+        loc="upper center",
+        bbox_to_anchor=(0.5, 0.0),
+        ncol=min(6, len(handles)),
+        fontsize=8,
+        frameon=False,
+        handletextpad=0.2,
+        columnspacing=0.8,
+    )
+    fig.tight_layout()
+
+    def draw(f: int) -> None:
+        lo = max(0, f - trail)
+        for i in range(k):
+            pts = pos[lo : f + 1, i]
+            segs = np.stack([pts[:-1], pts[1:]], axis=1) if len(pts) > 1 else np.zeros((0, 2, 2))
+            alphas = np.linspace(0.1, 0.7, max(1, len(segs)))
+            rgba = np.array([matplotlib.colors.to_rgba(colours[i], a) for a in alphas])
+            trails[i].set_segments(segs)
+            trails[i].set_color(rgba[: len(segs)])
+        discs.set_offsets(pos[f])
+        discs.set_facecolors(["w" if b else colours[i] for i, b in enumerate(busy[f])])
+        discs.set_edgecolors([colours[i] if b else "k" for i, b in enumerate(busy[f])])
+        discs.set_linewidths([2.5 if b else 0.8 for b in busy[f]])
+        title.set_text(f"Fig. 5: {k} agents patrolling {m.name}, team step {int(steps[f])}")
+
+    from matplotlib.animation import FuncAnimation, PillowWriter
+
+    out = Path(out)
+    if out.suffix.lower() != ".gif":
+        out = out.with_suffix(".gif")
+    out.parent.mkdir(parents=True, exist_ok=True)
+    anim = FuncAnimation(fig, draw, frames=len(steps), interval=1000 / fps)
+    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
+    draw(len(steps) - 1)
+    still_path = Path(still) if still is not None else out.with_suffix(".png")
+    still_path.parent.mkdir(parents=True, exist_ok=True)
+    fig.savefig(still_path, dpi=150)
+    plt.close(fig)
+    return out, still_path
+
+
+__all__ = [
+    "draw_map",
+    "figure_2",
+    "figure_3",
+    "figure_4",
+    "figure_5",
+    "figure_6",
+    "gamma",
+    "plot_map",
+    "team_size",
+]

@@ -1,0 +1,598 @@
+"""Figure data: experiment folders in, one tidy table per figure out.
+
+Each ``*_data`` function reads run folders (as written by :func:`qpatrol.run.write_run`)
+or sweep folders (``sweep.json``, ``points/<id>/``, ``results.csv``) and returns the
+``pandas.DataFrame`` that is written as CSV beside the figure; the plotting functions
+of :mod:`qpatrol.plots` read only that CSV. :func:`trajectory` is the one piece that
+simulates instead of reading: the positions of Fig. 5 are not kept in run folders.
+
+Conventions of the figure tables: directions (``heading``, ``action``) are written as
+letters N, E, S, W; ``heading`` is the direction of the move that brought the agent
+to the cell (the Q-table's state is ``(cell, heading)``). Intervals are two-sided
+95% Student-t intervals of the mean over runs, ``mean +- t(0.975, n-1) * sd / sqrt(n)``
+(:func:`mean_ci`); with one run they are NaN.
+
+Which heading the Q-value figures follow (Fig. 2, 3, 4)
+    The paper plots "Q values for west and east options in state 34" as one series, but
+    the Q-table has one row per arrival heading, and the rows evolve independently. We
+    follow the row of the *east* heading, the orientation the paper names ("when each
+    state is reached with east orientation", §4; also how SPEC.md states the map
+    facts): there West goes back one way and East on the other way, the W/E choice the
+    paper discusses. If that row has fewer than the requested updates, we fall back
+    to the heading with the most updates (for Fig. 2, the one whose fewest updates
+    over the multipliers is largest, so all panels follow the same row). The chosen
+    heading is a column of the table.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+from collections.abc import Iterable
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from qpatrol import env
+from qpatrol.config import Config, from_mapping, load_config
+from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map
+from qpatrol.rng import Streams, run_seeds
+from qpatrol.run import prepare
+from qpatrol.tours import dot_walk_lower_bound, dot_walk_tour
+
+__all__ = [
+    "figure2_data",
+    "figure34_data",
+    "figure5_data",
+    "figure6_data",
+    "gamma_data",
+    "mean_ci",
+    "read_sweep",
+    "t_quantile",
+    "team_size_data",
+    "trajectory",
+]
+
+MODES = ("patrol", "homing", "charging")
+
+
+# --- statistics ---------------------------------------------------------------------
+
+
+def _betacf(a: float, b: float, x: float) -> float:
+    """Continued fraction of the incomplete beta function (modified Lentz)."""
+    tiny = 1e-300
+    qab, qap, qam = a + b, a + 1.0, a - 1.0
+    c, d = 1.0, 1.0 - qab * x / qap
+    d = 1.0 / (d if abs(d) > tiny else tiny)
+    h = d
+    for m in range(1, 500):
+        m2 = 2 * m
+        aa = m * (b - m) * x / ((qam + m2) * (a + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        h *= d * c
+        aa = -(a + m) * (qab + m) * x / ((a + m2) * (qap + m2))
+        d = 1.0 + aa * d
+        d = 1.0 / (d if abs(d) > tiny else tiny)
+        c = 1.0 + aa / c
+        c = c if abs(c) > tiny else tiny
+        delta = d * c
+        h *= delta
+        if abs(delta - 1.0) < 1e-15:
+            break
+    return h
+
+
+def _betainc(a: float, b: float, x: float) -> float:
+    """Regularized incomplete beta ``I_x(a, b)``."""
+    if x <= 0.0:
+        return 0.0
+    if x >= 1.0:
+        return 1.0
+    ln = math.lgamma(a + b) - math.lgamma(a) - math.lgamma(b) + a * math.log(x)
+    ln += b * math.log1p(-x)
+    front = math.exp(ln)
+    if x < (a + 1.0) / (a + b + 2.0):
+        return front * _betacf(a, b, x) / a
+    return 1.0 - front * _betacf(b, a, 1.0 - x) / b
+
+
+def _t_cdf(t: float, df: float) -> float:
+    tail = 0.5 * _betainc(df / 2.0, 0.5, df / (df + t * t))
+    return 1.0 - tail if t >= 0 else tail
+
+
+def t_quantile(p: float, df: float) -> float:
+    """Quantile of Student's t distribution (bisection on the CDF; no SciPy needed)."""
+    if not 0.0 < p < 1.0 or df <= 0:
+        raise ValueError(f"t_quantile: need 0 < p < 1 and df > 0, got p={p}, df={df}")
+    if p < 0.5:
+        return -t_quantile(1.0 - p, df)
+    lo, hi = 0.0, 1.0
+    while _t_cdf(hi, df) < p:
+        hi *= 2.0
+    for _ in range(200):
+        mid = 0.5 * (lo + hi)
+        if _t_cdf(mid, df) < p:
+            lo = mid
+        else:
+            hi = mid
+        if hi - lo < 1e-12 * max(1.0, hi):
+            break
+    return 0.5 * (lo + hi)
+
+
+def mean_ci(values: Iterable[float], level: float = 0.95) -> dict[str, float]:
+    """``{mean, lo, hi, n}``: Student-t interval of the mean of the finite values.
+
+    ``lo, hi = mean -+ t((1 + level) / 2, n - 1) * sd / sqrt(n)`` with the sample sd
+    (ddof 1); NaN bounds for n < 2, all NaN for n = 0.
+    """
+    x = np.asarray([v for v in values if v is not None], dtype=np.float64)
+    x = x[np.isfinite(x)]
+    n = int(x.size)
+    if n == 0:
+        return {"mean": math.nan, "lo": math.nan, "hi": math.nan, "n": 0}
+    mean = float(x.mean())
+    if n < 2:
+        return {"mean": mean, "lo": math.nan, "hi": math.nan, "n": n}
+    half = t_quantile((1.0 + level) / 2.0, n - 1) * float(x.std(ddof=1)) / math.sqrt(n)
+    return {"mean": mean, "lo": mean - half, "hi": mean + half, "n": n}
+
+
+# --- reading experiment folders ----------------------------------------------------
+
+
+def read_sweep(sweep_dir: str | Path) -> pd.DataFrame:
+    """One row per sweep point: ``index``, ``id``, ``path``, ``overrides``, ``config``.
+
+    ``config`` is the point's resolved :class:`~qpatrol.config.Config`: its
+    ``config.yaml`` if the point folder exists, else ``sweep.json``'s base with the
+    point's overrides.
+    """
+    d = Path(sweep_dir)
+    spec_path = d / "sweep.json"
+    if not spec_path.is_file():
+        raise FileNotFoundError(f"{d}: no sweep.json (not a sweep folder)")
+    spec = json.loads(spec_path.read_text())
+    base = from_mapping(spec.get("base") or {})
+    rows = []
+    for pt in spec["points"]:
+        path = d / "points" / pt["id"]
+        overrides = pt.get("overrides") or {}
+        if (path / "config.yaml").is_file():
+            cfg = load_config(path / "config.yaml")
+        else:
+            cfg = base.replace(**overrides)
+        rows.append(
+            {
+                "index": int(pt["index"]),
+                "id": pt["id"],
+                "path": path,
+                "overrides": overrides,
+                "config": cfg,
+            }
+        )
+    return pd.DataFrame(rows).sort_values("index", kind="stable").reset_index(drop=True)
+
+
+def _read_csv(path: Path, what: str) -> pd.DataFrame:
+    if not path.is_file():
+        raise FileNotFoundError(f"{path}: missing ({what})")
+    return pd.read_csv(path)
+
+
+def _run_config(run_dir: Path) -> Config:
+    return load_config(Path(run_dir) / "config.yaml")
+
+
+def _heading_index(heading: int | str) -> int:
+    if isinstance(heading, str):
+        h = heading.strip().upper()[:1]
+        if h not in DIR_LETTERS:
+            raise ValueError(f"heading: {heading!r} is not one of N, E, S, W")
+        return DIR_LETTERS.index(h)
+    return int(heading)
+
+
+def choose_heading(counts: list[dict[int, int]], wanted: int, prefer: int = EAST) -> int:
+    """The heading to follow, given update counts per heading of one or more series.
+
+    ``prefer`` if every series has at least ``wanted`` updates there; otherwise the
+    heading whose smallest count over the series is largest (ties: ``prefer``, then
+    N, E, S, W).
+    """
+
+    def low(h: int) -> int:
+        return min(c.get(h, 0) for c in counts) if counts else 0
+
+    if counts and low(prefer) >= wanted:
+        return prefer
+    order = [prefer] + [h for h in range(4) if h != prefer]
+    return max(order, key=lambda h: (low(h), -order.index(h)))
+
+
+def _watched(run_dir: Path, cell: int, run: int, agent: int) -> tuple[pd.DataFrame, Config]:
+    cfg = _run_config(run_dir)
+    w = _read_csv(run_dir / "watch.csv", f"Q-updates of watched states; set record.watch: [{cell}]")
+    if cell not in cfg["record.watch"] and not cfg["record.transitions"]:
+        raise ValueError(f"{run_dir}: state {cell} was not watched (record.watch)")
+    w = w[(w["cell"] == cell) & (w["run"] == run) & (w["agent"] == agent)]
+    return w.sort_values("step", kind="stable"), cfg
+
+
+def _first_updates(w: pd.DataFrame, heading: int, n: int) -> pd.DataFrame:
+    out = w[w["heading"] == heading].head(n).reset_index(drop=True)
+    out.insert(0, "update", np.arange(1, len(out) + 1))
+    return out
+
+
+def _letters(x: pd.Series) -> pd.Series:
+    return x.astype(int).map(lambda i: DIR_LETTERS[i])
+
+
+# --- Fig. 2 --------------------------------------------------------------------------
+
+
+def figure2_data(
+    sweep_dir: str | Path,
+    cell: int = 34,
+    n_updates: int = 100,
+    heading: int | str = "auto",
+    run: int = 0,
+    agent: int = 0,
+    key: str = "learning.multiplier",
+) -> pd.DataFrame:
+    """Fig. 2: Q(cell, West) and Q(cell, East) over the first updates, per multiplier.
+
+    From a sweep over ``key`` (multiplier 1, 10, 100, 1000 on map B, one agent,
+    ``record.watch: [34]``): for each point, the first ``n_updates`` Q-updates of state
+    ``cell`` at one heading (module docstring; ``"auto"`` = east, else the best
+    common fallback) in run ``run``. ``q_west``/``q_east`` are the Q-row *after* each
+    update. Columns: multiplier, update, step, heading, action, reward, q_west, q_east,
+    q_north, q_south, run, cell, map.
+    """
+    points = read_sweep(sweep_dir)
+    series = []
+    for _, pt in points.iterrows():
+        w, cfg = _watched(pt["path"], cell, run, agent)
+        series.append((cfg, w))
+    if heading == "auto":
+        counts = [w.groupby("heading").size().to_dict() for _, w in series]
+        h = choose_heading(counts, n_updates)
+    else:
+        h = _heading_index(heading)
+    parts = []
+    for cfg, w in series:
+        f = _first_updates(w, h, n_updates)
+        f.insert(0, "multiplier", cfg[key])
+        f["map"] = get_map(cfg["map"]).name
+        parts.append(f)
+    df = pd.concat(parts, ignore_index=True)
+    df["heading"] = _letters(df["heading"])
+    df["action"] = _letters(df["action"])
+    cols = [
+        "multiplier",
+        "update",
+        "step",
+        "heading",
+        "action",
+        "reward",
+        "q_west",
+        "q_east",
+        "q_north",
+        "q_south",
+        "run",
+        "cell",
+        "map",
+    ]
+    return df[cols].sort_values(["multiplier", "update"], kind="stable").reset_index(drop=True)
+
+
+# --- Fig. 3 and 4 --------------------------------------------------------------------
+
+
+def figure34_data(
+    run_dir: str | Path,
+    cell: int,
+    n_updates: int = 100,
+    heading: int | str = "auto",
+    run: int = 0,
+    agent: int = 0,
+) -> pd.DataFrame:
+    """Fig. 3 (state 13, map A) / Fig. 4 (state 34, map B): r, gamma max Q(s',.), Q W/E.
+
+    The first ``n_updates`` Q-updates of state ``cell`` at one heading (module
+    docstring) in run ``run`` of a run folder with ``record.watch`` holding ``cell``.
+    ``bootstrap`` is ``gamma * max_a Q(s', a)`` over the legal actions of s';
+    ``q_west``/``q_east`` are the Q-row after the update. Columns: update, step,
+    heading, action, reward, bootstrap, q_west, q_east, next_cell, alpha, run, cell,
+    map, gamma.
+    """
+    w, cfg = _watched(Path(run_dir), cell, run, agent)
+    if heading == "auto":
+        h = choose_heading([w.groupby("heading").size().to_dict()], n_updates)
+    else:
+        h = _heading_index(heading)
+    f = _first_updates(w, h, n_updates)
+    f["heading"] = _letters(f["heading"])
+    f["action"] = _letters(f["action"])
+    f["map"] = get_map(cfg["map"]).name
+    f["gamma"] = cfg["learning.gamma"]
+    cols = [
+        "update",
+        "step",
+        "heading",
+        "action",
+        "reward",
+        "bootstrap",
+        "q_west",
+        "q_east",
+        "next_cell",
+        "alpha",
+        "run",
+        "cell",
+        "map",
+        "gamma",
+    ]
+    return f[cols]
+
+
+# --- gamma (§4) ------------------------------------------------------------------------
+
+
+def _first_episodes(run_dir: Path) -> pd.DataFrame:
+    """Per run, the first ended episode of group 0 (agent 0's dot map)."""
+    ep = _read_csv(run_dir / "episodes.csv", "episodes")
+    ep = ep[ep["group"] == 0].sort_values(["run", "episode"], kind="stable")
+    return ep.groupby("run", sort=True).head(1).set_index("run")
+
+
+def gamma_data(
+    sweep_dir: str | Path,
+    map: str | Map | None = None,
+    key: str = "learning.gamma",
+    level: float = 0.95,
+) -> pd.DataFrame:
+    """§4 gamma: the first episode per gamma against the shortest dot-eating walk.
+
+    For each point of a sweep over ``key`` (one agent on map A, gamma 0.1..0.9), over
+    its runs: the mean and 95% Student-t interval (:func:`mean_ci`) of the first
+    episode's ``steps`` (team steps until every dot is eaten), ``distinct_states``
+    ((cell, heading) pairs entered) and ``distinct_cells``. Only *complete* first
+    episodes enter the ``steps`` statistics (``n`` of them; a truncated one is only a
+    lower bound), while the exploration counts are over every ended first episode,
+    truncated ones included; ``truncated`` counts first episodes cut by
+    ``max_episode_steps`` and ``unfinished`` the runs (of the config's ``runs``) with no
+    ended first episode (they stopped before it ended, or are missing).
+    ``lower_bound`` and ``tour`` (:mod:`qpatrol.tours`) bracket the shortest walk
+    eating every dot from the map's start cell 0 (``map`` overrides the points'
+    map). ``cells``, ``states`` and ``dots`` count the map's free cells,
+    its (cell, arrival heading) pairs and its dot cells;
+    ``steps_min``/``steps_median`` are over the complete first episodes too.
+    """
+    points = read_sweep(sweep_dir)
+    refs: dict[str, tuple[Map, int, int]] = {}
+
+    def reference(name: str | Map) -> tuple[Map, int, int]:
+        m = name if isinstance(name, Map) else get_map(name)
+        if m.name not in refs:
+            start = int(m.starts[0]) if m.starts.size else 0
+            tour, _ = dot_walk_tour(m, start)
+            refs[m.name] = (m, dot_walk_lower_bound(m, start, upper=tour), tour)
+        return refs[m.name]
+
+    rows = []
+    for _, pt in points.iterrows():
+        cfg = pt["config"]
+        first = _first_episodes(pt["path"])
+        runs = int(cfg["runs"])
+        done = first[first["complete"] == 1]
+        m, lb, tour = reference(map if map is not None else cfg["map"])
+        row: dict[str, Any] = {key.split(".")[-1]: cfg[key], "runs": runs}
+        for col in ("steps", "distinct_states", "distinct_cells"):
+            ci = mean_ci((done if col == "steps" else first)[col], level)
+            row.update({f"{col}_mean": ci["mean"], f"{col}_lo": ci["lo"], f"{col}_hi": ci["hi"]})
+        row.update(
+            {
+                "n": len(done),
+                "truncated": int((first["complete"] == 0).sum()),
+                "unfinished": runs - len(first),
+                "max_episode_steps": cfg["max_episode_steps"] or math.nan,
+                "steps_min": float(done["steps"].min()) if len(done) else math.nan,
+                "steps_median": float(done["steps"].median()) if len(done) else math.nan,
+                "lower_bound": lb,
+                "tour": tour,
+                "cells": m.n_cells,
+                "states": int(m.degree.sum()),
+                "dots": int((m.dot_kind > 0).sum()),
+                "map": m.name,
+            }
+        )
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# --- team size and communication ---------------------------------------------------------
+
+TEAM_MEASURES = ("mean_steps_per_episode", "division_of_labour", "avg_idleness")
+
+
+def team_size_data(
+    sweep_dir: str | Path, level: float = 0.95, measures: Iterable[str] = TEAM_MEASURES
+) -> pd.DataFrame:
+    """Team size x communication: mean and 95% t-interval over runs of each measure.
+
+    From a sweep over ``agents`` (and ``team.communication``), read ``results.csv``
+    (one row per point and run). Points that share agents, communication and every
+    other swept key are pooled. Columns: agents, communication, (other swept keys),
+    runs, and per measure ``<measure>_mean``, ``_lo``, ``_hi``, ``_n`` (runs with a
+    value: ``mean_steps_per_episode`` is empty for a run without a complete episode), map.
+    Without communication each agent has its own dot map, so an episode is one agent
+    eating all of its private dots.
+    """
+    d = Path(sweep_dir)
+    points = read_sweep(d)
+    res = _read_csv(d / "results.csv", "per-run results of the sweep")
+    swept: list[str] = []
+    for ov in points["overrides"]:
+        swept += [k for k in ov if k not in swept and k not in ("agents", "team.communication")]
+    keyed = pd.DataFrame(
+        {
+            "point": points["index"],
+            "agents": [int(c["agents"]) for c in points["config"]],
+            "communication": [bool(c["team.communication"]) for c in points["config"]],
+            "map": [get_map(c["map"]).name for c in points["config"]],
+            **{k: [c[k] for c in points["config"]] for k in swept},
+        }
+    )
+    res = res.drop(columns=[c for c in keyed.columns if c != "point" and c in res.columns])
+    res = res.merge(keyed, on="point", how="inner")
+    group = ["agents", "communication", *swept]
+    rows = []
+    for values, g in res.groupby(group, sort=True):
+        row: dict[str, Any] = dict(zip(group, values, strict=True))
+        row["runs"] = len(g)
+        row["map"] = ",".join(sorted(set(g["map"])))
+        for col in measures:
+            ci = mean_ci(pd.to_numeric(g[col], errors="coerce"), level)
+            row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi", "n")})
+        rows.append(row)
+    return pd.DataFrame(rows)
+
+
+# --- Fig. 6 -----------------------------------------------------------------------------------
+
+
+def figure6_data(run_dir: str | Path, agent: int = 0, run: int = 0) -> pd.DataFrame:
+    """Fig. 6: agent ``agent``'s greedy action per cell and its visit map.
+
+    For each free cell: the heading with which the agent most often left it while
+    patrolling (argmax over headings of N(cell, heading, .) summed over actions; ties
+    N, E, S, W), since that is the Q-row the agent actually uses there; the greedy
+    action of that row over the legal (non-wall) moves (ties N, E, S, W); its Q-value;
+    ``heading_share``, that heading's share of the agent's decisions at the cell;
+    ``updates``, those decisions (0: never learnt there; the action is then just the
+    initial preference); visits of the agent and of the whole team (cell entries,
+    homing included) and the agent's share. Columns: cell, row, col, heading,
+    heading_share, action, q, updates, visits_agent, visits_all, share, map, agents,
+    episodes (complete episodes of the run).
+    """
+    d = Path(run_dir)
+    cfg = _run_config(d)
+    m = get_map(cfg["map"])
+    with np.load(d / "q_table.npz") as z:
+        q = z["q"][run, agent]  # [C, 4 heading, 4 action]
+        n = z["n"][run, agent]
+    with np.load(d / "visits.npz") as z:
+        visits = z["visits"][run]  # [K, C]
+    per_heading = n.sum(axis=2)  # [C, 4]
+    head = per_heading.argmax(axis=1)
+    updates = per_heading.sum(axis=1)
+    cells = np.arange(m.n_cells)
+    qrow = q[cells, head]  # [C, 4]
+    masked = np.where(m.neighbors >= 0, qrow, -np.inf)
+    action = masked.argmax(axis=1)
+    share_h = np.divide(
+        per_heading[cells, head], updates, out=np.full(m.n_cells, np.nan), where=updates > 0
+    )
+    total = visits.sum(axis=0)
+    ep = _read_csv(d / "episodes.csv", "episodes")
+    episodes = int(((ep["run"] == run) & (ep["complete"] == 1) & (ep["group"] == 0)).sum())
+    df = pd.DataFrame(
+        {
+            "cell": cells,
+            "row": m.coords[:, 0],
+            "col": m.coords[:, 1],
+            "heading": [DIR_LETTERS[h] for h in head],
+            "heading_share": share_h,
+            "action": [DIR_LETTERS[a] for a in action],
+            "q": masked[cells, action],
+            "updates": updates,
+            "visits_agent": visits[agent],
+            "visits_all": total,
+            "share": np.divide(
+                visits[agent], total, out=np.full(m.n_cells, np.nan), where=total > 0
+            ),
+        }
+    )
+    df["map"] = m.name
+    df["agents"] = int(cfg["agents"])
+    df["episodes"] = episodes
+    return df
+
+
+# --- Fig. 5 ---------------------------------------------------------------------------------
+
+
+def figure5_data(run_dir: str | Path, run: int = 0) -> pd.DataFrame:
+    """Fig. 5 from a run folder: its ``trajectory.csv`` (``record.trajectory: N``, the
+    last N team steps of each run) for run ``run``, with the map's name added.
+
+    Columns: step, agent, cell, row, col, map (and mode when recorded). Use
+    :func:`trajectory` instead to simulate any stretch of a run without a run folder.
+    """
+    d = Path(run_dir)
+    cfg = _run_config(d)
+    tr = _read_csv(d / "trajectory.csv", "agents' cells; set record.trajectory: N")
+    if "run" in tr.columns:
+        tr = tr[tr["run"] == run].drop(columns="run")
+    if tr.empty:
+        raise ValueError(f"{d}/trajectory.csv: no rows for run {run}")
+    tr = tr.sort_values(["step", "agent"], kind="stable").reset_index(drop=True)
+    tr["map"] = cfg["map"]
+    return tr
+
+
+def trajectory(
+    cfg: Config, steps: int, run: int = 0, point: int = 0, skip: int = 0
+) -> pd.DataFrame:
+    """Fig. 5: every agent's cell at every team step of run ``run`` of ``cfg``.
+
+    Drives :func:`qpatrol.env.init_state` and :func:`qpatrol.env.step` with the same
+    random streams as :func:`qpatrol.run.simulate` (``SeedSequence(seed, spawn_key=
+    (point, run))``, agents placed before the first step), so the positions are those
+    of ``simulate(cfg, point)`` for that run. The first ``skip`` steps are simulated but
+    not kept (to show a team that has learnt); then ``steps`` more are kept, plus the
+    positions before them. Stops early when the run is done (``episodes``). Columns:
+    step (team step; 0 = start), agent, cell, row, col, mode (patrol, homing,
+    charging), map.
+    """
+    m, p = prepare(cfg)
+    streams = Streams(run_seeds(cfg["seed"], range(run, run + 1), point), p.n_agents)
+    starts = np.stack([env.place_agents(p, m, g) for g in streams.generators])
+    state = env.init_state(p, starts)
+    k = p.n_agents
+    steps_kept, cells, modes = [], [], []
+
+    def keep() -> None:
+        steps_kept.append(state.t)
+        cells.append(state.pos[0].copy())
+        modes.append(state.mode[0].copy())
+
+    if skip == 0:
+        keep()
+    for i in range(skip + steps):
+        if not state.active.any():
+            break
+        env.step(state, p, streams.next(), None)
+        if i + 1 >= skip:
+            keep()
+    cell = np.concatenate(cells)
+    df = pd.DataFrame(
+        {
+            "step": np.repeat(steps_kept, k),
+            "agent": np.tile(np.arange(k), len(steps_kept)),
+            "cell": cell,
+            "row": m.coords[cell, 0],
+            "col": m.coords[cell, 1],
+            "mode": [MODES[x] for x in np.concatenate(modes)],
+        }
+    )
+    df["map"] = cfg["map"]
+    return df
