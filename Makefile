@@ -17,7 +17,7 @@ $(STAMP): pyproject.toml | $(BIN)/python
 install: $(STAMP)
 
 reproduce: $(STAMP)
-	$(BIN)/qpatrol train configs/paper.yaml --out results/runs/paper --force
+	$(BIN)/qpatrol reproduce --out results
 
 test: $(STAMP)
 	$(BIN)/ruff check qpatrol tests

@@ -176,6 +176,90 @@ def sweep(
         raise typer.Exit(1)
 
 
+@app.command()
+def plot(
+    name: Annotated[
+        str,
+        typer.Argument(
+            help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6 or team-size."
+        ),
+    ],
+    from_: Annotated[
+        Path | None,
+        typer.Option(
+            "--from",
+            "-f",
+            help="Experiment folder (a sweep or run folder) "
+            "[default: results/runs/full/<experiment>, else .../quick/<experiment>].",
+        ),
+    ] = None,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            help="Image file; .png, .svg, .pdf (.gif for figure-5) [default: "
+            "results/figures/NAME.png]. Its CSV is written beside it.",
+        ),
+    ] = None,
+) -> None:
+    """Draw one paper figure from an experiment folder, writing its CSV beside it."""
+    from qpatrol import reproduce as rp
+
+    try:
+        fig = rp.figure(name)
+    except ConfigError as e:
+        fail(str(e))
+    if from_ is None:
+        candidates = [rp.experiment_dir(Path("results"), fig.experiment, q) for q in (False, True)]
+        from_ = next((c for c in candidates if c.exists()), None)
+        if from_ is None:
+            fail(
+                f"no experiment folder for {name} under results/runs/; run `qpatrol reproduce` "
+                "(or --quick) first, or pass --from DIR"
+            )
+    if not from_.exists():
+        fail(f"{from_}: no such folder")
+    target = out or Path("results") / "figures" / f"{name}{fig.ext}"
+    try:
+        made = rp.make_figure(name, from_, target)
+    except (FileNotFoundError, KeyError, ValueError) as e:
+        fail(f"{name} from {from_}: {e}")
+    for path in made:
+        typer.echo(f"wrote {path}")
+
+
+@app.command()
+def reproduce(
+    quick: Annotated[
+        bool, typer.Option(help="Fewer seeds and steps: every figure in under a minute.")
+    ] = False,
+    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("results"),
+    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Experiments run at once.")] = 2,
+    update_references: Annotated[
+        bool,
+        typer.Option(help="With --quick: store its CSVs as the references the tests compare."),
+    ] = False,
+) -> None:
+    """Run the paper's experiments, draw every figure and write REPORT.md.
+
+    Resumable: finished experiment points are kept under OUT/runs/ and not rerun.
+    """
+    from qpatrol import reproduce as rp
+
+    if update_references and not quick:
+        fail("--update-references needs --quick")
+    try:
+        path = rp.reproduce(
+            out, quick=quick, jobs=jobs, update_references=update_references, log=typer.echo
+        )
+    except (ConfigError, MapError) as e:
+        fail(str(e))
+    except RuntimeError as e:
+        fail(str(e), code=1)
+    typer.echo(f"done: {path}")
+
+
 def _repo_path(relative: str) -> Path:
     """A file of the qpatrol checkout (configs/...), preferring one in the working dir."""
     here = Path(relative)
