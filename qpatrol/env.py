@@ -299,23 +299,11 @@ class Recorder(Protocol):
 
     wants_updates: bool
 
-    def updates(
-        self,
-        t: int,
-        agent: int,
-        runs: np.ndarray,
-        cell: np.ndarray,
-        heading: np.ndarray,
-        action: np.ndarray,
-        reward: np.ndarray,
-        next_cell: np.ndarray,
-        next_heading: np.ndarray,
-        alpha: np.ndarray,
-        q_before: np.ndarray,
-        q_after: np.ndarray,
-        bootstrap: np.ndarray,
-        q_row: np.ndarray,
-    ) -> None: ...
+    def updates(self, t: int, agent: int, runs: np.ndarray, cols: dict[str, np.ndarray]) -> None:
+        """Q-updates of agent ``agent`` at step ``t`` in batch rows ``runs``; ``cols`` holds
+        ``[B]`` arrays cell, heading, action, reward, next_cell, next_heading, alpha,
+        q_before, q_after, bootstrap (gamma max Q(s')) and ``q_row`` ``[B, 4]`` (after)."""
+        ...
 
     def episodes(
         self, t: int, runs: np.ndarray, groups: np.ndarray, state: State, complete: np.ndarray
@@ -444,17 +432,19 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
                     t,
                     k,
                     rl,
-                    ca,
-                    ha,
-                    aa,
-                    reward[learn],
-                    cb,
-                    hb,
-                    alpha,
-                    q_before,
-                    q_after,
-                    bootstrap,
-                    s.q[rl, k, ca, ha],
+                    {
+                        "cell": ca,
+                        "heading": ha,
+                        "action": aa,
+                        "reward": reward[learn],
+                        "next_cell": cb,
+                        "next_heading": hb,
+                        "alpha": alpha,
+                        "q_before": q_before,
+                        "q_after": q_after,
+                        "bootstrap": bootstrap,
+                        "q_row": s.q[rl, k, ca, ha],
+                    },
                 )
 
         # --- homing agents that reached a station start charging --------------------

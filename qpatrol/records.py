@@ -68,55 +68,20 @@ class Recorder:
         self._updates: list[list[np.ndarray]] = []
         self._episodes: list[list[np.ndarray]] = []
 
-    def updates(
-        self,
-        t,
-        agent,
-        runs,
-        cell,
-        heading,
-        action,
-        reward,
-        next_cell,
-        next_heading,
-        alpha,
-        q_before,
-        q_after,
-        bootstrap,
-        q_row,
-    ) -> None:
+    def updates(self, t: int, agent: int, runs: np.ndarray, cols: dict[str, np.ndarray]) -> None:
+        """Keep the Q-updates of one agent at step ``t`` (all, or those of watched cells)."""
         if not self.transitions:
-            keep = np.isin(cell, self.watch)
+            keep = np.isin(cols["cell"], self.watch)
             if not keep.any():
                 return
-            runs, cell, heading, action, reward = (
-                x[keep] for x in (runs, cell, heading, action, reward)
-            )
-            next_cell, next_heading, alpha, q_before, q_after, bootstrap, q_row = (
-                x[keep]
-                for x in (next_cell, next_heading, alpha, q_before, q_after, bootstrap, q_row)
-            )
+            runs = runs[keep]
+            cols = {name: x[keep] for name, x in cols.items()}
         m = runs.size
+        q_row = cols["q_row"]
         self._updates.append(
-            [
-                self.run_ids[runs],
-                np.full(m, t),
-                np.full(m, agent),
-                cell,
-                heading,
-                action,
-                reward,
-                next_cell,
-                next_heading,
-                alpha,
-                q_before,
-                q_after,
-                bootstrap,
-                q_row[:, 0],
-                q_row[:, 1],
-                q_row[:, 2],
-                q_row[:, 3],
-            ]
+            [self.run_ids[runs], np.full(m, t), np.full(m, agent)]
+            + [cols[name] for name in WATCH_COLUMNS[3:13]]
+            + [q_row[:, 0], q_row[:, 1], q_row[:, 2], q_row[:, 3]]
         )
 
     def episodes(

@@ -44,6 +44,7 @@ import pandas as pd
 
 from qpatrol import atomic
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
+from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
 
 Progress = Callable[[int, int], None]
@@ -375,9 +376,31 @@ def _point_configs(base: Config, points: list[Point]) -> list[Config]:
 
 
 def _describe(base: Config, points: list[Point]) -> dict[str, Any]:
-    """The content of ``sweep.json``, normalised through JSON."""
-    spec = {"format": _FORMAT, "base": base.tree(), "points": [p.describe() for p in points]}
+    """The content of ``sweep.json``, normalised through JSON.
+
+    ``maps`` holds a hash of each map file the sweep uses, so a map edited between a
+    run and its resume is noticed instead of mixing old and new results.
+    """
+    spec = {
+        "format": _FORMAT,
+        "base": base.tree(),
+        "points": [p.describe() for p in points],
+        "maps": _map_hashes(
+            [base["map"], *(p.overrides["map"] for p in points if "map" in p.overrides)]
+        ),
+    }
     return json.loads(json.dumps(spec))
+
+
+def _map_hashes(names: list[str]) -> dict[str, str | None]:
+    """Map name or path -> sha256 prefix of its file (None if it cannot be read)."""
+    hashes: dict[str, str | None] = {}
+    for name in sorted(set(map(str, names))):
+        try:
+            hashes[name] = hashlib.sha256(resolve_map(name).read_bytes()).hexdigest()[:16]
+        except (MapError, OSError):
+            hashes[name] = None
+    return hashes
 
 
 def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
@@ -416,6 +439,10 @@ def _difference(old: dict[str, Any], new: dict[str, Any]) -> str:
     for key in [*b, *(k for k in a if k not in b)]:
         if a.get(key, "<unset>") != b.get(key, "<unset>"):
             return f"base {key}: {a.get(key, '<unset>')!r} there, {b.get(key, '<unset>')!r} now"
+    old_maps = old.get("maps", new["maps"])
+    for name, digest in new["maps"].items():
+        if old_maps.get(name, digest) != digest:
+            return f"map {name} has changed since the sweep started"
     pa, pb = old.get("points"), new["points"]
     if pa == pb:
         return ""

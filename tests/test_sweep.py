@@ -373,3 +373,17 @@ def test_dask_own_local_cluster(base, tmp_path):
     assert r.done == [p.id for p in pts]
     expected = (tmp_path / "joblib" / "results.csv").read_bytes()
     assert (tmp_path / "dask" / "results.csv").read_bytes() == expected
+
+
+def test_edited_map_is_not_resumed(tmp_path: Path):
+    from qpatrol.config import from_flat
+    from qpatrol.sweep import points_for, run_sweep
+
+    m = tmp_path / "m.txt"
+    m.write_text("0....\n.#.#.\n.....\n")
+    base = from_flat({"map": str(m), "agents": 1, "steps": 30, "battery.enabled": False})
+    pts = points_for("learning.gamma", [0.1, 0.2])
+    run_sweep(base, pts, tmp_path / "s")
+    m.write_text("0....\n.#.#.\n....o\n")
+    with pytest.raises(ConfigError, match="has changed since the sweep started"):
+        run_sweep(base, pts, tmp_path / "s")
