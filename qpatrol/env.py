@@ -29,7 +29,8 @@ Team (paper §4)
 Battery
     Each move costs 1. A patrolling agent whose charge is at most its distance to the
     nearest ``H`` plus ``margin`` turns to *homing*: it follows a shortest path to the
-    nearest charging station not occupied by another agent, rests ``charge_steps``
+    nearest charging station not occupied by another agent that its charge can reach
+    (else to the nearest one, waiting while its path is blocked), rests ``charge_steps``
     team steps there and resumes patrol with a full charge. Homing moves eat dots and
     count as visits but do not update Q.
 
@@ -368,8 +369,11 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
         if homing.any():
             occupied = start_pos[:, :, None] == p.homes[None, None, :]  # [R, K, H]
             occupied[:, k] = False
-            dist = p.home_dist[:, c].T + occupied.any(axis=1) * (10 * p.n_cells)  # [R, H]
-            goal = dist.argmin(axis=1)
+            dist = p.home_dist[:, c].T  # [R, H]
+            free = np.where(occupied.any(axis=1), 10 * p.n_cells, dist)
+            # a free station within reach of the charge left, else the nearest one
+            reach = free.min(axis=1) <= s.charge[:, k]
+            goal = np.where(reach, free.argmin(axis=1), dist.argmin(axis=1))
             a_home = p.home_dir[goal, c]
             ok = (a_home >= 0) & legal[ar, np.maximum(a_home, 0)]
             action = np.where(homing, np.maximum(a_home, 0), action)

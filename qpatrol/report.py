@@ -47,11 +47,12 @@ def _ci(mean: float, lo: float, hi: float) -> str:
 
 
 def figure_2(fig: pd.DataFrame, res: pd.DataFrame) -> Section:
-    rows, shares = [], []
+    rows, shares, alternation = [], [], {}
     for mult, d in fig.groupby("multiplier", sort=True):
         we = d["action"].isin(["W", "E"])
         switch = int((d["action"][we].to_numpy()[1:] != d["action"][we].to_numpy()[:-1]).sum())
         shares.append(we.mean())
+        alternation[float(mult)] = (switch, max(int(we.sum()) - 1, 0))
         perf = res[res["learning.multiplier"] == mult]
         rows.append(
             f"| {_fmt(mult)}x | {len(d)} | {int(we.sum())} | {switch} | "
@@ -87,6 +88,13 @@ def figure_2(fig: pd.DataFrame, res: pd.DataFrame) -> Section:
             + ", ".join(f"{_fmt(s)}" for s in shares)
             + f" ({'rising' if monotone else 'not monotone'} with the multiplier). Lowest "
             f"average idleness at {_fmt(best)}x.",
+            "How often consecutive W/E choices switch direction (the paper's 'a different "
+            "action every step'): "
+            + ", ".join(
+                f"{_fmt(m)}x {a}/{n}" + (f" ({_fmt(a / n)})" if n else "")
+                for m, (a, n) in alternation.items()
+            )
+            + "; compare with the idleness column.",
         ],
         "reproduced if the W/E share rises with the multiplier and 100x has the lowest "
         "average idleness; partly if only the first holds.",
@@ -263,9 +271,26 @@ def team_size(fig: pd.DataFrame) -> Section:
             ),
             "Without communication each agent clears its own private dot map, so an "
             "'episode' is one agent's and does not shorten with the team.",
+            *_communication_effect(fig),
         ],
         "no paper numbers to compare with; mean [95% t-interval] over runs.",
     )
+
+
+def _communication_effect(fig: pd.DataFrame) -> list[str]:
+    """One sentence per team size > 1 comparing communication on and off."""
+    out = []
+    for k, d in fig[fig["agents"] > 1].groupby("agents"):
+        on, off = d[d["communication"]], d[~d["communication"]]
+        if len(on) and len(off):
+            a, b = on.iloc[0], off.iloc[0]
+            out.append(
+                f"{int(k)} agents, communication on vs off: average idleness "
+                f"{_fmt(a.avg_idleness_mean)} vs {_fmt(b.avg_idleness_mean)} team steps, "
+                f"division of labour {_fmt(a.division_of_labour_mean)} vs "
+                f"{_fmt(b.division_of_labour_mean)}."
+            )
+    return out
 
 
 def build(

@@ -312,3 +312,37 @@ def test_trajectory_tail_ends_at_the_final_positions(rooms_map):
         for _, a in mine.groupby("agent"):
             c = a.cell.to_numpy()
             assert all(y == x or y in r.map.neighbors[x] for x, y in zip(c, c[1:], strict=False))
+
+
+RING_WITH_TWO_STATIONS = "H1.0..\n.####.\n...H..\n"
+
+
+@pytest.mark.parametrize(
+    "charge, margin, path",
+    [
+        (9, 6, [4, 5, 7, 13, 12, 11]),  # station 0 is busy: go round to station 11
+        (5, 2, [2, 1, 1, 0]),  # station 11 is out of reach: wait one step for station 0
+    ],
+)
+def test_homing_bypasses_an_occupied_station_it_can_avoid(tmp_path, charge, margin, path):
+    # ring of 14 cells: top row 0-5 (H at 0, agent 1 starts at 1, agent 0 at 3), cells 6 and 7
+    # down the sides, bottom row 8-13 with a second H at 11
+    p_ = tmp_path / "ring.txt"
+    p_.write_text(RING_WITH_TWO_STATIONS)
+    flat = {
+        "agents": 2,
+        "battery.enabled": True,
+        "battery.capacity": 20,
+        "battery.margin": margin,
+        "battery.charge_steps": 2,
+    }
+    _, m, p, s = world(p_, **flat)
+    assert p.homes.tolist() == [0, 11]
+    s.pos[0, 1], s.mode[0, 1], s.rest[0, 1] = 0, env.CHARGING, 2  # agent 1 charging at 0
+    s.charge[0, 0] = charge
+    seen = []
+    for _ in path:
+        env.step(s, p, u_for(0.0, agents=2))
+        seen.append(int(s.pos[0, 0]))
+    assert seen == path
+    assert s.mode[0, 0] == env.CHARGING and s.charge[0, 0] >= 0
