@@ -20,16 +20,16 @@ reproduce: $(STAMP)
 	$(BIN)/qpatrol reproduce --out results
 
 test: $(STAMP)
-	$(BIN)/ruff check qpatrol tests
-	$(BIN)/ruff format --check qpatrol tests
+	$(BIN)/ruff check qpatrol tests benchmarks
+	$(BIN)/ruff format --check qpatrol tests benchmarks
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff check qpatrol tests
+	$(BIN)/ruff check qpatrol tests benchmarks
 
 format: $(STAMP)
-	$(BIN)/ruff format qpatrol tests
-	$(BIN)/ruff check --fix qpatrol tests
+	$(BIN)/ruff format qpatrol tests benchmarks
+	$(BIN)/ruff check --fix qpatrol tests benchmarks
 
 clean:
 	rm -rf $(VENV) results/runs results/scratch .pytest_cache .ruff_cache

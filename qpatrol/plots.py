@@ -566,7 +566,8 @@ def figure_6(csv: str | Path, out: str | Path) -> Path:
             share,
             "RdBu_r",
             (0, min(1.0, 2 * fair)),
-            f"agent 0's share of the team's visits (white: 1/K = {fair:.2g})",
+            f"agent 0's share of the team's visits (white: 1/K = {fair:.2g}; "
+            f"darkest red: {min(1.0, 2 * fair):.2g} or more)",
             "agent 0's share of all visits (red: more than 1/K)",
         ),
     )

@@ -228,8 +228,10 @@ def figure_56(fig6: pd.DataFrame, team: pd.DataFrame) -> Section:
         verdict,
         [
             f"{k} agents, {episodes} episodes, {len(team)} runs.",
-            f"Agent 0 entered {_fmt(100 * cover)}% of the cells at least once.",
-            "Agent 0's share of the team's visits by quadrant (fair share 1/K = "
+            f"Agent 0 entered {_fmt(100 * cover)}% of the cells at least once (run 0). It "
+            "starts in the upper left (start digit 0); which region it settles in changes "
+            "from run to run and with any change of the model.",
+            "Agent 0's share of the team's visits by quadrant in run 0 (fair share 1/K = "
             f"{_fmt(1 / k)}): "
             + ", ".join(f"{q} {_fmt(v)}" for q, v in quads.items())
             + f"; its favourite is the {top}.",
