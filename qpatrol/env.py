@@ -330,9 +330,9 @@ def step(state: State, p: Params, u: np.ndarray, rec: Recorder | None = None) ->
     start_pos = s.pos.copy()
     record = rec is not None and rec.wants_updates
     for k in range(K):
-        c = s.pos[:, k]
+        c = s.pos[:, k].copy()  # [R] cell before the move (s.pos changes below)
         g = 0 if p.communication else k
-        hs = s.head[:, k] if p.use_heading else np.zeros(R, dtype=np.int64)
+        hs = s.head[:, k].copy() if p.use_heading else np.zeros(R, dtype=np.int64)
 
         # --- battery: charging countdown, patrol -> homing ---------------------------
         resting = np.zeros(R, dtype=bool)

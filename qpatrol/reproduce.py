@@ -17,7 +17,7 @@ from __future__ import annotations
 import shutil
 import time
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 from pathlib import Path
 
 import pandas as pd
@@ -25,7 +25,7 @@ import pandas as pd
 from qpatrol import atomic
 from qpatrol.config import Config, load_config
 from qpatrol.records import to_csv_text
-from qpatrol.sweep import NAMED_SWEEPS, Point, load_results, run_sweep
+from qpatrol.sweep import NAMED_SWEEPS, Point, run_sweep
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -117,32 +117,10 @@ def run_all(
     return seconds
 
 
-@dataclass
-class Outputs:
-    """Where the figures of one reproduction went."""
-
-    figures: dict[str, list[Path]] = field(default_factory=dict)
-    csvs: dict[str, Path] = field(default_factory=dict)
-
-
-def point_dir(out: Path, name: str, quick: bool, point: int = 0) -> Path:
-    """The run folder of one point of an experiment."""
-    exp = BY_NAME[name]
-    pid = exp.points()[point].id
-    return experiment_dir(out, name, quick) / "points" / pid
-
-
 def write_csv(df: pd.DataFrame, path: Path) -> Path:
     """A figure CSV, atomically, in the fixed float format."""
     atomic.write_text(path, to_csv_text(df))
     return path
-
-
-def sweep_results(out: Path, quick: bool) -> dict[str, pd.DataFrame]:
-    """``results.csv`` of every swept experiment."""
-    return {
-        e.name: load_results(experiment_dir(out, e.name, quick)) for e in EXPERIMENTS if e.sweep
-    }
 
 
 def copy_tree_files(src: Path, dst: Path, pattern: str = "*.csv") -> None:
@@ -235,16 +213,6 @@ def make_figure(name: str, folder: Path, image: Path) -> list[Path]:
     drawn = fig.draw(csv, Path(image))
     files = list(drawn) if isinstance(drawn, tuple | list) else [Path(drawn)]
     return [csv, *files]
-
-
-def make_figures(out: Path, quick: bool, dest: Path) -> dict[str, list[Path]]:
-    """Every figure from the experiment folders of one mode into ``dest``."""
-    made = {}
-    for name in FIGURE_NAMES:
-        fig = figure(name)
-        folder = experiment_dir(out, fig.experiment, quick)
-        made[name] = make_figure(name, folder, dest / f"{name}{fig.ext}")
-    return made
 
 
 def reproduce(
