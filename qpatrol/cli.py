@@ -51,7 +51,7 @@ def train(
     set_: SetOpt = None,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder [default: results/runs/<config>-<hash>]."),
+        typer.Option("--out", "-o", help="Output folder (default: results/runs/<config>-<hash>)."),
     ] = None,
     force: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
     quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
@@ -104,7 +104,7 @@ def sweep(
     ] = 1,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Sweep folder [default: results/sweeps/NAME]."),
+        typer.Option("--out", "-o", help="Sweep folder (default: results/sweeps/NAME)."),
     ] = None,
     set_: SetOpt = None,
     backend: Annotated[str, typer.Option(help="joblib or dask.")] = "joblib",
@@ -190,7 +190,7 @@ def plot(
             "--from",
             "-f",
             help="Experiment folder (a sweep or run folder) "
-            "[default: results/runs/full/<experiment>, else .../quick/<experiment>].",
+            "(default: results/runs/full/<experiment>, else .../quick/<experiment>).",
         ),
     ] = None,
     out: Annotated[
@@ -198,8 +198,8 @@ def plot(
         typer.Option(
             "--out",
             "-o",
-            help="Image file; .png, .svg, .pdf (.gif for figure-5) [default: "
-            "results/figures/NAME.png]. Its CSV is written beside it.",
+            help="Image file; .png, .svg, .pdf (.gif for figure-5) (default: "
+            "results/figures/NAME.png). Its CSV is written beside it.",
         ),
     ] = None,
 ) -> None:
