@@ -23,7 +23,7 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import atomic, env, metrics
-from qpatrol.config import Config
+from qpatrol.config import Config, ConfigError
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
@@ -61,8 +61,19 @@ class RunResult:
     summary: list[dict[str, Any]]
 
 
+#: Most Q-update rows ``record.transitions`` may keep in memory for one batch.
+MAX_TRANSITION_ROWS = 20_000_000
+
+
 def prepare(cfg: Config) -> tuple[Map, env.Params]:
     """Load the map and build the parameters; raises ConfigError/MapError on bad input."""
+    rows = cfg["steps"] * cfg["runs"] * cfg["agents"]
+    if cfg["record.transitions"] and rows > MAX_TRANSITION_ROWS:
+        raise ConfigError(
+            f"record.transitions: up to {rows:,} rows (steps x runs x agents) would not fit; "
+            f"allowed: at most {MAX_TRANSITION_ROWS:,} (lower steps or runs, or trace cells "
+            "with record.watch)"
+        )
     m = get_map(cfg["map"])
     return m, env.make_params(cfg, m)
 

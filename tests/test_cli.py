@@ -208,3 +208,9 @@ def _small_map(d: Path) -> str:
     p = d / "small.txt"
     p.write_text("0....\n.#.#.\n..H..\n")
     return str(p)
+
+
+def test_oversized_transition_log_is_refused(tmp_path: Path):
+    res = invoke("train", tiny_config(tmp_path), "--set", "steps=10000000", "--out", tmp_path / "o")
+    assert res.exit_code == 2 and "record.transitions: up to" in res.stderr
+    assert not (tmp_path / "o").exists()
