@@ -205,11 +205,14 @@ def source_folder(fig: Figure, folder: Path) -> Path:
     return folder
 
 
-def make_figure(name: str, folder: Path, image: Path) -> list[Path]:
-    """Tabulate ``folder`` into ``image``'s CSV (same stem, ``.csv``), then draw it."""
+def make_figure(name: str, folder: Path, image: Path, draw: bool = True) -> list[Path]:
+    """Tabulate ``folder`` into ``image``'s CSV (same stem, ``.csv``), then draw it
+    (unless ``draw`` is off). Returns the files written."""
     fig = figure(name)
     table = fig.data(source_folder(fig, folder))
     csv = write_csv(table, Path(image).with_suffix(".csv"))
+    if not draw:
+        return [csv]
     drawn = fig.draw(csv, Path(image))
     files = list(drawn) if isinstance(drawn, tuple | list) else [Path(drawn)]
     return [csv, *files]
@@ -241,13 +244,10 @@ def reproduce(
         atomic.write_bytes(data / f"{exp.name}-results.csv", src.read_bytes())
     for name in FIGURE_NAMES:
         fig = figure(name)
-        folder = source_folder(fig, experiment_dir(out, fig.experiment, quick))
-        image = figs / f"{name}{fig.ext}"
+        folder = experiment_dir(out, fig.experiment, quick)
+        made = make_figure(name, folder, figs / f"{name}{fig.ext}", draw=draw)
         if draw:
-            made = make_figure(name, folder, image)
             log(f"figure {name}: {', '.join(str(p) for p in made)}")
-        else:
-            write_csv(fig.data(folder), image.with_suffix(".csv"))
     if update_references:
         if not quick:
             raise ValueError("update_references applies to the quick mode")
