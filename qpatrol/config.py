@@ -19,6 +19,8 @@ from typing import Any
 
 import yaml
 
+from qpatrol.strategies import NAMES as STRATEGY_NAMES
+
 
 class ConfigError(ValueError):
     """An invalid configuration; the message names the key and what is allowed."""
@@ -37,6 +39,8 @@ class Field:
     low_open: bool = False  # low bound excluded
     choices: tuple[str, ...] = ()
     nullable: bool = False
+    #: the strategies (``policy``) that read this key; empty = every one of them
+    used_by: tuple[str, ...] = ()
 
     def allowed(self) -> str:
         """Plain words for what values this key takes."""
@@ -67,9 +71,19 @@ def _num(x: float) -> str:
 
 
 F = Field
+#: Every patrol strategy, by its ``policy`` name (one module each in qpatrol/strategies/).
+POLICIES = STRATEGY_NAMES
+QL = ("qlearning",)
 SCHEMA: tuple[Field, ...] = (
     F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
     F("agents", "int", 4, "robots in the team", low=1, high=64),
+    F(
+        "policy",
+        "choice",
+        "qlearning",
+        "patrol strategy: the paper's Q-learning or a classic baseline",
+        choices=POLICIES,
+    ),
     F("runs", "int", 1, "independent runs, each with its own seed", low=1, high=100000),
     F("seed", "int", 0, "root seed; run r draws from SeedSequence(seed, spawn_key=(r,))", low=0),
     F(
@@ -96,7 +110,16 @@ SCHEMA: tuple[Field, ...] = (
         low=1,
         nullable=True,
     ),
-    F("learning.gamma", "float", 0.1, "discount factor", low=0.0, high=1.0, low_open=False),
+    F(
+        "learning.gamma",
+        "float",
+        0.1,
+        "discount factor",
+        low=0.0,
+        high=1.0,
+        low_open=False,
+        used_by=QL,
+    ),
     F(
         "learning.multiplier",
         "float",
@@ -105,11 +128,12 @@ SCHEMA: tuple[Field, ...] = (
         low=0.0,
         low_open=True,
         high=1e12,
+        used_by=QL,
     ),
-    F("learning.q_init.north", "float", 3.0, "initial Q of North (before multiplier)"),
-    F("learning.q_init.east", "float", 2.0, "initial Q of East (before multiplier)"),
-    F("learning.q_init.south", "float", 1.0, "initial Q of South (before multiplier)"),
-    F("learning.q_init.west", "float", 2.0, "initial Q of West (before multiplier)"),
+    F("learning.q_init.north", "float", 3.0, "initial Q of North (before multiplier)", used_by=QL),
+    F("learning.q_init.east", "float", 2.0, "initial Q of East (before multiplier)", used_by=QL),
+    F("learning.q_init.south", "float", 1.0, "initial Q of South (before multiplier)", used_by=QL),
+    F("learning.q_init.west", "float", 2.0, "initial Q of West (before multiplier)", used_by=QL),
     F(
         "learning.epsilon",
         "float",
@@ -117,6 +141,7 @@ SCHEMA: tuple[Field, ...] = (
         "probability of a uniformly random legal move",
         low=0.0,
         high=1.0,
+        used_by=QL,
     ),
     F(
         "learning.state_space",
@@ -124,6 +149,7 @@ SCHEMA: tuple[Field, ...] = (
         "cell_heading",
         "Q-table state: (cell, heading) as in the paper, or cell alone (ablation)",
         choices=("cell_heading", "cell"),
+        used_by=QL,
     ),
     F(
         "learning.initial_heading",
@@ -132,8 +158,15 @@ SCHEMA: tuple[Field, ...] = (
         "heading an agent has before its first move",
         choices=("north", "east", "south", "west"),
     ),
-    F("reward.dot_value", "float", 1.0, "reward for eating a dot", low=0.0),
-    F("reward.big_dot_value", "float", 5.0, "reward for eating a big dot (`o`)", low=0.0),
+    F("reward.dot_value", "float", 1.0, "reward for eating a dot", low=0.0, used_by=QL),
+    F(
+        "reward.big_dot_value",
+        "float",
+        5.0,
+        "reward for eating a big dot (`o`)",
+        low=0.0,
+        used_by=QL,
+    ),
     F(
         "reward.incremental_value",
         "float",
@@ -141,6 +174,7 @@ SCHEMA: tuple[Field, ...] = (
         "maximum of incrementalDot, reached when a "
         "cell has been unvisited for `idle_horizon` steps",
         low=0.0,
+        used_by=QL,
     ),
     F(
         "reward.idle_horizon",
@@ -149,6 +183,7 @@ SCHEMA: tuple[Field, ...] = (
         "team steps of idleness at which incrementalDot saturates",
         low=0.0,
         low_open=True,
+        used_by=QL,
     ),
     F(
         "reward.lambda",
@@ -156,6 +191,7 @@ SCHEMA: tuple[Field, ...] = (
         1.0,
         "weight of lambda = dots eaten / state visits in the episode (0 turns it off)",
         low=0.0,
+        used_by=QL,
     ),
     F(
         "team.communication",
@@ -168,6 +204,24 @@ SCHEMA: tuple[Field, ...] = (
     F("battery.capacity", "int", 1000, "moves on a full charge", low=1),
     F("battery.margin", "int", 5, "spare moves kept when deciding to go home", low=0),
     F("battery.charge_steps", "int", 50, "team steps spent charging at `H`", low=0),
+    F(
+        "battery.initial_charge",
+        "choice",
+        "staggered",
+        "charge at the start: `full` for every robot, or `staggered` (robot k of K starts "
+        "with capacity x (K - k) / K, so the team does not go home all at once)",
+        choices=("full", "staggered"),
+    ),
+    F(
+        "evap.evaporation",
+        "float",
+        0.02,
+        "share of the pheromone that evaporates every team step",
+        low=0.0,
+        low_open=True,
+        high=1.0,
+        used_by=("evap",),
+    ),
     F("record.transitions", "bool", False, "write transitions.csv, one row per Q-update"),
     F("record.watch", "cells", [], "states whose Q-updates are traced to watch.csv"),
     F(
@@ -381,5 +435,7 @@ def keys_table(fmt: Callable[[Field], str] | None = None) -> str:
     """One line per key: name, default, allowed values, help."""
     lines = []
     for f in SCHEMA:
-        lines.append(f"{f.key:28s} {json.dumps(f.default):>14s}  {f.help} [{f.allowed()}]")
+        only = f" (read only by policy {', '.join(f.used_by)}; other strategies ignore it)"
+        note = only if f.used_by else ""
+        lines.append(f"{f.key:28s} {json.dumps(f.default):>14s}  {f.help}{note} [{f.allowed()}]")
     return "\n".join(lines)

@@ -35,11 +35,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import env
+from qpatrol import strategies, world
+from qpatrol.battery import MODE_NAMES
 from qpatrol.config import Config, from_mapping, load_config
 from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map
 from qpatrol.rng import Streams, run_seeds
-from qpatrol.run import prepare
+from qpatrol.run import advance, prepare
 from qpatrol.tours import dot_walk_lower_bound, dot_walk_tour
 
 __all__ = [
@@ -54,8 +55,6 @@ __all__ = [
     "team_size_data",
     "trajectory",
 ]
-
-MODES = ("patrol", "homing", "charging")
 
 
 # --- statistics ---------------------------------------------------------------------
@@ -554,19 +553,20 @@ def trajectory(
 ) -> pd.DataFrame:
     """Fig. 5: every agent's cell at every team step of run ``run`` of ``cfg``.
 
-    Drives :func:`qpatrol.env.init_state` and :func:`qpatrol.env.step` with the same
+    Drives the world and the strategy with :func:`qpatrol.run.advance` and the same
     random streams as :func:`qpatrol.run.simulate` (``SeedSequence(seed, spawn_key=
     (point, run))``, agents placed before the first step), so the positions are those
     of ``simulate(cfg, point)`` for that run. The first ``skip`` steps are simulated but
     not kept (to show a team that has learnt); then ``steps`` more are kept, plus the
     positions before them. Stops early when the run is done (``episodes``). Columns:
-    step (team step; 0 = start), agent, cell, row, col, mode (patrol, homing,
+    step (team step; 0 = start), agent, cell, row, col, mode (patrol, homing, queued,
     charging), map.
     """
     m, p = prepare(cfg)
     streams = Streams(run_seeds(cfg["seed"], range(run, run + 1), point), p.n_agents)
-    starts = np.stack([env.place_agents(p, m, g) for g in streams.generators])
-    state = env.init_state(p, starts)
+    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
+    state = world.init_state(p, starts)
+    strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
     k = p.n_agents
     steps_kept, cells, modes = [], [], []
 
@@ -580,7 +580,7 @@ def trajectory(
     for i in range(skip + steps):
         if not state.active.any():
             break
-        env.step(state, p, streams.next(), None)
+        advance(state, p, strategy, streams.next())
         if i + 1 >= skip:
             keep()
     cell = np.concatenate(cells)
@@ -591,7 +591,7 @@ def trajectory(
             "cell": cell,
             "row": m.coords[cell, 0],
             "col": m.coords[cell, 1],
-            "mode": [MODES[x] for x in np.concatenate(modes)],
+            "mode": [MODE_NAMES[x] for x in np.concatenate(modes)],
         }
     )
     df["map"] = cfg["map"]

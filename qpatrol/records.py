@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from qpatrol.env import State
+from qpatrol.world import EpisodeEnds, State
 
 #: Float format of every CSV: None = Python's shortest repr that reads back to the
 #: same float64, so files are exact, deterministic and replayable.
@@ -68,37 +68,44 @@ class Recorder:
         self._updates: list[list[np.ndarray]] = []
         self._episodes: list[list[np.ndarray]] = []
 
-    def updates(self, t: int, agent: int, runs: np.ndarray, cols: dict[str, np.ndarray]) -> None:
-        """Keep the Q-updates of one agent at step ``t`` (all, or those of watched cells)."""
+    def updates(
+        self, t: int, runs: np.ndarray, agents: np.ndarray, cols: dict[str, np.ndarray]
+    ) -> None:
+        """Keep the Q-updates made at step ``t`` (all, or those of watched cells).
+
+        ``runs``, ``agents``: int ``[B]`` batch rows and robots; ``cols`` holds ``[B]``
+        arrays cell, heading, action, reward, next_cell, next_heading, alpha, q_before,
+        q_after, bootstrap (gamma max Q(s')) and ``q_row`` ``[B, 4]`` (after).
+        """
         if not self.transitions:
             keep = np.isin(cols["cell"], self.watch)
             if not keep.any():
                 return
-            runs = runs[keep]
+            runs, agents = runs[keep], agents[keep]
             cols = {name: x[keep] for name, x in cols.items()}
         m = runs.size
         q_row = cols["q_row"]
         self._updates.append(
-            [self.run_ids[runs], np.full(m, t), np.full(m, agent)]
+            [self.run_ids[runs], np.full(m, t), agents]
             + [cols[name] for name in WATCH_COLUMNS[3:13]]
             + [q_row[:, 0], q_row[:, 1], q_row[:, 2], q_row[:, 3]]
         )
 
-    def episodes(
-        self, t: int, runs: np.ndarray, groups: np.ndarray, state: State, complete: np.ndarray
-    ) -> None:
-        start = state.ep_start[runs, groups]
+    def episodes(self, t: int, ends: EpisodeEnds) -> None:
+        """Keep the episodes that ended at step ``t``."""
+        if ends.runs.size == 0:
+            return
         self._episodes.append(
             [
-                self.run_ids[runs],
-                state.ep_count[runs, groups],
-                start + 1,
-                t - start,
-                state.ep_dots[runs, groups],
-                state.ep_seen[runs, groups].sum(axis=1),
-                complete.astype(np.int64),
-                state.ep_seen_state[runs, groups].sum(axis=(1, 2)),
-                groups,
+                self.run_ids[ends.runs],
+                ends.episode,
+                ends.start + 1,
+                t - ends.start,
+                ends.dots,
+                ends.distinct_cells,
+                ends.complete.astype(np.int64),
+                ends.distinct_states,
+                ends.groups,
             ]
         )
 

@@ -1,4 +1,4 @@
-"""Run an experiment: config -> map -> simulator + learners -> records -> files.
+"""Run an experiment: config -> map -> world + strategy -> measures and records -> files.
 
 The Python API behind ``qpatrol train``::
 
@@ -22,11 +22,12 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic, env, metrics
+from qpatrol import atomic, measures, strategies, world
 from qpatrol.config import Config, ConfigError
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
+from qpatrol.strategies.base import Strategy
 
 Progress = Callable[[int, int], None]
 
@@ -38,8 +39,10 @@ class RunResult:
     Attributes:
         config: the resolved config.
         map: the map it ran on.
-        params: the simulator parameters.
-        state: the final simulator state (Q-tables, visit counts, measures).
+        params: the world's parameters.
+        state: the final world state.
+        strategy: the strategy after the run (a learner's tables in ``tables()``).
+        measures: the measure accumulators (visit counts and the rest).
         run_ids: int ``[R]``, the run number of each batch row.
         episodes: one row per ended episode.
         transitions: one row per Q-update (None unless ``record.transitions``).
@@ -51,8 +54,10 @@ class RunResult:
 
     config: Config
     map: Map
-    params: env.Params
-    state: env.State
+    params: world.Params
+    state: world.State
+    strategy: Strategy
+    measures: measures.Measures
     run_ids: np.ndarray
     episodes: pd.DataFrame
     transitions: pd.DataFrame | None
@@ -65,7 +70,7 @@ class RunResult:
 MAX_TRANSITION_ROWS = 20_000_000
 
 
-def prepare(cfg: Config) -> tuple[Map, env.Params]:
+def prepare(cfg: Config) -> tuple[Map, world.Params]:
     """Load the map and build the parameters; raises ConfigError/MapError on bad input."""
     rows = cfg["steps"] * cfg["runs"] * cfg["agents"]
     if cfg["record.transitions"] and rows > MAX_TRANSITION_ROWS:
@@ -75,7 +80,7 @@ def prepare(cfg: Config) -> tuple[Map, env.Params]:
             "with record.watch)"
         )
     m = get_map(cfg["map"])
-    return m, env.make_params(cfg, m)
+    return m, world.make_params(cfg, m)
 
 
 def simulate(
@@ -83,7 +88,7 @@ def simulate(
     point: int = 0,
     runs: range | None = None,
     progress: Progress | None = None,
-    prepared: tuple[Map, env.Params] | None = None,
+    prepared: tuple[Map, world.Params] | None = None,
 ) -> RunResult:
     """Run ``runs`` (default: all of ``cfg['runs']``) of one config as one batch.
 
@@ -94,8 +99,10 @@ def simulate(
     m, p = prepared or prepare(cfg)
     idx = runs if runs is not None else range(cfg["runs"])
     streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
-    starts = np.stack([env.place_agents(p, m, g) for g in streams.generators])
-    state = env.init_state(p, starts)
+    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
+    state = world.init_state(p, starts)
+    strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
+    watch = measures.Measures(state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"])
     rec = Recorder(
         np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
     )
@@ -105,50 +112,79 @@ def simulate(
     for i in range(total):
         if not state.active.any():
             break
-        env.step(state, p, streams.next(), rec)
+        out = advance(state, p, strategy, streams.next(), rec)
+        watch.observe(out, state.wait, state.charge if p.battery else None)
         tail.observe(state)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
+    bound = measures.wait_bound(p.n_agents, p.charge_steps, p.diameter, p.battery)
     return RunResult(
         config=cfg,
         map=m,
         params=p,
         state=state,
+        strategy=strategy,
+        measures=watch,
         run_ids=rec.run_ids,
         episodes=episodes,
         transitions=rec.transition_table(),
         watch=rec.watch_table(),
         trajectory=tail.table(state, rec.run_ids, m.coords),
-        summary=metrics.summarize(state, episodes, rec.run_ids),
+        summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
     )
+
+
+def advance(
+    state: world.State,
+    p: world.Params,
+    strategy: Strategy,
+    u: np.ndarray,
+    rec: Recorder | None = None,
+) -> world.Outcome:
+    """One team step: the strategy chooses, the world moves, the strategy learns.
+
+    ``u``: float ``[R, K, 2]``, this step's uniforms of every run.
+    """
+    obs = world.begin_step(state, p)
+    out = world.step(state, p, obs, strategy.act(obs, u))
+    strategy.learn(out, rec)
+    if rec is not None:
+        rec.episodes(out.t, out.episodes)
+    return out
 
 
 def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path:
     """Write a run folder atomically: it appears complete or not at all.
 
-    Files: ``config.yaml``, ``episodes.csv``, ``summary.json``, ``q_table.npz`` (``q``
-    float64 and ``n`` int64, ``[runs, agents, cells, heading, action]``),
-    ``visits.npz`` (``visits`` int64 ``[runs, agents, cells]``), and when recorded
-    ``transitions.csv``, ``watch.csv`` and ``trajectory.csv``.
+    Files: ``config.yaml``, ``episodes.csv``, ``summary.json``, ``visits.npz``
+    (``visits`` int64 ``[runs, agents, cells]``), for a learning strategy its tables
+    (``q_table.npz``: ``q`` float64 and ``n`` int64, ``[runs, agents, cells, heading,
+    action]``), and when recorded ``transitions.csv``, ``watch.csv`` and
+    ``trajectory.csv``.
     """
     out = Path(out)
-    s = result.state
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / "config.yaml").write_text(result.config.to_yaml())
         (tmp / "episodes.csv").write_text(to_csv_text(result.episodes))
-        summary = {"map": result.map.name, "cells": result.map.n_cells, "runs": result.summary}
+        summary = {
+            "map": result.map.name,
+            "cells": result.map.n_cells,
+            "policy": result.config["policy"],
+            "strategy": result.strategy.describe(),
+            "runs": result.summary,
+        }
         (tmp / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-        _save_npz(tmp / "q_table.npz", q=s.q, n=s.n)
-        _save_npz(tmp / "visits.npz", visits=s.visits)
+        tables = result.strategy.tables()
+        if tables:
+            _save_npz(tmp / "q_table.npz", **tables)
+        _save_npz(tmp / "visits.npz", visits=result.measures.visits)
         if result.transitions is not None:
             (tmp / "transitions.csv").write_text(to_csv_text(result.transitions))
         if result.watch is not None:
             (tmp / "watch.csv").write_text(to_csv_text(result.watch))
-        if result.trajectory is not None:
-            (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
         if result.trajectory is not None:
             (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
     return out

@@ -573,11 +573,11 @@ def _load_map(name: str, cache: dict[str, Any]) -> Any:
 def _run_point(point: Point, cfg: Config, m: Any, pdir: Path) -> tuple[str, str | None]:
     """Run one point fully and write its folder (in a worker); errors become a
     ``<id>.failed.json`` and are returned as one line."""
-    from qpatrol import env
+    from qpatrol import world
     from qpatrol.run import simulate, write_run
 
     try:
-        result = simulate(cfg, point=point.index, prepared=(m, env.make_params(cfg, m)))
+        result = simulate(cfg, point=point.index, prepared=(m, world.make_params(cfg, m)))
         write_run(result, pdir / point.id)
     except Exception as e:
         return point.id, _record_failure(pdir, point, e)

@@ -1,0 +1,174 @@
+"""Patrolling measures, watched from outside the world, one dict per run.
+
+The standard measures of the multi-agent patrolling literature (Machado et al. 2002;
+Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup``.
+
+* idleness of cell c after team step t: ``t - last visit of c by any robot`` (every
+  cell counts as visited at step 0);
+* ``avg_idleness``: mean over cells and window steps; ``worst_idleness``: the max;
+* ``mean_interval`` / ``max_interval``: between two successive visits of a cell, for
+  visits made in the window (the first visit of a cell has no interval);
+* ``coverage``: share of cells visited in the window;
+* ``division_of_labour``: for each cell visited in the window, the share of its window
+  visits made by its most frequent visitor, averaged over those cells (1/K: none, 1: a
+  full partition);
+* ``max_wait``: the longest stretch of consecutive team steps, reached in the window,
+  in which a robot could not make the move its strategy or its battery asked for
+  (waiting for a station included);
+* ``mean_steps_per_episode``: over complete episodes that started in the window.
+
+The work per step does not grow with the map: the sum of last-visit times is kept as
+visits happen (``sum_c idle = C t - sum_c last``), and the worst idleness is the
+largest visit gap (a cell visited at t after l peaked at ``t - 1 - l``, in the step
+before), plus the gaps still open at the end.
+"""
+
+from __future__ import annotations
+
+from typing import Any
+
+import numpy as np
+import pandas as pd
+
+from qpatrol.world import Outcome
+
+
+class Measures:
+    """Accumulators over a batch of runs; call :meth:`observe` after every step.
+
+    Attributes:
+        last: int ``[R, C]``, last visit of each cell by any robot (0 = never).
+        last_sum: int ``[R]``, sum of ``last`` over cells.
+        visits: int ``[R, K, C]``, cells entered by each robot (the whole run).
+        window_visits: int ``[R, K, C]``, the same, in the window only.
+        idle_total: int ``[R]``, sum over window steps of the summed idleness of cells.
+        worst: int ``[R]``, worst idleness of a closed gap in the window.
+        measured: int ``[R]``, window steps taken.
+        gap_sum, gap_count, gap_max: int ``[R]``, visit intervals ending in the window.
+        max_wait: int ``[R]``, longest wait reached in the window.
+        wait_total: int ``[R]``, robot-steps spent waiting in the window.
+        min_charge: int ``[R]``, lowest battery charge seen.
+    """
+
+    def __init__(self, n_runs: int, n_agents: int, n_cells: int, warmup: int):
+        r, k, c = n_runs, n_agents, n_cells
+        self.warmup = warmup
+        self.n_cells = c
+        self.last = np.zeros((r, c), dtype=np.int64)
+        self.last_sum = np.zeros(r, dtype=np.int64)
+        self.visits = np.zeros((r, k, c), dtype=np.int64)
+        self.window_visits = np.zeros((r, k, c), dtype=np.int64)
+        self.idle_total = np.zeros(r, dtype=np.int64)
+        self.worst = np.zeros(r, dtype=np.int64)
+        self.measured = np.zeros(r, dtype=np.int64)
+        self.gap_sum = np.zeros(r, dtype=np.int64)
+        self.gap_count = np.zeros(r, dtype=np.int64)
+        self.gap_max = np.zeros(r, dtype=np.int64)
+        self.max_wait = np.zeros(r, dtype=np.int64)
+        self.wait_total = np.zeros(r, dtype=np.int64)
+        self.min_charge = np.full(r, np.iinfo(np.int64).max, dtype=np.int64)
+
+    def observe(self, out: Outcome, wait: np.ndarray, charge: np.ndarray | None) -> None:
+        """Take in one step: visits, intervals, idleness, waits and charge.
+
+        Args:
+            out: the step's outcome.
+            wait: int ``[R, K]``, the robots' current waits after the step.
+            charge: int ``[R, K]``, the charge after the step (None: battery off).
+        """
+        t = out.t
+        in_window = t > self.warmup
+        for k in range(out.moved.shape[1]):
+            rows = np.flatnonzero(out.moved[:, k])
+            if rows.size == 0:
+                continue
+            c = out.pos[rows, k]
+            prev = self.last[rows, c]
+            self.last[rows, c] = t
+            self.last_sum[rows] += t - prev
+            self.visits[rows, k, c] += 1
+            if in_window:
+                self.window_visits[rows, k, c] += 1
+                seen = prev > 0
+                gap = np.where(seen, t - prev, 0)
+                self.gap_sum[rows] += gap
+                self.gap_count[rows] += seen
+                self.gap_max[rows] = np.maximum(self.gap_max[rows], gap)
+                if t - 1 > self.warmup:
+                    self.worst[rows] = np.maximum(self.worst[rows], t - 1 - prev)
+        act = out.active
+        if charge is not None:
+            self.min_charge[act] = np.minimum(self.min_charge[act], charge[act].min(axis=1))
+        if in_window:
+            self.idle_total[act] += self.n_cells * t - self.last_sum[act]
+            self.measured[act] += 1
+            self.max_wait[act] = np.maximum(self.max_wait[act], wait[act].max(axis=1))
+            self.wait_total[act] += (wait[act] > 0).sum(axis=1)
+
+    def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
+        """int ``[R]``: worst idleness in the window, open gaps at the end included."""
+        open_gaps = steps_done - self.last.min(axis=1)
+        return np.where(steps_done > self.warmup, np.maximum(self.worst, open_gaps), self.worst)
+
+
+def division_of_labour(visits: np.ndarray) -> np.ndarray:
+    """float ``[R]`` from visit counts int ``[R, K, C]`` (NaN for a run with no visit)."""
+    total = visits.sum(axis=1)  # [R, C]
+    share = np.full(total.shape, np.nan)
+    np.divide(visits.max(axis=1), total, out=share, where=total > 0)
+    visited = total > 0
+    counts = visited.sum(axis=1)
+    sums = np.where(visited, share, 0.0).sum(axis=1)
+    return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+
+def wait_bound(n_agents: int, charge_steps: int, diameter: int, battery: bool) -> int:
+    """The longest wait a live team may show: a fair station queue plus a crossing.
+
+    ``K x charge_steps + diameter`` with the battery on (a robot may queue behind the
+    whole team at one station), ``diameter`` without.
+    """
+    return (n_agents * charge_steps if battery else 0) + diameter
+
+
+def summarize(
+    m: Measures,
+    episodes: pd.DataFrame,
+    run_ids: np.ndarray,
+    steps_done: np.ndarray,
+    bound: int,
+) -> list[dict[str, Any]]:
+    """Per-run measures as plain dicts (JSON-ready), in batch order."""
+    dol = division_of_labour(m.window_visits)
+    coverage = (m.window_visits.sum(axis=1) > 0).mean(axis=1)
+    worst = m.worst_idleness(steps_done)
+    out = []
+    for i, run in enumerate(np.asarray(run_ids).tolist()):
+        ep = episodes[episodes["run"] == run]
+        done = ep[(ep["complete"] == 1) & (ep["start_step"] > m.warmup)]
+        measured = int(m.measured[i])
+        gaps = int(m.gap_count[i])
+        min_charge = int(m.min_charge[i])
+        out.append(
+            {
+                "run": int(run),
+                "steps": int(steps_done[i]),
+                "episodes_completed": int((ep["complete"] == 1).sum()),
+                "episodes_truncated": int((ep["complete"] == 0).sum()),
+                "mean_steps_per_episode": float(done["steps"].mean()) if len(done) else None,
+                "coverage": float(coverage[i]) if measured else None,
+                "avg_idleness": float(m.idle_total[i] / (m.n_cells * measured))
+                if measured
+                else None,
+                "worst_idleness": int(worst[i]) if measured else None,
+                "mean_interval": float(m.gap_sum[i] / gaps) if gaps else None,
+                "max_interval": int(m.gap_max[i]) if gaps else None,
+                "division_of_labour": None if np.isnan(dol[i]) else float(dol[i]),
+                "waits": int(m.wait_total[i]),
+                "max_wait": int(m.max_wait[i]),
+                "wait_bound": int(bound),
+                "live": bool(m.max_wait[i] <= bound),
+                "min_charge": None if min_charge == np.iinfo(np.int64).max else min_charge,
+            }
+        )
+    return out

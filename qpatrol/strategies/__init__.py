@@ -1,0 +1,40 @@
+"""Patrol strategies: each chooses the moves of the patrolling robots, and may learn.
+
+A strategy is one module of this package, named after its ``policy`` with ``-`` written
+``_`` (``shared-conscientious`` lives in ``shared_conscientious.py``), that defines a
+class ``Strategy`` derived from :class:`qpatrol.strategies.base.Strategy`. The world
+(:mod:`qpatrol.world`) does not know which one runs; adding a strategy takes one new
+file and its name in :data:`NAMES`.
+"""
+
+from __future__ import annotations
+
+import importlib
+from typing import TYPE_CHECKING, Any
+
+if TYPE_CHECKING:
+    from qpatrol.strategies.base import Strategy
+
+#: Every strategy, by its ``policy`` name; the paper's learner first (the default).
+NAMES: tuple[str, ...] = (
+    "qlearning",
+    "random",
+    "conscientious",
+    "shared-conscientious",
+    "cyclic",
+    "partition",
+    "evap",
+)
+
+
+def strategy_class(name: str) -> type[Strategy]:
+    """The ``Strategy`` class of policy ``name``."""
+    if name not in NAMES:
+        raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(NAMES)}")
+    module = importlib.import_module(f"qpatrol.strategies.{name.replace('-', '_')}")
+    return module.Strategy
+
+
+def make(name: str, *args: Any, **kwargs: Any) -> Strategy:
+    """A new strategy of policy ``name`` (arguments as :class:`base.Strategy`)."""
+    return strategy_class(name)(*args, **kwargs)

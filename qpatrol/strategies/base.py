@@ -1,0 +1,103 @@
+"""What every strategy is: a batch-shaped chooser of moves that may learn from outcomes.
+
+A strategy sees the world through an :class:`~qpatrol.world.Observation` and answers
+with one direction per robot (``int [R, K]``, 0..3 = N, E, S, W, -1 for no move); the
+world asks it only for robots that are patrolling (homing and charging are the
+world's). After the step it receives the :class:`~qpatrol.world.Outcome` and may learn.
+Its own arrays carry the same leading runs axis ``R`` and robots axis ``K``.
+
+Random numbers: every step each run draws ``u [R, K, 2]`` uniforms in [0, 1) from its
+own stream, whether used or not, so a run never depends on its batch; strategies use
+``u[..., 0]`` for exploration and ``u[..., 1]`` to break ties.
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING, ClassVar
+
+import numpy as np
+
+from qpatrol.learner import pick
+
+if TYPE_CHECKING:
+    from qpatrol.config import Config
+    from qpatrol.maps import Map
+    from qpatrol.records import Recorder
+    from qpatrol.world import Observation, Outcome, Params
+
+
+class Strategy:
+    """Base class: picks uniformly among open moves and learns nothing.
+
+    Args:
+        cfg: the run's config.
+        m: the map.
+        p: the world's parameters.
+        start_cells: int ``[R, K]``, where the robots start.
+    """
+
+    name: ClassVar[str] = "base"
+
+    def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
+        self.cfg = cfg
+        self.map = m
+        self.params = p
+        self.n_runs, self.n_agents = start_cells.shape
+
+    def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
+        """int ``[R, K]``: the direction each choosing robot asks for (-1: none)."""
+        return choose_min(np.zeros(obs.legal.shape), prefer_open(obs), u[..., 1])
+
+    def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
+        """Learn from what happened in a step (default: nothing)."""
+
+    def tables(self) -> dict[str, np.ndarray]:
+        """Arrays worth saving with the run (e.g. a Q-table); empty by default."""
+        return {}
+
+    def describe(self) -> dict[str, object]:
+        """Facts about this strategy for summary.json (e.g. a walk's length)."""
+        return {}
+
+
+def prefer_open(obs: Observation) -> np.ndarray:
+    """bool ``[R, K, 4]``: the open moves, or every legal move where none is open.
+
+    Robots avoid cells other robots stand in (the paper's "avoiding"), but a robot
+    hemmed in still asks for a move, so that the world can make room for it.
+    """
+    return np.where(obs.open.any(axis=-1, keepdims=True), obs.open, obs.legal)
+
+
+def choose_min(score: np.ndarray, mask: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """int ``[R, K]``: the masked direction of least ``score``, ties broken by ``u``.
+
+    Args:
+        score: float ``[R, K, 4]``.
+        mask: bool ``[R, K, 4]``, the directions allowed.
+        u: float ``[R, K]`` in [0, 1): the j-th tied direction (N, E, S, W order) is
+            taken, ``j = floor(u x ties)``.
+
+    Returns:
+        The direction, or -1 where the mask allows none.
+    """
+    masked = np.where(mask, score, np.inf)
+    best = masked.min(axis=-1, keepdims=True)
+    cand = mask & (masked == best)
+    shape = cand.shape[:-1]
+    action, has = pick(cand.reshape(-1, 4), u.reshape(-1))
+    return np.where(has, action, -1).reshape(shape)
+
+
+def neighbour_values(values: np.ndarray, obs: Observation, per_group: bool) -> np.ndarray:
+    """float ``[R, K, 4]``: a per-cell map read at each robot's four neighbours.
+
+    Args:
+        values: ``[R, G, C]`` (``per_group``: the robot's group map) or ``[R, K, C]``.
+        obs: the observation (robots' cells, groups).
+    """
+    s, p = obs.state, obs.params
+    targets = np.maximum(p.neighbors[s.pos], 0)  # [R, K, 4]
+    rows = np.arange(s.n_runs)[:, None, None]
+    plane = obs.group_of()[None, :, None] if per_group else np.arange(p.n_agents)[None, :, None]
+    return values[rows, plane, targets]

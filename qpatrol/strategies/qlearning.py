@@ -1,0 +1,107 @@
+"""``qlearning``: the paper's learner (Hernandez et al. §3-§4), one Q-table per robot.
+
+State ``(cell, heading)``, heading being the direction of the move that brought the
+robot to its cell (``learning.state_space: cell`` drops it). The robot acts greedily
+over its open moves (moves into walls are never choices; moves into cells where
+another robot stands are avoided while an open move exists), ties broken by the run's
+stream, with an optional ``learning.epsilon`` of uniformly random moves. After a move
+it chose and made, ``s -a-> s'`` with the world's reward ``r``::
+
+    N(s,a) <- N(s,a) + 1;  alpha = 1 / N(s,a)
+    Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a' not into a wall} Q(s',a') - Q(s,a))
+
+A robot that waits, is pushed aside, or moves home does not update. The initial
+table is ``q_init x multiplier`` for every state (North 3, West 2, East 2, South 1).
+"""
+
+from __future__ import annotations
+
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from qpatrol import learner
+from qpatrol.maps import DIRECTIONS
+from qpatrol.strategies import base
+
+if TYPE_CHECKING:
+    from qpatrol.config import Config
+    from qpatrol.maps import Map
+    from qpatrol.records import Recorder
+    from qpatrol.world import Observation, Outcome, Params
+
+
+class Strategy(base.Strategy):
+    """Tabular Q-learning; ``q`` and ``n`` are ``[R, K, C, 4 heading, 4 action]``."""
+
+    name = "qlearning"
+
+    def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
+        super().__init__(cfg, m, p, start_cells)
+        q_init = np.array([cfg[f"learning.q_init.{d}"] for d in DIRECTIONS], dtype=np.float64)
+        self.q_init = q_init * cfg["learning.multiplier"]
+        self.gamma = float(cfg["learning.gamma"])
+        self.epsilon = float(cfg["learning.epsilon"])
+        self.use_heading = cfg["learning.state_space"] == "cell_heading"
+        shape = (self.n_runs, self.n_agents, p.n_cells, 4, 4)
+        self.q = np.broadcast_to(self.q_init, shape).copy()
+        self.n = np.zeros(shape, dtype=np.int64)
+
+    def _heading(self, head: np.ndarray) -> np.ndarray:
+        return head if self.use_heading else np.zeros_like(head)
+
+    def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
+        s = obs.state
+        rows = np.arange(s.n_runs)[:, None]
+        agents = np.arange(self.n_agents)[None, :]
+        q_row = self.q[rows, agents, s.pos, self._heading(s.head)]  # [R, K, 4]
+        R, K = s.pos.shape
+        action, can = learner.choose(
+            q_row.reshape(-1, 4),
+            base.prefer_open(obs).reshape(-1, 4),
+            u[..., 0].reshape(-1),
+            u[..., 1].reshape(-1),
+            self.epsilon,
+        )
+        return np.where(can, action, -1).reshape(R, K)
+
+    def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
+        rr, kk = np.nonzero(out.choosing & out.as_asked)
+        if rr.size == 0:
+            return
+        p = self.params
+        ca = out.prev_pos[rr, kk]
+        ha = self._heading(out.prev_head[rr, kk])
+        aa = out.ask[rr, kk]
+        cb = p.neighbors[ca, aa]
+        hb = self._heading(aa)
+        reward = out.reward[rr, kk]
+        target, bootstrap = learner.td_target(
+            reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], self.gamma
+        )
+        q_before = self.q[rr, kk, ca, ha, aa]
+        q_after, n_after, alpha = learner.update(q_before, self.n[rr, kk, ca, ha, aa], target)
+        self.q[rr, kk, ca, ha, aa] = q_after
+        self.n[rr, kk, ca, ha, aa] = n_after
+        if rec is not None and rec.wants_updates:
+            rec.updates(
+                out.t,
+                rr,
+                kk,
+                {
+                    "cell": ca,
+                    "heading": ha,
+                    "action": aa,
+                    "reward": reward,
+                    "next_cell": cb,
+                    "next_heading": hb,
+                    "alpha": alpha,
+                    "q_before": q_before,
+                    "q_after": q_after,
+                    "bootstrap": bootstrap,
+                    "q_row": self.q[rr, kk, ca, ha],
+                },
+            )
+
+    def tables(self) -> dict[str, np.ndarray]:
+        return {"q": self.q, "n": self.n}

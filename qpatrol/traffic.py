@@ -1,0 +1,239 @@
+"""Moves of a team in one step: never two robots in a cell, never a swap, and robots yield.
+
+Every robot asks for at most one move (its strategy's choice, or the next step home).
+The moves are resolved in three parts:
+
+1. **Right of way.** At most one robot per run holds the *token*. If the cell it asks
+   for is taken, the robots in the way are pushed aside: a breadth-first search from
+   that cell, not through the holder's own cell, through charging robots nor into the
+   pocket of a station another robot holds (:mod:`qpatrol.battery`), finds the nearest
+   empty cell, and every robot on that path moves one cell along it, away from the
+   holder, which then takes its cell. If no such path exists the holder steps aside
+   instead, into the first other neighbour that is empty or can be emptied the same
+   way, so that a jam unwinds; if none can, it stays.
+2. **Everyone else**, in priority order, moves if the asked cell is empty at that
+   moment: a robot may follow one that left its cell this step, but never enters a
+   cell that is still occupied, so no two robots meet and no two swap.
+3. **Passing the token** at the end of the step: a holder that pushed successfully
+   keeps it for up to ``diameter`` consecutive steps, long enough to clear any
+   corridor; a holder whose push failed hands it to the robot that blocked it (which
+   may then back it out of a dead end); otherwise it goes to the blocked robot of
+   highest priority. Priority: a robot leaving a station first, then homing robots,
+   then patrolling ones; among equals, the one that has waited longest, then a turn
+   that rotates with the step number.
+
+The holder sees every legal move as open (:func:`qpatrol.world.begin_step`), so it
+insists on its way instead of fleeing, and a blocked robot always gets the token within
+a few steps. With ``team.avoid_collisions: off`` none of this applies: every asked move
+is made and robots may share cells (an ablation).
+"""
+
+from __future__ import annotations
+
+from collections import deque
+from dataclasses import dataclass
+from typing import TYPE_CHECKING
+
+import numpy as np
+
+from qpatrol import battery
+
+if TYPE_CHECKING:
+    from qpatrol.world import Params, State
+
+
+@dataclass
+class Resolution:
+    """Which robots moved; arrays ``[R, K]`` unless stated.
+
+    Attributes:
+        moved: bool, entered a new cell (as asked or pushed aside).
+        as_asked: bool, made the move it asked for.
+        pushed_ok: bool ``[R]``, the token holder needed a push and made its move.
+        push_failed: bool ``[R]``, the token holder needed a push and could not move.
+    """
+
+    moved: np.ndarray
+    as_asked: np.ndarray
+    pushed_ok: np.ndarray
+    push_failed: np.ndarray
+
+
+def priority(s: State, t: int) -> np.ndarray:
+    """int ``[R, K]``: larger goes first (class, then wait, then a rotating turn)."""
+    R, K = s.pos.shape
+    cls = np.where(
+        s.depart_left > 0,
+        3,
+        np.where(s.mode == battery.HOMING, 2, np.where(s.mode == battery.PATROL, 1, 0)),
+    )
+    turn = (K - 1) - (np.arange(K) - t) % K
+    return (cls * (1 << 40) + np.minimum(s.wait, (1 << 30)) * K + turn[None, :]).astype(np.int64)
+
+
+def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
+    """Move the robots of every active run (in place: ``s.pos``, ``s.occ``).
+
+    Args:
+        want: int ``[R, K]``, the cell each robot asks to enter, -1 for no move.
+    """
+    R, K = s.pos.shape
+    moved = np.zeros((R, K), dtype=bool)
+    as_asked = np.zeros((R, K), dtype=bool)
+    pushed_ok = np.zeros(R, dtype=bool)
+    push_failed = np.zeros(R, dtype=bool)
+    want = np.where(s.active[:, None], want, -1)
+    if not p.avoid_collisions:
+        go = want >= 0
+        s.pos[go] = want[go]
+        return Resolution(go, go.copy(), pushed_ok, push_failed)
+
+    # 1. the token holder pushes the robots in its way aside, or steps aside itself
+    holders = np.flatnonzero((s.token >= 0) & s.active)
+    if holders.size:
+        movable = s.mode != battery.CHARGING
+        for r in holders.tolist():
+            k = int(s.token[r])
+            if want[r, k] < 0:
+                continue
+            keep_out = battery.held_pockets(s, p, r) if p.battery else None
+            cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable[r], keep_out)
+            if cell < 0:
+                push_failed[r] = True
+                continue
+            for i in range(len(path) - 2, -1, -1):
+                j = s.occ[r, path[i]]
+                _move(s, r, j, path[i + 1])
+                moved[r, j] = True
+                as_asked[r, j] = want[r, j] == path[i + 1]
+            _move(s, r, k, cell)
+            moved[r, k] = True
+            as_asked[r, k] = cell == want[r, k]
+            pushed_ok[r] = as_asked[r, k] and len(path) > 0
+            push_failed[r] = not as_asked[r, k]
+
+    # 2. everyone else, in priority order, into cells empty at that moment
+    order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
+    rows_all = np.arange(R)
+    progress = True
+    while progress:
+        progress = False
+        for i in range(K):
+            k = order[:, i]
+            w = want[rows_all, k]
+            ok = (w >= 0) & ~moved[rows_all, k]
+            ok &= s.occ[rows_all, np.maximum(w, 0)] < 0
+            if ok.any():
+                rr, kk, ww = rows_all[ok], k[ok], w[ok]
+                s.occ[rr, s.pos[rr, kk]] = -1
+                s.occ[rr, ww] = kk
+                s.pos[rr, kk] = ww
+                moved[rr, kk] = as_asked[rr, kk] = True
+                progress = True
+    return Resolution(moved, as_asked, pushed_ok, push_failed)
+
+
+def _holder_move(
+    s: State,
+    p: Params,
+    r: int,
+    k: int,
+    asked: int,
+    movable: np.ndarray,
+    keep_out: np.ndarray | None,
+) -> tuple[int, list[int]]:
+    """``(cell, push path)``: where the token holder goes, -1 if nowhere.
+
+    Its asked cell first (empty, or emptied by a push); if that cannot be had, the
+    first other neighbour (N, E, S, W) that is empty or can be emptied, so that a
+    holder stuck in a jam steps aside and lets the jam unwind.
+    """
+    candidates = [asked] + [int(c) for c in p.neighbors[s.pos[r, k]] if c >= 0 and c != asked]
+    for i, cell in enumerate(candidates):
+        if i > 0 and keep_out is not None and keep_out[cell]:
+            continue
+        if s.occ[r, cell] < 0:
+            return cell, []
+        path = _push_path(s, p, r, k, cell, movable, keep_out)
+        if path is not None:
+            return cell, path
+    return -1, []
+
+
+def _move(s: State, r: int, k: int, cell: int) -> None:
+    s.occ[r, s.pos[r, k]] = -1
+    s.occ[r, cell] = k
+    s.pos[r, k] = cell
+
+
+def _push_path(
+    s: State,
+    p: Params,
+    r: int,
+    k: int,
+    start: int,
+    movable: np.ndarray,
+    keep_out: np.ndarray | None,
+) -> list[int] | None:
+    """Cells ``[start, ..., empty]`` along which the robots from ``start`` on can shift.
+
+    Breadth-first from ``start`` (whose robot must be movable), never through robot
+    ``k``'s own cell, through immovable robots, nor into ``keep_out`` cells (bool
+    ``[C]``: pockets of held stations); neighbours in N, E, S, W order. None if no
+    empty cell can be reached.
+    """
+    occ = s.occ[r]
+    if not movable[occ[start]]:
+        return None
+    own = int(s.pos[r, k])
+    parent = {start: -1}
+    queue = deque([start])
+    nbrs = p.neighbors
+    while queue:
+        c = queue.popleft()
+        for nb in nbrs[c]:
+            nb = int(nb)
+            if nb < 0 or nb == own or nb in parent:
+                continue
+            if keep_out is not None and keep_out[nb]:
+                continue
+            j = occ[nb]
+            if j >= 0 and not movable[j]:
+                continue
+            parent[nb] = c
+            if j < 0:
+                path = [nb]
+                while path[-1] != start:
+                    path.append(parent[path[-1]])
+                return path[::-1]
+            queue.append(nb)
+    return None
+
+
+def pass_token(
+    s: State, p: Params, want: np.ndarray, res: Resolution, blocked_by: np.ndarray
+) -> None:
+    """Choose the robot that holds the right of way in the next step (see module doc)."""
+    R, K = s.pos.shape
+    if not p.avoid_collisions or K == 1:
+        return
+    rows = np.arange(R)
+    tok = s.token
+    blocked = s.active[:, None] & (want >= 0) & ~res.as_asked
+    key = np.where(blocked, priority(s, s.t + 1), -1)
+    had = tok >= 0
+    failed = had & res.push_failed
+    # a holder whose push failed may not take the token back at once
+    key[rows[failed], tok[failed]] = -1
+    best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
+    blocker = np.where(had, blocked_by[rows, np.maximum(tok, 0)], -1)
+    blocker_waits = (blocker >= 0) & blocked[rows, np.maximum(blocker, 0)]
+    keep = had & res.pushed_ok & (s.token_held < p.diameter)
+    new = np.where(keep, tok, np.where(failed & blocker_waits, blocker, best))
+    s.token_held = np.where((new == tok) & (new >= 0), s.token_held + 1, 0)
+    s.token = new
+
+
+def direction_of(p: Params, before: np.ndarray, after: np.ndarray) -> np.ndarray:
+    """int ``[R, K]``: the direction of the move ``before -> after`` (0 if no move)."""
+    return (p.neighbors[before] == after[..., None]).argmax(axis=-1)

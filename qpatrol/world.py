@@ -1,0 +1,534 @@
+"""The patrol world: robots, dots, batteries and collisions on a grid maze, many runs in lockstep.
+
+The world knows the map and where every robot is; it does not know how robots choose
+where to go. A *strategy* (``qpatrol/strategies/``) picks the moves of the patrolling
+robots; the world applies them under its rules and reports what happened in an
+:class:`Outcome`, from which a strategy may learn and measures and recorders take
+what they watch. The full model, in words, is ``docs/model.md``.
+
+Description (paper §2)
+    Each free cell of the map is a *state*; robots move North, East, South or West
+    (0..3), never into a wall. Dots lie on the free cells; entering a dot cell eats its
+    dot. When every dot of a dot map is eaten the episode ends and the next one starts
+    at once with all dots back and the robots where they are. An episode still running
+    after ``max_episode_steps`` team steps ends as *truncated*.
+
+Reward on entering ``s'`` (what a learning strategy is paid)
+    ``dot(s') + incremental_value * min(1, idle(s') / idle_horizon) + lambda_w * lambda``
+    with ``idle(s') = t - last visit of s'`` on the robot's last-visit map and ``lambda =
+    dots eaten / cells entered`` in the current episode of its dot map, this move
+    included.
+
+Team (paper §4)
+    With communication on, the team shares one dot map and one last-visit map (group
+    0); with it off each robot k has private ones (group k). Moves are resolved by
+    :mod:`qpatrol.traffic` (never two robots in a cell, never a swap, and blocked
+    robots yield) and batteries by :mod:`qpatrol.battery` (homing, station queues).
+
+Arrays carry a leading axis over runs ``R``, then robots ``K``; ``G`` is the number of
+dot maps per run (1 with communication, K without), ``C`` the number of cells and
+``H`` the number of charging stations. :func:`step` advances every run by one team
+step, in place, with Python loops only over the robots of a team.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import numpy as np
+
+from qpatrol import battery, traffic
+from qpatrol.config import Config, ConfigError
+from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
+
+PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
+
+
+@dataclass(frozen=True)
+class Params:
+    """Everything constant during a run, built once from a config and a map.
+
+    Cell arrays are ``[C]`` or ``[C, 4]``; station arrays ``[H]`` or ``[H, C]``.
+    """
+
+    n_cells: int
+    n_agents: int
+    neighbors: np.ndarray  # int [C, 4], next state per direction, -1 = wall
+    wall_legal: np.ndarray  # bool [C, 4], move is not into a wall
+    dot_value: np.ndarray  # float [C], reward of the dot initially on the cell (0 if none)
+    has_dot: np.ndarray  # bool [C], the cell holds a dot at an episode's start
+    homes: np.ndarray  # int [H], states of charging stations
+    station_of: np.ndarray  # int [C], index into homes of the station on a cell, -1 if none
+    home_dist: np.ndarray  # int [H, C], moves from cell to station h
+    home_dir: np.ndarray  # int [H, C], first direction on a shortest path to h (-1 at h)
+    nearest_home_dist: np.ndarray  # int [C]
+    depart_len: np.ndarray  # int [H], moves from station h to the nearest junction (>= 1)
+    pocket_of: np.ndarray  # int [C], the station whose dead-end pocket holds the cell, -1
+    pocket_depth: np.ndarray  # int [C], distance from the pocket's junction (0 outside)
+    pocket_entry: np.ndarray  # int [H], the junction that cuts off a station's pocket, -1
+    starts: np.ndarray  # int [n], start cells given by the map's digits
+    diameter: int  # longest shortest path between two cells
+    initial_heading: int
+    incremental_value: float
+    idle_horizon: float
+    lambda_weight: float
+    communication: bool
+    avoid_collisions: bool
+    battery: bool
+    capacity: int
+    margin: int
+    charge_steps: int
+    staggered: bool  # battery.initial_charge == "staggered"
+    max_episode_steps: int  # 0 = no limit
+    episodes: int  # 0 = no limit
+
+    @property
+    def n_groups(self) -> int:
+        """Dot maps per run: 1 shared map with communication, one per robot without."""
+        return 1 if self.communication else self.n_agents
+
+
+def make_params(cfg: Config, m: Map) -> Params:
+    """Build :class:`Params`; raise :class:`ConfigError` if config and map do not fit."""
+    k = cfg["agents"]
+    c = m.n_cells
+    if cfg["team.avoid_collisions"] and 2 * k > c:
+        raise ConfigError(
+            f"agents: {k} robots on map {m.name} ({c} free cells) leave no room to yield; "
+            f"allowed: at most {c // 2} (half the free cells)"
+        )
+    if k > c:
+        raise ConfigError(f"agents: {k} agents do not fit on map {m.name} ({c} free cells)")
+    dot_value = np.zeros(c)
+    dot_value[m.dot_kind == SMALL_DOT] = cfg["reward.dot_value"]
+    dot_value[m.dot_kind == BIG] = cfg["reward.big_dot_value"]
+    has_dot = m.dot_kind > 0
+    if not has_dot.any():
+        raise ConfigError(f"map: {m.name} has no dot, so no episode could ever end")
+    homes = m.homes
+    home_dist = (
+        np.stack([bfs(m.neighbors, int(h)) for h in homes])
+        if homes.size
+        else np.zeros((0, c), dtype=np.int64)
+    )
+    home_dir = np.full((homes.size, c), -1, dtype=np.int64)
+    for i in range(homes.size):
+        d = home_dist[i]
+        for direction in range(3, -1, -1):  # N wins ties: written last
+            nb = m.neighbors[:, direction]
+            ok = (nb >= 0) & (d[np.maximum(nb, 0)] == d - 1)
+            home_dir[i, ok] = direction
+    nearest = home_dist.min(axis=0) if homes.size else np.zeros(c, dtype=np.int64)
+    station_of = np.full(c, -1, dtype=np.int64)
+    station_of[homes] = np.arange(homes.size)
+    junction = m.degree >= 3
+    depart_len = np.array(
+        [
+            max(1, int(home_dist[i][junction].min())) if junction.any() else 1
+            for i in range(homes.size)
+        ],
+        dtype=np.int64,
+    )
+    pocket_of, pocket_depth, pocket_entry = battery.station_pockets(m.neighbors, homes)
+    battery_on = bool(cfg["battery.enabled"])
+    if battery_on:
+        if not homes.size:
+            raise ConfigError(
+                f"battery.enabled: map {m.name} has no charging station 'H'; "
+                "set battery.enabled=false or add one"
+            )
+        need = int(nearest.max()) + cfg["battery.margin"] + 1
+        if cfg["battery.capacity"] <= need:
+            raise ConfigError(
+                f"battery.capacity: {cfg['battery.capacity']} is too small for map {m.name}; "
+                f"allowed: > {need} (farthest cell {int(nearest.max())} moves from H, plus "
+                "battery.margin, plus 1)"
+            )
+    dist = m.distances()
+    return Params(
+        n_cells=c,
+        n_agents=k,
+        neighbors=m.neighbors,
+        wall_legal=m.neighbors >= 0,
+        dot_value=dot_value,
+        has_dot=has_dot,
+        homes=homes,
+        station_of=station_of,
+        home_dist=home_dist,
+        home_dir=home_dir,
+        nearest_home_dist=nearest,
+        depart_len=depart_len,
+        pocket_of=pocket_of,
+        pocket_depth=pocket_depth,
+        pocket_entry=pocket_entry,
+        starts=m.starts,
+        diameter=int(dist.max()),
+        initial_heading=DIRECTIONS.index(cfg["learning.initial_heading"]),
+        incremental_value=float(cfg["reward.incremental_value"]),
+        idle_horizon=float(cfg["reward.idle_horizon"]),
+        lambda_weight=float(cfg["reward.lambda"]),
+        communication=bool(cfg["team.communication"]),
+        avoid_collisions=bool(cfg["team.avoid_collisions"]),
+        battery=battery_on,
+        capacity=int(cfg["battery.capacity"]),
+        margin=int(cfg["battery.margin"]),
+        charge_steps=int(cfg["battery.charge_steps"]),
+        staggered=cfg["battery.initial_charge"] == "staggered",
+        max_episode_steps=int(cfg["max_episode_steps"] or 0),
+        episodes=int(cfg["episodes"] or 0),
+    )
+
+
+@dataclass
+class State:
+    """The whole world; every array has a leading runs axis ``R``.
+
+    Attributes:
+        t: team steps taken so far (the same for every run).
+        pos: int ``[R, K]``, the cell of each robot.
+        head: int ``[R, K]``, direction of each robot's last move.
+        occ: int ``[R, C]``, the robot standing on each cell, -1 if none.
+        dots: bool ``[R, G, C]``, dot still present on a group's dot map.
+        last: int ``[R, G, C]``, team step of the group's last visit of a cell (0 = never).
+        dots_left: int ``[R, G]``, dots left in the current episode.
+        ep_dots, ep_visits: int ``[R, G]``, dots eaten and cells entered this episode.
+        ep_start: int ``[R, G]``, team step at which the current episode started (0-based).
+        ep_count: int ``[R, G]``, episodes ended so far.
+        ep_seen: bool ``[R, G, C]``, cells entered this episode.
+        ep_seen_state: bool ``[R, G, C, 4]``, (cell, heading) states entered this episode.
+        charge: int ``[R, K]``, battery left (never below 0).
+        mode: int ``[R, K]``, PATROL, HOMING, QUEUED or CHARGING (:mod:`qpatrol.battery`).
+        rest: int ``[R, K]``, charging steps left.
+        goal: int ``[R, K]``, the station (index into homes) a robot holds, -1 if none.
+        queued_since: int ``[R, K]``, step at which a robot began to need a station.
+        depart_left: int ``[R, K]``, moves left before a charged robot has cleared its
+            station (it holds the station and has right of way until then).
+        reserved: int ``[R, H]``, the robot holding each station, -1 if free.
+        wait: int ``[R, K]``, consecutive team steps a robot has been unable to make the
+            move its strategy or its battery asked for.
+        token: int ``[R]``, the robot with right of way this step (may push), -1 if none.
+        token_held: int ``[R]``, consecutive steps the token has been with that robot.
+        active: bool ``[R]``, run still going (False once its episode quota is met).
+        steps_done: int ``[R]``, team steps the run has taken.
+    """
+
+    t: int
+    pos: np.ndarray
+    head: np.ndarray
+    occ: np.ndarray
+    dots: np.ndarray
+    last: np.ndarray
+    dots_left: np.ndarray
+    ep_dots: np.ndarray
+    ep_visits: np.ndarray
+    ep_start: np.ndarray
+    ep_count: np.ndarray
+    ep_seen: np.ndarray
+    ep_seen_state: np.ndarray
+    charge: np.ndarray
+    mode: np.ndarray
+    rest: np.ndarray
+    goal: np.ndarray
+    queued_since: np.ndarray
+    depart_left: np.ndarray
+    reserved: np.ndarray
+    wait: np.ndarray
+    token: np.ndarray
+    token_held: np.ndarray
+    active: np.ndarray
+    steps_done: np.ndarray
+
+    @property
+    def n_runs(self) -> int:
+        return int(self.pos.shape[0])
+
+
+@dataclass
+class EpisodeEnds:
+    """The episodes that ended this step, one entry per (run, group); arrays ``[E]``."""
+
+    runs: np.ndarray
+    groups: np.ndarray
+    episode: np.ndarray  # 0-based index of the episode in its run and group
+    start: np.ndarray  # team step before the episode's first step
+    dots: np.ndarray
+    distinct_cells: np.ndarray
+    distinct_states: np.ndarray
+    complete: np.ndarray  # bool: all dots eaten (else truncated)
+
+
+@dataclass
+class Outcome:
+    """What happened in one team step; arrays ``[R, K]`` unless stated.
+
+    Attributes:
+        t: the team step (1-based).
+        active: bool ``[R]``, the runs that took this step.
+        choosing: bool, the robot was patrolling and its strategy chose a move.
+        ask: int, the direction the robot asked for (strategy or homing), -1 if none.
+        waiting_for_station: bool, the robot needs a station and has none yet.
+        moved: bool, the robot entered a new cell (as asked, or pushed aside).
+        as_asked: bool, the robot made the move it asked for.
+        prev_pos, prev_head: cell and heading before the step.
+        pos: the cell after the step.
+        reward: float, the reward of the cell entered (0 if the robot did not move).
+        eaten: bool, a dot was eaten on entering.
+        blocked_by: int, the robot standing in the asked cell when the move failed, -1.
+        episodes: the episodes that ended this step.
+    """
+
+    t: int
+    active: np.ndarray
+    choosing: np.ndarray
+    ask: np.ndarray
+    waiting_for_station: np.ndarray
+    moved: np.ndarray
+    as_asked: np.ndarray
+    prev_pos: np.ndarray
+    prev_head: np.ndarray
+    pos: np.ndarray
+    reward: np.ndarray
+    eaten: np.ndarray
+    blocked_by: np.ndarray
+    episodes: EpisodeEnds
+
+
+def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
+    """int ``[K]``: start cells of one run's robots.
+
+    Robot k < (number of start digits) starts on its digit. Each further robot goes to
+    the free cell farthest (shortest path) from every robot placed so far, ties broken
+    by ``rng``, which spreads the team over the map.
+    """
+    k = p.n_agents
+    placed = list(p.starts[:k])
+    if len(placed) < k:
+        dist = m.distances()
+        while len(placed) < k:
+            if placed:
+                far = dist[placed].min(axis=0)
+            else:
+                far = np.ones(p.n_cells, dtype=np.int64)
+            far[placed] = -1
+            best = np.flatnonzero(far == far.max())
+            placed.append(int(best[rng.integers(best.size)]))
+    return np.array(placed, dtype=np.int64)
+
+
+def init_state(p: Params, start_cells: np.ndarray) -> State:
+    """The world before the first step. ``start_cells``: int ``[R, K]``."""
+    r, k, c, g = start_cells.shape[0], p.n_agents, p.n_cells, p.n_groups
+    pos = start_cells.astype(np.int64).copy()
+    occ = np.full((r, c), -1, dtype=np.int64)
+    occ[np.arange(r)[:, None], pos] = np.arange(k)[None, :]
+    zeros_rg = np.zeros((r, g), dtype=np.int64)
+    zeros_rk = np.zeros((r, k), dtype=np.int64)
+    return State(
+        t=0,
+        pos=pos,
+        head=np.full((r, k), p.initial_heading, dtype=np.int64),
+        occ=occ,
+        dots=np.broadcast_to(p.has_dot, (r, g, c)).copy(),
+        last=np.zeros((r, g, c), dtype=np.int64),
+        dots_left=np.full((r, g), int(p.has_dot.sum()), dtype=np.int64),
+        ep_dots=zeros_rg.copy(),
+        ep_visits=zeros_rg.copy(),
+        ep_start=zeros_rg.copy(),
+        ep_count=zeros_rg.copy(),
+        ep_seen=np.zeros((r, g, c), dtype=bool),
+        ep_seen_state=np.zeros((r, g, c, 4), dtype=bool),
+        charge=battery.initial_charge(p, pos),
+        mode=np.full((r, k), PATROL, dtype=np.int64),
+        rest=zeros_rk.copy(),
+        goal=np.full((r, k), -1, dtype=np.int64),
+        queued_since=zeros_rk.copy(),
+        depart_left=zeros_rk.copy(),
+        reserved=np.full((r, p.homes.size), -1, dtype=np.int64),
+        wait=zeros_rk.copy(),
+        token=np.full(r, -1, dtype=np.int64),
+        token_held=np.zeros(r, dtype=np.int64),
+        active=np.ones(r, dtype=bool),
+        steps_done=np.zeros(r, dtype=np.int64),
+    )
+
+
+@dataclass
+class Observation:
+    """What a strategy sees before it chooses; arrays ``[R, K, ...]``.
+
+    Attributes:
+        t: the team step about to be taken (1-based).
+        state: the world (read only).
+        params: the world's parameters.
+        choosing: bool ``[R, K]``, robots whose strategy chooses this step (patrolling,
+            in an active run).
+        legal: bool ``[R, K, 4]``, moves that do not run into a wall.
+        open: bool ``[R, K, 4]``, legal moves into a cell no other robot stands in at the
+            start of the step, and not into the pocket of a station another robot holds
+            (:mod:`qpatrol.battery`); for the robot holding the right of way, every legal
+            move outside such pockets.
+    """
+
+    t: int
+    state: State
+    params: Params
+    choosing: np.ndarray
+    legal: np.ndarray
+    open: np.ndarray
+
+    def group_of(self) -> np.ndarray:
+        """int ``[K]``: the dot/last-visit map each robot uses."""
+        k = self.params.n_agents
+        return np.zeros(k, dtype=np.int64) if self.params.communication else np.arange(k)
+
+
+def begin_step(state: State, p: Params) -> Observation:
+    """Battery bookkeeping for the step about to start, then what strategies see."""
+    s = state
+    battery.begin(s, p, s.t + 1)
+    targets = p.neighbors[s.pos]  # [R, K, 4]
+    legal = targets >= 0
+    if p.battery:
+        legal_open = legal & ~battery.closed_cells(s, p, targets)
+    else:
+        legal_open = legal
+    if p.avoid_collisions:
+        occupied = s.occ[np.arange(s.n_runs)[:, None, None], np.maximum(targets, 0)] >= 0
+        open_ = legal_open & ~occupied
+        r_tok = np.flatnonzero(s.token >= 0)
+        open_[r_tok, s.token[r_tok]] = legal_open[r_tok, s.token[r_tok]]
+    else:
+        open_ = legal_open.copy()
+    choosing = s.active[:, None] & (s.mode == PATROL)
+    return Observation(t=s.t + 1, state=s, params=p, choosing=choosing, legal=legal, open=open_)
+
+
+def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outcome:
+    """Apply one team step, in place, given the strategy's ``choice``.
+
+    Args:
+        state: the world (modified).
+        p: its parameters.
+        obs: what :func:`begin_step` returned for this step.
+        choice: int ``[R, K]``, the direction (0..3) each choosing robot asks for; -1 (or
+            a wall) for no move. Ignored for robots that are not choosing.
+    """
+    s = state
+    s.t += 1
+    t = s.t
+    R, K = s.pos.shape
+    active = s.active
+    ar = np.arange(R)[:, None]
+    choice = np.where(obs.choosing, choice, -1)
+    legal_choice = (choice >= 0) & np.take_along_axis(
+        obs.legal, np.maximum(choice, 0)[..., None], axis=2
+    )[..., 0]
+    ask = np.where(legal_choice, choice, -1)
+    homing = active[:, None] & (s.mode == HOMING)
+    queued = active[:, None] & (s.mode == QUEUED)
+    held_back = yielding = np.zeros((R, K), dtype=bool)
+    if homing.any():
+        home_ask, held_back, yielding = battery.homing_ask(s, p)
+        ask = np.where(homing, home_ask, ask)
+        held_back &= homing
+        yielding &= homing
+    if queued.any():
+        ask = np.where(queued, battery.queued_ask(s, p), ask)
+        yielding = yielding | (queued & (ask >= 0))
+    want = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
+
+    prev_pos = s.pos.copy()
+    prev_head = s.head.copy()
+    res = traffic.resolve(s, p, want)
+
+    # --- what entering a cell does: dots, visits, reward, heading, charge ----------------
+    moved = res.moved
+    reward = np.zeros((R, K))
+    eaten = np.zeros((R, K), dtype=bool)
+    direction = traffic.direction_of(p, prev_pos, s.pos)
+    for k in range(K):
+        rows = np.flatnonzero(moved[:, k])
+        if rows.size == 0:
+            continue
+        g = 0 if p.communication else k
+        c1 = s.pos[rows, k]
+        a = direction[rows, k]
+        ate = s.dots[rows, g, c1]
+        s.dots[rows, g, c1] = False
+        s.dots_left[rows, g] -= ate
+        s.ep_dots[rows, g] += ate
+        s.ep_visits[rows, g] += 1
+        idle = t - s.last[rows, g, c1]
+        s.last[rows, g, c1] = t
+        s.ep_seen[rows, g, c1] = True
+        s.ep_seen_state[rows, g, c1, a] = True
+        reward[rows, k] = (
+            np.where(ate, p.dot_value[c1], 0.0)
+            + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
+            + p.lambda_weight * s.ep_dots[rows, g] / s.ep_visits[rows, g]
+        )
+        eaten[rows, k] = ate
+        s.head[rows, k] = a
+    if p.battery:
+        # yielding (pushed aside, or stepping out of a station's pocket) costs nothing
+        yielded = moved & (~res.as_asked | yielding)
+        s.charge -= moved & ~yielded
+        battery.credit_detour(s, p, yielded, prev_pos)
+    asked = ask >= 0
+    battery.end(s, p, moved, asked)
+    waiting_station = (active[:, None] & (s.mode == QUEUED)) | held_back
+    failed = (asked & ~res.as_asked) | waiting_station
+    s.wait = np.where(failed, s.wait + 1, 0)
+    blocked_by = np.where(asked & ~res.as_asked, s.occ[ar, np.maximum(want, 0)], -1)
+    traffic.pass_token(s, p, want, res, blocked_by)
+    s.steps_done[active] = t
+    ends = _end_episodes(s, p)
+    return Outcome(
+        t=t,
+        active=active.copy(),
+        choosing=obs.choosing,
+        ask=ask,
+        waiting_for_station=waiting_station,
+        moved=moved,
+        as_asked=res.as_asked,
+        prev_pos=prev_pos,
+        prev_head=prev_head,
+        pos=s.pos.copy(),
+        reward=reward,
+        eaten=eaten,
+        blocked_by=blocked_by,
+        episodes=ends,
+    )
+
+
+def _end_episodes(s: State, p: Params) -> EpisodeEnds:
+    """End the episodes whose dots are all eaten, or that ran too long; start the next."""
+    t = s.t
+    active = s.active
+    complete = active[:, None] & (s.dots_left == 0)
+    ended = complete.copy()
+    if p.max_episode_steps:
+        ended |= active[:, None] & (t - s.ep_start >= p.max_episode_steps)
+    runs, groups = np.nonzero(ended)
+    ends = EpisodeEnds(
+        runs=runs,
+        groups=groups,
+        episode=s.ep_count[runs, groups].copy(),
+        start=s.ep_start[runs, groups].copy(),
+        dots=s.ep_dots[runs, groups].copy(),
+        distinct_cells=s.ep_seen[runs, groups].sum(axis=1),
+        distinct_states=s.ep_seen_state[runs, groups].sum(axis=(1, 2)),
+        complete=complete[runs, groups],
+    )
+    if runs.size:
+        s.dots[runs, groups] = p.has_dot
+        s.dots_left[runs, groups] = int(p.has_dot.sum())
+        s.ep_dots[runs, groups] = 0
+        s.ep_visits[runs, groups] = 0
+        s.ep_seen[runs, groups] = False
+        s.ep_seen_state[runs, groups] = False
+        s.ep_start[runs, groups] = t
+        s.ep_count[runs, groups] += 1
+        if p.episodes:
+            s.active &= s.ep_count.min(axis=1) < p.episodes
+    return ends
