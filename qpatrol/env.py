@@ -1,6 +1,6 @@
 """The patrol world: a team of Q-learning agents on a grid maze, many runs in lockstep.
 
-Description (paper §2, fixed by SPEC.md)
+Description (paper §2; the model is specified in docs/model.md)
     Each free cell of the map is a *state*; agents move North, East, South or West
     (0..3), never into a wall. Dots lie on the free cells; entering a dot cell eats
     its dot. When every dot of a dot map is eaten the episode ends and the next one
