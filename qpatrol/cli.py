@@ -113,8 +113,12 @@ QuietOpt = Annotated[
 ]
 
 
+_said: list[str] = []  # the one-line messages `fail` printed in this invocation
+
+
 def fail(message: str, code: int = 2) -> None:
     """Print one line to stderr and exit."""
+    _said.append(message)
     typer.echo(f"qpatrol: error: {message}", err=True)
     raise typer.Exit(code)
 
@@ -773,6 +777,7 @@ def main(argv: list[str] | None = None) -> None:
     exits. Usage errors, interrupts and internal errors each end with one line."""
     args = list(sys.argv[1:] if argv is None else argv)
     provenance.set_command(["qpatrol", *args])
+    _said.clear()
     try:
         code = app(args=args, prog_name="qpatrol", standalone_mode=False)
     except (typer.Abort, KeyboardInterrupt):
@@ -802,7 +807,10 @@ def main(argv: list[str] | None = None) -> None:
             err=True,
         )
         sys.exit(1)
-    sys.exit(code if isinstance(code, int) else 0)
+    code = code if isinstance(code, int) else 0
+    if code == 130 and not _said:  # typer turns Ctrl-C into a silent exit 130
+        typer.echo("qpatrol: interrupted", err=True)
+    sys.exit(code)
 
 
 def _unwrap(doc: str) -> str:
