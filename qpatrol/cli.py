@@ -790,7 +790,7 @@ def main(argv: list[str] | None = None) -> None:
     except _click_exc.UsageError as e:
         ctx = e.ctx
         hint = f" (see '{ctx.command_path} -h')" if ctx is not None else ""
-        message = " ".join(e.format_message().split())
+        message = " ".join(e.format_message().split()).rstrip(".")
         typer.echo(f"qpatrol: error: {message}{hint}", err=True)
         sys.exit(e.exit_code)
     except _click_exc.ClickException as e:

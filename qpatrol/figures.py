@@ -187,7 +187,7 @@ def read_sweep(sweep_dir: str | Path) -> pd.DataFrame:
 def _read_csv(path: Path, what: str) -> pd.DataFrame:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing ({what})")
-    return pd.read_csv(path)
+    return pd.read_csv(path, float_precision="round_trip")  # exact on pandas 2 too
 
 
 def _run_config(run_dir: Path) -> Config:

@@ -160,7 +160,7 @@ def _fmt_num(x: float) -> str:
 
 
 def _read(csv: str | Path, columns: list[str]) -> pd.DataFrame:
-    df = pd.read_csv(csv)
+    df = pd.read_csv(csv, float_precision="round_trip")
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise ValueError(f"{csv}: missing column(s) {', '.join(missing)}")

@@ -303,10 +303,10 @@ def build(
     figs, data = results / "figures", results / "data"
 
     def f(name: str) -> pd.DataFrame:
-        return pd.read_csv(figs / f"{name}.csv")
+        return pd.read_csv(figs / f"{name}.csv", float_precision="round_trip")
 
     def d(name: str) -> pd.DataFrame:
-        return pd.read_csv(data / f"{name}-results.csv")
+        return pd.read_csv(data / f"{name}-results.csv", float_precision="round_trip")
 
     makers: list[Callable[[], Section]] = [
         lambda: figure_2(f("figure-2"), d("multiplier")),

@@ -223,7 +223,7 @@ class SweepResult:
 def load_results(out: str | Path) -> pd.DataFrame:
     """``results.csv`` of a sweep folder (or the CSV path itself) as a DataFrame."""
     p = Path(out)
-    return pd.read_csv(p / RESULTS_FILE if p.is_dir() else p)
+    return pd.read_csv(p / RESULTS_FILE if p.is_dir() else p, float_precision="round_trip")
 
 
 # --------------------------------------------------------------------------- the sweep

@@ -93,7 +93,7 @@ def test_every_transition_follows_the_update_rule_exactly(tmp_path: Path):
     from qpatrol.maps import get_map
 
     legal = get_map("map_b").neighbors >= 0
-    tr = pd.read_csv(out / "transitions.csv")
+    tr = pd.read_csv(out / "transitions.csv", float_precision="round_trip")  # exact on pandas 2
     q = np.broadcast_to(q_init, (2, 4, 124, 4, 4)).copy()
     n = np.zeros(q.shape, dtype=np.int64)
     with np.load(out / "q_table.npz") as z:

@@ -372,7 +372,8 @@ def test_version(run):
 
 def test_usage_errors_are_one_line(run):
     res = run("train", "--no-such-flag")
-    assert_one_line_error(res, 2, "No such option: --no-such-flag (see 'qpatrol train -h')")
+    assert_one_line_error(res, 2, "No such option")
+    assert "--no-such-flag" in res.err and "(see 'qpatrol train -h')" in res.err
 
 
 def test_internal_error_one_line_and_a_log(run, tmp_path, monkeypatch):
