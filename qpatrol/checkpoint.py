@@ -28,6 +28,7 @@ most ``every`` seconds of work; Ctrl-C or SIGTERM lose none.
 from __future__ import annotations
 
 import json
+import os
 import pickle
 import shutil
 import signal
@@ -53,8 +54,15 @@ class CheckpointError(ValueError):
 
 
 def save(obj: Any, path: str | Path) -> None:
-    """Pickle ``obj`` to ``path`` atomically: the file is the old one or the new one."""
-    atomic.write_bytes(path, pickle.dumps(obj, protocol=pickle.HIGHEST_PROTOCOL))
+    """Pickle ``obj`` to ``path`` atomically: the file is the old one or the new one.
+
+    The pickle is streamed to a temporary file (no second copy of the state in memory),
+    synced, then renamed over ``path``.
+    """
+    with atomic.staged_file(path) as tmp, open(tmp, "wb") as f:
+        pickle.dump(obj, f, protocol=pickle.HIGHEST_PROTOCOL)
+        f.flush()
+        os.fsync(f.fileno())
 
 
 def load(path: str | Path) -> Any:

@@ -248,8 +248,11 @@ def train(
         )
         if resume:
             snap = cp.load()
-            info = json.loads((cp.folder / ck.INFO_FILE).read_text(encoding="utf-8"))
-            started = info.get("started", started)
+            try:
+                info = json.loads((cp.folder / ck.INFO_FILE).read_text(encoding="utf-8"))
+                started = str(info.get("started") or started)
+            except (OSError, ValueError, AttributeError):
+                pass  # the start time is only for meta.json
             cp.info["started"] = started
     except (ConfigError, MapError, ck.CheckpointError) as e:
         fail(str(e))
