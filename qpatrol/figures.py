@@ -38,6 +38,7 @@ import pandas as pd
 
 from qpatrol import env
 from qpatrol.config import Config, from_mapping, load_config
+from qpatrol.csvio import read_csv
 from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
 from qpatrol.provenance import MAP_FILE, read_meta
 from qpatrol.rng import Streams, run_seeds
@@ -187,7 +188,7 @@ def read_sweep(sweep_dir: str | Path) -> pd.DataFrame:
 def _read_csv(path: Path, what: str) -> pd.DataFrame:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing ({what})")
-    return pd.read_csv(path, float_precision="round_trip")  # exact on pandas 2 too
+    return read_csv(path)
 
 
 def _run_config(run_dir: Path) -> Config:

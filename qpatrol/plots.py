@@ -20,6 +20,7 @@ from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
 from qpatrol import atomic  # noqa: E402
+from qpatrol.csvio import read_csv  # noqa: E402
 from qpatrol.maps import BIG, SMALL_DOT, Map, get_map  # noqa: E402
 
 #: colours of the actions/directions, used by every Q-value figure.
@@ -160,7 +161,7 @@ def _fmt_num(x: float) -> str:
 
 
 def _read(csv: str | Path, columns: list[str]) -> pd.DataFrame:
-    df = pd.read_csv(csv, float_precision="round_trip")
+    df = read_csv(csv)
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise ValueError(f"{csv}: missing column(s) {', '.join(missing)}")

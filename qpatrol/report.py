@@ -19,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import atomic
+from qpatrol.csvio import read_csv
 
 
 @dataclass
@@ -303,10 +304,10 @@ def build(
     figs, data = results / "figures", results / "data"
 
     def f(name: str) -> pd.DataFrame:
-        return pd.read_csv(figs / f"{name}.csv", float_precision="round_trip")
+        return read_csv(figs / f"{name}.csv")
 
     def d(name: str) -> pd.DataFrame:
-        return pd.read_csv(data / f"{name}-results.csv", float_precision="round_trip")
+        return read_csv(data / f"{name}-results.csv")
 
     makers: list[Callable[[], Section]] = [
         lambda: figure_2(f("figure-2"), d("multiplier")),

@@ -46,6 +46,7 @@ import pandas as pd
 
 from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
+from qpatrol.csvio import read_csv
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
 
@@ -223,7 +224,7 @@ class SweepResult:
 def load_results(out: str | Path) -> pd.DataFrame:
     """``results.csv`` of a sweep folder (or the CSV path itself) as a DataFrame."""
     p = Path(out)
-    return pd.read_csv(p / RESULTS_FILE if p.is_dir() else p, float_precision="round_trip")
+    return read_csv(p / RESULTS_FILE if p.is_dir() else p)
 
 
 # --------------------------------------------------------------------------- the sweep
