@@ -47,7 +47,7 @@ def installed(tmp_path_factory):
     env = {k: v for k, v in os.environ.items() if k not in ("PYTHONPATH", "PYTHONHOME")}
     env["PIP_DISABLE_PIP_VERSION_CHECK"] = "1"
     pip = [sys.executable, "-m", "pip"]
-    sh(
+    built = sh(
         *pip,
         "wheel",
         "--no-deps",
@@ -58,6 +58,7 @@ def installed(tmp_path_factory):
         cwd=root,
         env=env,
     )
+    assert "project.license" not in built.stdout + built.stderr  # no setuptools deprecation
     (wheel,) = (root / "dist").glob("qpatrol-*.whl")
 
     target = root / "venv"
@@ -108,3 +109,13 @@ def test_installed_quick_reproduction(installed):
     for ref in sorted(refs.glob("*/*.csv")):
         new = out / ref.parent.name / ref.name
         assert new.read_bytes() == ref.read_bytes(), ref.name
+
+
+def test_the_model_is_documented_in_the_repository():
+    model = (REPO / "docs" / "model.md").read_text()
+    for title in ("## Maps", "## One agent", "## A team", "## Movement, collisions and charging"):
+        assert title in model
+    assert "`policy`" in model
+    cited = [REPO / "README.md", *sorted((REPO / "qpatrol").glob("*.py"))]
+    assert not [p.name for p in cited if "SPEC.md" in p.read_text()]
+    assert "docs/model.md" in (REPO / "README.md").read_text()
