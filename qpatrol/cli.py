@@ -794,7 +794,8 @@ def main(argv: list[str] | None = None) -> None:
         ctx = e.ctx
         hint = f" (see '{ctx.command_path} -h')" if ctx is not None else ""
         message = " ".join(e.format_message().split()).rstrip(".")
-        typer.echo(f"qpatrol: error: {message}{hint}", err=True)
+        if message:  # no message: click already printed the help (no arguments given)
+            typer.echo(f"qpatrol: error: {message}{hint}", err=True)
         sys.exit(e.exit_code)
     except _click_exc.ClickException as e:
         typer.echo(f"qpatrol: error: {' '.join(e.format_message().split())}", err=True)

@@ -438,3 +438,10 @@ def test_meta_json_and_map_copy(run, tmp_path):
     shipped = (REPO / "maps" / "map_b.txt").read_text()
     assert (tmp_path / "o" / "map.txt").read_text() == shipped
     assert meta["map"]["name"] == "map_b" and meta["map"]["file"] == "map.txt"
+
+
+@pytest.mark.parametrize("path", [[], ["maps"], ["config"]], ids=["qpatrol", "maps", "config"])
+def test_no_arguments_print_the_help_and_no_error_line(run, path):
+    res = run(*path)
+    assert "Usage: qpatrol" in res.out + res.err
+    assert "error" not in res.out + res.err and "Traceback" not in res.out + res.err
