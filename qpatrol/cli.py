@@ -1,32 +1,103 @@
 """``qpatrol`` command line: a thin layer over the Python API.
 
-Bad input (config, map, file) ends with one line on stderr and exit code 2.
+Bad input (config, map, file, option) ends with one line on stderr and exit code 2,
+before any work starts and with nothing written. An interrupted command says so and
+exits 130. Anything unexpected ends with one line naming the file that holds the full
+traceback, and exit code 1: no command prints a traceback.
 """
 
 from __future__ import annotations
 
+import importlib
+import inspect
 import json
+import os
+import shutil
 import sys
+import tempfile
+import time
+import traceback
 from pathlib import Path
-from typing import Annotated
+from typing import Annotated, Any
 
 import typer
+from typer.core import TyperCommand, TyperGroup
 
+from qpatrol import __version__, outputs, provenance
 from qpatrol import config as config_mod
 from qpatrol.config import ConfigError
 from qpatrol.maps import MapError, available_maps, load_map, render_states, resolve_map
 from qpatrol.progress import Bar
 
-app = typer.Typer(
-    help="Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.",
-    no_args_is_help=True,
-    add_completion=False,
-    pretty_exceptions_enable=False,
-)
-maps_app = typer.Typer(help="List, show and check maps.", no_args_is_help=True)
-config_app = typer.Typer(help="Config keys and resolved configs.", no_args_is_help=True)
+HELP = {"help_option_names": ["-h", "--help"]}
+#: click's exceptions, wherever this typer takes click from (newer typers vendor it).
+_click_exc = importlib.import_module(typer.BadParameter.__module__)
+
+
+def _usage_pieces(cmd: Any, ctx: Any) -> list[str]:
+    """Usage line pieces: ``[OPTIONS] CONFIG`` (arguments by their metavar, optional
+    ones in brackets), instead of typer's ``{config}``."""
+    pieces = [cmd.options_metavar] if cmd.options_metavar else []
+    for param in cmd.get_params(ctx):
+        if getattr(param, "param_type_name", "") == "argument":
+            if param.metavar:
+                pieces.append(param.metavar)
+                continue
+            name = (param.name or "arg").upper() + ("..." if param.nargs != 1 else "")
+            pieces.append(name if param.required else f"[{name}]")
+        else:
+            pieces.extend(param.get_usage_pieces(ctx))
+    return pieces
+
+
+def _quiet_help_option(opt: Any) -> Any:
+    if opt is not None and getattr(opt, "metavar", None) is None:
+        opt.metavar = ""  # a flag: no <bool> in the help
+    return opt
+
+
+class _Command(TyperCommand):
+    def collect_usage_pieces(self, ctx: Any) -> list[str]:
+        return _usage_pieces(self, ctx)
+
+    def get_help_option(self, ctx: Any) -> Any:
+        return _quiet_help_option(super().get_help_option(ctx))
+
+
+class _Group(TyperGroup):
+    def collect_usage_pieces(self, ctx: Any) -> list[str]:
+        return [*_usage_pieces(self, ctx), self.subcommand_metavar or "COMMAND [ARGS]..."]
+
+    def get_help_option(self, ctx: Any) -> Any:
+        return _quiet_help_option(super().get_help_option(ctx))
+
+
+def _typer(help: str) -> typer.Typer:
+    return typer.Typer(
+        help=help,
+        no_args_is_help=True,
+        add_completion=False,
+        pretty_exceptions_enable=False,
+        context_settings=HELP,
+        cls=_Group,
+    )
+
+
+app = _typer("Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.")
+maps_app = _typer("List, show and check maps.")
+config_app = _typer("Config keys, shipped configs and resolved configs.")
 app.add_typer(maps_app, name="maps")
 app.add_typer(config_app, name="config")
+
+
+def _examples(*lines: str) -> str:
+    return "Examples:\n\n" + "\n\n".join(f"  {x}" for x in lines)
+
+
+def command(name: str | None = None, examples: tuple[str, ...] = ()) -> Any:
+    """``@app.command`` with -h, our usage line and an examples epilog."""
+    return {"name": name, "cls": _Command, "epilog": _examples(*examples) if examples else None}
+
 
 SetOpt = Annotated[
     list[str] | None,
@@ -37,50 +108,200 @@ SetOpt = Annotated[
         help="Override a config key, e.g. --set learning.gamma=0.5 (repeatable).",
     ),
 ]
+QuietOpt = Annotated[
+    bool, typer.Option("--quiet", "-q", metavar="", help="No progress and no summary.")
+]
+
+
+_said: list[str] = []  # the one-line messages `fail` printed in this invocation
 
 
 def fail(message: str, code: int = 2) -> None:
     """Print one line to stderr and exit."""
+    _said.append(message)
     typer.echo(f"qpatrol: error: {message}", err=True)
     raise typer.Exit(code)
 
 
-@app.command()
+def _version(value: bool) -> None:
+    if value:
+        typer.echo(f"qpatrol {__version__}")
+        raise typer.Exit(0)
+
+
+@app.callback()
+def _root(
+    version: Annotated[
+        bool,
+        typer.Option(
+            "--version",
+            "-V",
+            metavar="",
+            callback=_version,
+            is_eager=True,
+            help="Print qpatrol's version and exit.",
+        ),
+    ] = False,
+) -> None:
+    """Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.
+
+    Every command takes -h for its options and examples. The model is described in
+    docs/model.md.
+    """
+
+
+# --------------------------------------------------------------------------- train
+
+
+@app.command(
+    **command(
+        examples=(
+            "qpatrol train paper                      (a shipped config: qpatrol config list)",
+            "qpatrol train configs/paper.yaml --set runs=8 --set learning.gamma=0.5 "
+            "--out results/runs/g05",
+            "qpatrol train configs/paper.yaml --out results/runs/g05 --resume   "
+            "(after Ctrl-C or a kill)",
+        )
+    )
+)
 def train(
-    config: Annotated[Path, typer.Argument(help="YAML experiment config.")],
+    config: Annotated[
+        Path, typer.Argument(metavar="CONFIG", help="YAML experiment config (file or name).")
+    ],
     set_: SetOpt = None,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Output folder (default: results/runs/<config>-<hash>)."),
+        typer.Option(
+            "--out",
+            "-o",
+            metavar="DIR",
+            help="Output folder (default: results/runs/<config>-<hash>).",
+        ),
     ] = None,
-    force: Annotated[bool, typer.Option(help="Replace an existing output folder.")] = False,
-    quiet: Annotated[bool, typer.Option("--quiet", "-q", help="No summary table.")] = False,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force", metavar="", help="Replace an existing run folder (and its checkpoint)."
+        ),
+    ] = False,
+    resume: Annotated[
+        bool,
+        typer.Option(
+            "--resume",
+            metavar="",
+            help="Continue an interrupted run from its checkpoint (<out>.checkpoint/); give "
+            "the same CONFIG and --set.",
+        ),
+    ] = False,
+    checkpoint_every: Annotated[
+        float,
+        typer.Option(
+            "--checkpoint-every",
+            metavar="SECONDS",
+            envvar="QPATROL_CHECKPOINT_EVERY",
+            help="Seconds between checkpoints (0: only on Ctrl-C or SIGTERM).",
+        ),
+    ] = 60.0,
+    quiet: QuietOpt = False,
 ) -> None:
-    """Train a team on CONFIG and write config.yaml, episodes.csv, summary.json, q_table.npz."""
+    """Train a team on CONFIG and write a run folder.
+
+    The folder holds config.yaml, episodes.csv, summary.json, q_table.npz, visits.npz,
+    meta.json, map.txt and the records the config asks for. A checkpoint is saved every
+    --checkpoint-every seconds and on Ctrl-C or SIGTERM; --resume continues from it and
+    gives the same files as an uninterrupted run.
+    """
+    from qpatrol import checkpoint as ck
     from qpatrol.run import default_out_dir, prepare, simulate, write_run
 
+    started = provenance.now()
+    overrides = list(set_ or [])
+    if resume and force:
+        fail("--resume continues a run and --force starts it over; give one of them")
+    if checkpoint_every < 0 or checkpoint_every != checkpoint_every:
+        fail(f"--checkpoint-every: got {checkpoint_every}; allowed: a number of seconds >= 0")
     try:
-        cfg = config_mod.load_config(config, set_ or [])
+        cfg = config_mod.load_config(config, overrides)
+        target = out or default_out_dir(cfg, config)
+        cp_dir = ck.location(target)
+        if resume:
+            if target.exists():
+                fail(f"{target} already exists: that run finished, there is nothing to resume")
+            outputs.check_writable_dir(target)
+        else:
+            outputs.check_run_target(target, force)
+            if cp_dir.exists() and not force:
+                fail(
+                    f"{cp_dir} holds an interrupted run; pass --resume to continue it or "
+                    "--force to start over"
+                )
         prepared = prepare(cfg)
-    except (ConfigError, MapError) as e:
+        cp = ck.Checkpointer(
+            cp_dir,
+            every=checkpoint_every,
+            key={
+                "config": cfg.digest(),
+                "map": provenance.map_entry(prepared[0].text, prepared[0].name)["sha256"],
+                "qpatrol": __version__,
+            },
+            info={"command": provenance.command(), "steps": cfg["steps"], "started": started},
+        )
+        if resume:
+            snap = cp.load()
+            try:
+                info = json.loads((cp.folder / ck.INFO_FILE).read_text(encoding="utf-8"))
+                started = str(info.get("started") or started)
+            except (OSError, ValueError, AttributeError):
+                pass  # the start time is only for meta.json
+            cp.info["started"] = started
+    except (ConfigError, MapError, ck.CheckpointError) as e:
         fail(str(e))
-    target = out or default_out_dir(cfg, config)
-    if target.exists() and not force:
-        fail(f"{target} already exists; pass --force to replace it or --out to choose another")
-    bar = Bar(f"train {config.name}")
-    result = simulate(cfg, progress=bar, prepared=prepared)
+    if force and cp_dir.exists():
+        shutil.rmtree(cp_dir, ignore_errors=True)
+    meta = provenance.collect(
+        overrides, config_file=config_mod.find_config(config), started=started
+    )
+    if resume:
+        meta["resumed"] = {"from_step": snap.position, "checkpoint_saved": snap.saved}
+    bar = Bar(f"train {config.name}", quiet=quiet)
+    try:
+        with cp.signals():
+            result = simulate(cfg, progress=bar, prepared=prepared, checkpoint=cp)
+    except ck.Interrupted as e:
+        bar.close()
+        again = provenance.command()
+        again += "" if "--resume" in again.split() else " --resume"
+        fail(
+            f"interrupted at team step {e.position:,} of {cfg['steps']:,}; checkpoint saved in "
+            f"{e.folder}; continue with: {again}",
+            code=128 + int(e.signum),
+        )
     bar.close()
-    write_run(result, target, replace=force)
+    try:
+        write_run(result, target, replace=force, meta=meta)
+    except ConfigError as e:
+        cp.discard()
+        fail(str(e))
+    cp.discard()
     if not quiet:
         _print_summary(result.summary)
     typer.echo(f"wrote {target}")
 
 
+# --------------------------------------------------------------------------- sweep
+
+
 @app.command(
-    context_settings={"help_option_names": ["-h", "--help"]},
-    epilog="Examples: qpatrol sweep gamma | qpatrol sweep learning.gamma --values 0.1,0.5 "
-    "configs/paper.yaml | qpatrol sweep --grid agents=1,2,4 --grid team.communication=on,off "
-    "configs/team_size.yaml",
+    **command(
+        examples=(
+            "qpatrol sweep gamma                      (a named sweep: gamma, multiplier, "
+            "team-size)",
+            "qpatrol sweep learning.gamma --values 0.1,0.5,0.9 configs/paper.yaml --runs 16",
+            "qpatrol sweep --grid agents=1,2,4 --grid team.communication=on,off "
+            "configs/team_size.yaml --jobs 2",
+            "qpatrol sweep multiplier --backend dask --scheduler tcp://host:8786",
+        )
+    )
 )
 def sweep(
     args: Annotated[
@@ -92,40 +313,59 @@ def sweep(
         ),
     ] = None,
     values: Annotated[
-        str | None, typer.Option("--values", "-v", help="Comma-separated values of PARAM.")
+        str | None,
+        typer.Option("--values", "-v", metavar="V1,V2", help="Comma-separated values of PARAM."),
     ] = None,
     grid: Annotated[
         list[str] | None,
-        typer.Option("--grid", "-g", metavar="KEY=V1,V2", help="A grid axis (repeatable)."),
+        typer.Option(
+            "--grid", "-g", metavar="KEY=V1,V2", help="A grid axis (repeatable, one per key)."
+        ),
     ] = None,
-    runs: Annotated[int | None, typer.Option(help="Runs per point (sets `runs`).")] = None,
+    runs: Annotated[
+        int | None, typer.Option("--runs", metavar="N", help="Runs per point (sets `runs`).")
+    ] = None,
     jobs: Annotated[
-        int, typer.Option("--jobs", "-j", help="Parallel workers (-1: all cores).")
+        int,
+        typer.Option("--jobs", "-j", metavar="N", help="Parallel workers (-1: all cores)."),
     ] = 1,
     out: Annotated[
         Path | None,
-        typer.Option("--out", "-o", help="Sweep folder (default: results/sweeps/NAME)."),
+        typer.Option(
+            "--out", "-o", metavar="DIR", help="Sweep folder (default: results/sweeps/NAME)."
+        ),
     ] = None,
     set_: SetOpt = None,
-    backend: Annotated[str, typer.Option(help="joblib or dask.")] = "joblib",
+    backend: Annotated[
+        str, typer.Option("--backend", metavar="NAME", help="joblib or dask.")
+    ] = "joblib",
     scheduler: Annotated[
-        str | None, typer.Option(help="Dask scheduler address (with --backend dask).")
+        str | None,
+        typer.Option(
+            "--scheduler", metavar="ADDRESS", help="Dask scheduler address (with --backend dask)."
+        ),
     ] = None,
-    force: Annotated[bool, typer.Option(help="Discard an existing sweep in --out.")] = False,
+    force: Annotated[
+        bool, typer.Option("--force", metavar="", help="Discard an existing sweep in --out.")
+    ] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run a config at many parameter values, each point's runs as one batch, in parallel.
 
     Resumable: rerunning the same command skips finished points. Writes
-    OUT/points/<id>/ (the files `train` writes) and OUT/results.csv.
+    OUT/points/<id>/ (the files `train` writes), OUT/results.csv and OUT/meta.json.
     """
+    from qpatrol import limits
     from qpatrol import sweep as sw
 
     args = list(args or [])
+    overrides = list(set_ or []) + ([f"runs={runs}"] if runs is not None else [])
     try:
+        limits.check_jobs(jobs, "--jobs")
         if not grid and args and args[0] in sw.NAMED_SWEEPS and values is None:
             named = sw.NAMED_SWEEPS[args[0]]
             name = args[0]
-            config = Path(args[1]) if len(args) > 1 else _repo_path(named.config)
+            config = Path(args[1]) if len(args) > 1 else Path(named.config)
             points = named.points()
             if len(args) > 2:
                 fail(f"sweep {name}: too many arguments {args[2:]}")
@@ -133,12 +373,18 @@ def sweep(
             if len(args) != 1:
                 fail("sweep --grid: give exactly one CONFIG")
             config, name = Path(args[0]), "grid"
-            axes = {}
+            axes: dict[str, Any] = {}
             for g in grid:
                 if "=" not in g:
                     fail(f"--grid {g!r}: expected KEY=V1,V2,...")
                 key, text = g.split("=", 1)
-                axes[key.strip()] = sw.parse_values(key.strip(), text)
+                key = key.strip()
+                if key in axes:
+                    fail(
+                        f"--grid {key}: given twice; allowed: each key once, with all its "
+                        f"values (--grid {key}=V1,V2,...)"
+                    )
+                axes[key] = sw.parse_values(key, text)
             points = sw.grid_points(axes)
         else:
             if len(args) != 2 or values is None:
@@ -149,20 +395,30 @@ def sweep(
                 )
             name, config = args[0], Path(args[1])
             points = sw.points_for(name, sw.parse_values(name, values))
-        overrides = list(set_ or []) + ([f"runs={runs}"] if runs is not None else [])
         base = config_mod.load_config(config, overrides)
         target = out or Path("results") / "sweeps" / name
-        bar = Bar(f"sweep {name}", unit="runs")
-        result = sw.run_sweep(
-            base,
-            points,
-            target,
-            jobs=jobs,
-            backend=backend,
-            scheduler=scheduler,
-            progress=bar,
-            force=force,
-        )
+        outputs.check_sweep_target(target, force)
+        meta = provenance.collect(overrides, config_file=config_mod.find_config(config))
+        bar = Bar(f"sweep {name}", unit="runs", quiet=quiet)
+        try:
+            result = sw.run_sweep(
+                base,
+                points,
+                target,
+                jobs=jobs,
+                backend=backend,
+                scheduler=scheduler,
+                progress=bar,
+                force=force,
+                meta=meta,
+            )
+        except KeyboardInterrupt:
+            bar.close()
+            fail(
+                f"interrupted; finished points are kept in {target}; rerun the same command "
+                "to resume",
+                code=130,
+            )
         bar.close()
     except (ConfigError, MapError) as e:
         fail(str(e))
@@ -176,12 +432,24 @@ def sweep(
         raise typer.Exit(1)
 
 
-@app.command()
+# --------------------------------------------------------------------------- plot
+
+
+@app.command(
+    **command(
+        examples=(
+            "qpatrol plot figure-2 --from results/sweeps/multiplier --out fig2.pdf",
+            "qpatrol plot figure-6 --from results/runs/figure6-abc123 --out fig6.png",
+            "qpatrol plot gamma                       (from results/runs/full/gamma)",
+        )
+    )
+)
 def plot(
     name: Annotated[
         str,
         typer.Argument(
-            help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6 or team-size."
+            metavar="FIGURE",
+            help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6 or team-size.",
         ),
     ],
     from_: Annotated[
@@ -189,8 +457,9 @@ def plot(
         typer.Option(
             "--from",
             "-f",
+            metavar="DIR",
             help="Experiment folder (a sweep or run folder) "
-            "(default: results/runs/full/<experiment>, else .../quick/<experiment>).",
+            "(default: results/runs/full/<experiment>, else the quick one).",
         ),
     ] = None,
     out: Annotated[
@@ -198,74 +467,142 @@ def plot(
         typer.Option(
             "--out",
             "-o",
+            metavar="FILE",
             help="Image file; .png, .svg, .pdf (.gif for figure-5) (default: "
-            "results/figures/NAME.png). Its CSV is written beside it.",
+            "results/figures/FIGURE.png). Its CSV is written beside it.",
         ),
     ] = None,
 ) -> None:
-    """Draw one paper figure from an experiment folder, writing its CSV beside it."""
+    """Draw one paper figure from an experiment folder, writing its CSV beside it.
+
+    The folder must hold what the figure is drawn from: a sweep over the multiplier
+    (figure-2), gamma (gamma) or agents (team-size), or a run folder (figure-3 to 6).
+    """
+    from qpatrol import plots
     from qpatrol import reproduce as rp
 
     try:
         fig = rp.figure(name)
-    except ConfigError as e:
-        fail(str(e))
-    if from_ is None:
-        candidates = [rp.experiment_dir(Path("results"), fig.experiment, q) for q in (False, True)]
-        from_ = next((c for c in candidates if c.exists()), None)
+        target = out or Path("results") / "figures" / f"{name}{fig.ext}"
+        plots.check_image_path(target, extra=("gif",))
+        outputs.check_writable_file(target)
         if from_ is None:
-            fail(
-                f"no experiment folder for {name} under results/runs/; run `qpatrol reproduce` "
-                "(or --quick) first, or pass --from DIR"
-            )
-    if not from_.exists():
-        fail(f"{from_}: no such folder")
-    target = out or Path("results") / "figures" / f"{name}{fig.ext}"
-    try:
+            candidates = [
+                rp.experiment_dir(Path("results"), fig.experiment, False),
+                rp.experiment_dir(rp.default_out(True), fig.experiment, True),
+                rp.experiment_dir(Path("results"), fig.experiment, True),
+            ]
+            from_ = next((c for c in candidates if c.exists()), None)
+            if from_ is None:
+                fail(
+                    f"no experiment folder for {name} under results/; run `qpatrol reproduce` "
+                    "(or --quick) first, or pass --from DIR"
+                )
+        if not from_.exists():
+            fail(f"{from_}: no such folder")
+        if not from_.is_dir():
+            fail(f"--from {from_}: is a file; give an experiment folder")
+        rp.check_source(fig, from_)
         made = rp.make_figure(name, from_, target)
+    except (ConfigError, MapError) as e:
+        fail(str(e))
     except (FileNotFoundError, KeyError, ValueError) as e:
         fail(f"{name} from {from_}: {e}")
     for path in made:
         typer.echo(f"wrote {path}")
 
 
-@app.command()
+# --------------------------------------------------------------------------- reproduce
+
+
+@app.command(
+    **command(
+        examples=(
+            "qpatrol reproduce                        (about 4 minutes on 2 cores, into results/)",
+            "qpatrol reproduce --quick --out /tmp/q   (a minute; verdicts indicative only)",
+        )
+    )
+)
 def reproduce(
     quick: Annotated[
-        bool, typer.Option(help="Fewer seeds and steps: every figure in under a minute.")
+        bool,
+        typer.Option(
+            "--quick",
+            metavar="",
+            help="Fewer seeds and steps: every figure in about a minute; the report's "
+            "verdicts are then indicative only.",
+        ),
     ] = False,
-    out: Annotated[Path, typer.Option("--out", "-o", help="Results folder.")] = Path("results"),
-    jobs: Annotated[int, typer.Option("--jobs", "-j", help="Experiments run at once.")] = 2,
+    out: Annotated[
+        Path | None,
+        typer.Option(
+            "--out",
+            "-o",
+            metavar="DIR",
+            help="Results folder (default: results, or results/quick with --quick).",
+        ),
+    ] = None,
+    jobs: Annotated[
+        int | None,
+        typer.Option(
+            "--jobs", "-j", metavar="N", help="Experiments run at once (default: 2, or 1 core)."
+        ),
+    ] = None,
     update_references: Annotated[
         bool,
-        typer.Option(help="With --quick: store its CSVs as the references the tests compare."),
+        typer.Option(
+            "--update-references",
+            metavar="",
+            help="With --quick: store its CSVs as the references the tests compare "
+            "(results/reference/quick).",
+        ),
     ] = False,
+    quiet: QuietOpt = False,
 ) -> None:
     """Run the paper's experiments, draw every figure and write REPORT.md.
 
-    Resumable: finished experiment points are kept under OUT/runs/ and not rerun.
+    Writes OUT/figures/, OUT/data/, OUT/REPORT.md and OUT/meta.json. Resumable:
+    finished experiment points are kept under OUT/runs/ and not rerun.
     """
+    from qpatrol import limits
     from qpatrol import reproduce as rp
 
     if update_references and not quick:
         fail("--update-references needs --quick")
     try:
+        n = jobs if jobs is not None else min(2, limits.cores())
+        limits.check_jobs(n, "--jobs")
+        target = out or rp.default_out(quick)
+        outputs.check_writable_dir(target, "--out", inside=True)
+        if update_references:
+            outputs.check_writable_dir(rp.REFERENCES, "--update-references", inside=True)
+    except ConfigError as e:
+        fail(str(e))
+    bar = Bar("reproduce" + (" --quick" if quick else ""), unit="runs", quiet=quiet)
+    try:
         path = rp.reproduce(
-            out, quick=quick, jobs=jobs, update_references=update_references, log=typer.echo
+            target,
+            quick=quick,
+            jobs=n,
+            update_references=update_references,
+            log=bar.log,
+            progress=bar,
+        )
+    except KeyboardInterrupt:
+        bar.close()
+        fail(
+            f"interrupted; finished experiment points are kept in {target}/runs; rerun the "
+            "same command to resume",
+            code=130,
         )
     except (ConfigError, MapError) as e:
+        bar.close()
         fail(str(e))
     except RuntimeError as e:
+        bar.close()
         fail(str(e), code=1)
+    bar.close()
     typer.echo(f"done: {path}")
-
-
-def _repo_path(relative: str) -> Path:
-    """A file of the qpatrol checkout (configs/...), preferring one in the working dir."""
-    here = Path(relative)
-    if here.exists():
-        return here
-    return Path(__file__).resolve().parent.parent / relative
 
 
 def _print_summary(rows: list[dict]) -> None:
@@ -289,9 +626,12 @@ def _print_summary(rows: list[dict]) -> None:
             typer.echo(f"{k:24s} {'-':>12s}")
 
 
-@maps_app.command("list")
+# --------------------------------------------------------------------------- maps
+
+
+@maps_app.command(**command("list", examples=("qpatrol maps list",)))
 def maps_list() -> None:
-    """Maps found by name in ./maps and the shipped maps/ folder."""
+    """Maps found by name in ./maps and the maps shipped with qpatrol."""
     for name, path in available_maps().items():
         try:
             m = load_map(path)
@@ -303,15 +643,34 @@ def maps_list() -> None:
             typer.echo(f"{name:12s} BROKEN: {e}")
 
 
-@maps_app.command("show")
+@maps_app.command(
+    **command(
+        "show",
+        examples=(
+            "qpatrol maps show map_a                  (the grid with state numbers)",
+            "qpatrol maps show map_a --png map_a.png",
+            "qpatrol maps show my_floor.txt",
+        ),
+    )
+)
 def maps_show(
-    name: Annotated[str, typer.Argument(help="Map name or path.")],
-    png: Annotated[Path | None, typer.Option(help="Draw the map to this image file.")] = None,
+    name: Annotated[str, typer.Argument(metavar="MAP", help="Map name or path.")],
+    png: Annotated[
+        Path | None,
+        typer.Option(
+            "--png", metavar="FILE", help="Draw the map to this image file (.png, .svg, .pdf)."
+        ),
+    ] = None,
 ) -> None:
     """Print the grid with each free cell's state number, or draw it to an image."""
     try:
+        if png is not None:
+            from qpatrol.plots import check_image_path
+
+            check_image_path(png)
+            outputs.check_writable_file(png, "--png")
         m = load_map(resolve_map(name))
-    except MapError as e:
+    except (MapError, ConfigError, ValueError) as e:
         fail(str(e))
     if png is not None:
         from qpatrol.plots import plot_map
@@ -327,8 +686,10 @@ def maps_show(
     typer.echo(render_states(m))
 
 
-@maps_app.command("check")
-def maps_check(files: Annotated[list[Path], typer.Argument(help="Map files.")]) -> None:
+@maps_app.command(**command("check", examples=("qpatrol maps check my_floor.txt other.txt",)))
+def maps_check(
+    files: Annotated[list[Path], typer.Argument(metavar="FILE...", help="Map files.")],
+) -> None:
     """Check map files; print one line per problem and exit 2 if any is broken."""
     bad = 0
     for f in files:
@@ -344,17 +705,44 @@ def maps_check(files: Annotated[list[Path], typer.Argument(help="Map files.")]) 
         raise typer.Exit(2)
 
 
-@config_app.command("keys")
+# --------------------------------------------------------------------------- config
+
+
+@config_app.command(**command("keys", examples=("qpatrol config keys",)))
 def config_keys() -> None:
     """Every config key with its default, allowed values and meaning."""
     typer.echo(config_mod.keys_table())
 
 
-@config_app.command("show")
+@config_app.command(**command("list", examples=("qpatrol config list", "qpatrol train paper")))
+def config_list() -> None:
+    """The configs shipped with qpatrol, usable by name (qpatrol train paper)."""
+    for name, path in config_mod.shipped_configs().items():
+        first = ""
+        for line in path.read_text(encoding="utf-8").splitlines():
+            if line.startswith("#"):
+                first = line.lstrip("# ").strip()
+                break
+        typer.echo(f"{name:12s} {first}")
+
+
+@config_app.command(
+    **command(
+        "show",
+        examples=(
+            "qpatrol config show configs/paper.yaml --set agents=2",
+            "qpatrol config show paper --json",
+        ),
+    )
+)
 def config_show(
-    config: Annotated[Path, typer.Argument(help="YAML experiment config.")],
+    config: Annotated[
+        Path, typer.Argument(metavar="CONFIG", help="YAML experiment config (file or name).")
+    ],
     set_: SetOpt = None,
-    as_json: Annotated[bool, typer.Option("--json", help="JSON instead of YAML.")] = False,
+    as_json: Annotated[
+        bool, typer.Option("--json", metavar="", help="JSON instead of YAML.")
+    ] = False,
 ) -> None:
     """Print the fully resolved config (defaults filled in, overrides applied)."""
     try:
@@ -364,13 +752,82 @@ def config_show(
     typer.echo(json.dumps(cfg.tree(), indent=2) if as_json else cfg.to_yaml().rstrip())
 
 
-def main() -> None:
-    """Console entry point."""
+# --------------------------------------------------------------------------- entry point
+
+
+def crash_log(exc: BaseException) -> Path | None:
+    """Write ``exc``'s traceback to a log file; its path, or None if none could be written.
+
+    The folder is ``$QPATROL_LOG_DIR``, else the system's temporary folder.
+    """
+    folder = Path(os.environ.get("QPATROL_LOG_DIR") or tempfile.gettempdir())
+    stamp = time.strftime("%Y%m%d-%H%M%S")
+    path = folder / f"qpatrol-crash-{stamp}-{os.getpid()}.log"
+    text = (
+        f"qpatrol {__version__}\ncommand: {provenance.command()}\ntime: {provenance.now()}\n\n"
+        + "".join(traceback.format_exception(exc))
+    )
     try:
-        app()
-    except KeyboardInterrupt:
+        folder.mkdir(parents=True, exist_ok=True)
+        path.write_text(text, encoding="utf-8")
+    except OSError:
+        return None
+    return path
+
+
+def main(argv: list[str] | None = None) -> None:
+    """Console entry point: runs the command in ``argv`` (default ``sys.argv[1:]``) and
+    exits. Usage errors, interrupts and internal errors each end with one line."""
+    args = list(sys.argv[1:] if argv is None else argv)
+    provenance.set_command(["qpatrol", *args])
+    _said.clear()
+    try:
+        code = app(args=args, prog_name="qpatrol", standalone_mode=False)
+    except (typer.Abort, KeyboardInterrupt):
         typer.echo("qpatrol: interrupted", err=True)
         sys.exit(130)
+    except BrokenPipeError:  # `qpatrol ... | head`: the reader left; say nothing more
+        devnull = os.open(os.devnull, os.O_WRONLY)
+        os.dup2(devnull, sys.stdout.fileno())
+        sys.exit(141)
+    except _click_exc.UsageError as e:
+        ctx = e.ctx
+        hint = f" (see '{ctx.command_path} -h')" if ctx is not None else ""
+        message = " ".join(e.format_message().split()).rstrip(".")
+        if message:  # no message: click already printed the help (no arguments given)
+            typer.echo(f"qpatrol: error: {message}{hint}", err=True)
+        sys.exit(e.exit_code)
+    except _click_exc.ClickException as e:
+        typer.echo(f"qpatrol: error: {' '.join(e.format_message().split())}", err=True)
+        sys.exit(e.exit_code)
+    except SystemExit:
+        raise
+    except Exception as e:
+        path = crash_log(e)
+        first = str(e).splitlines()[0] if str(e) else ""
+        where = f"; full traceback in {path}" if path else ""
+        typer.echo(
+            f"qpatrol: internal error: {type(e).__name__}: {first}{where}; please report it",
+            err=True,
+        )
+        sys.exit(1)
+    code = code if isinstance(code, int) else 0
+    if code == 130 and not _said:  # typer turns Ctrl-C into a silent exit 130
+        typer.echo("qpatrol: interrupted", err=True)
+    sys.exit(code)
+
+
+def _unwrap(doc: str) -> str:
+    """Docstring -> help text: paragraphs kept, the line breaks inside them removed (rich
+    help keeps them, which breaks lines in odd places)."""
+    paragraphs = inspect.cleandoc(doc).split("\n\n")
+    return "\n\n".join(" ".join(p.split()) for p in paragraphs)
+
+
+for _app in (app, maps_app, config_app):
+    for _info in _app.registered_commands:
+        if _info.help is None and _info.callback is not None and _info.callback.__doc__:
+            _info.help = _unwrap(_info.callback.__doc__)
 
 
 if __name__ == "__main__":

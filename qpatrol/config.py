@@ -12,6 +12,8 @@ from __future__ import annotations
 import copy
 import hashlib
 import json
+import math
+import os
 from collections.abc import Callable, Iterable, Mapping
 from dataclasses import dataclass
 from pathlib import Path
@@ -395,7 +397,31 @@ def from_flat(flat: Mapping[str, Any]) -> Config:
     values = defaults()
     for key, v in flat.items():
         values[key] = check_value(key, v)
+    check_together(values)
     return Config(values)
+
+
+#: Largest magnitude of an initial Q-value (``q_init x multiplier``): far beyond any
+#: useful scale, and far enough from float64's limit that updates stay finite.
+MAX_INITIAL_Q = 1e100
+
+
+def check_together(values: Mapping[str, Any]) -> None:
+    """Rules that tie keys together; raise :class:`ConfigError` naming the key."""
+    if values["record.warmup"] >= values["steps"]:
+        raise ConfigError(
+            f"record.warmup: got {values['record.warmup']}; allowed: less than steps "
+            f"({values['steps']}), or no step would be measured"
+        )
+    mult = values["learning.multiplier"]
+    for d in ("north", "east", "south", "west"):
+        q = values[f"learning.q_init.{d}"] * mult
+        if not math.isfinite(q) or abs(q) > MAX_INITIAL_Q:
+            raise ConfigError(
+                f"learning.q_init.{d}: {values[f'learning.q_init.{d}']!r} x learning.multiplier "
+                f"{mult!r} = {q!r}; allowed: an initial Q-value of at most {MAX_INITIAL_Q:g} "
+                "in absolute value"
+            )
 
 
 def from_mapping(tree: Mapping[str, Any]) -> Config:
@@ -405,30 +431,111 @@ def from_mapping(tree: Mapping[str, Any]) -> Config:
     return from_flat(_flatten(tree))
 
 
-def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
-    """Read a YAML config (``yaml.safe_load``), apply ``KEY=VALUE`` overrides, validate."""
+class _DuplicateKey(Exception):
+    def __init__(self, key: Any, mark: Any, first: Any):
+        super().__init__(key)
+        self.key, self.mark, self.first = key, mark, first
+
+
+class _StrictLoader(yaml.SafeLoader):
+    """``yaml.SafeLoader`` that refuses a key given twice in one mapping."""
+
+
+def _construct_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
+    seen: dict[Any, Any] = {}
+    for key_node, _ in node.value:
+        if key_node.tag == "tag:yaml.org,2002:merge":
+            continue
+        key = loader.construct_object(key_node, deep=True)
+        try:
+            if key in seen:
+                raise _DuplicateKey(key, key_node.start_mark, seen[key])
+            seen[key] = key_node.start_mark
+        except TypeError:  # an unhashable key: the mapping constructor reports it
+            pass
+    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+
+
+_StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
+
+
+def _looks_like_path(value: str) -> bool:
+    return "/" in value or os.sep in value or value.endswith(".txt")
+
+
+def shipped_configs() -> dict[str, Path]:
+    """Config name (file stem) -> path, for the configs shipped with qpatrol."""
+    from qpatrol.maps import shipped_dir
+
+    d = shipped_dir("configs")
+    return {p.stem: p for p in sorted(d.glob("*.yaml"))} if d.is_dir() else {}
+
+
+def find_config(path: str | Path) -> Path:
+    """The config file for ``path``: the file itself if it exists, else a shipped config
+    named like it (``paper``, ``paper.yaml`` or ``configs/paper.yaml``)."""
     p = Path(path)
+    if p.is_file():
+        return p
+    if p.exists():
+        raise ConfigError(f"{p}: is a folder, not a config file")
+    parts = p.parts
+    if p.suffix in ("", ".yaml", ".yml") and (
+        len(parts) == 1 or (len(parts) == 2 and parts[0] == "configs")
+    ):
+        shipped = shipped_configs()
+        if p.stem in shipped:
+            return shipped[p.stem]
+    names = ", ".join(shipped_configs()) or "none found"
+    raise ConfigError(f"{p}: no such config file (shipped configs: {names})")
+
+
+def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
+    """Read a YAML config, apply ``KEY=VALUE`` overrides, validate.
+
+    ``path`` may also name a shipped config (``paper``, see :func:`find_config`). A
+    relative map path in the file (``map: floors/a.txt``) is taken relative to the
+    file's folder and stored absolute. Errors in the file name the file; errors in an
+    override name ``--set``.
+    """
+    p = find_config(path)
     try:
         text = p.read_text(encoding="utf-8")
-    except FileNotFoundError:
-        raise ConfigError(f"{p}: no such config file") from None
     except (OSError, UnicodeDecodeError) as e:
         raise ConfigError(f"{p}: cannot read config ({e})") from None
     try:
-        tree = yaml.safe_load(text)
+        tree = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
+    except _DuplicateKey as e:
+        raise ConfigError(
+            f"{p}:{e.mark.line + 1}:{e.mark.column + 1}: duplicate key {e.key!r} (first at "
+            f"line {e.first.line + 1}); allowed: each key once"
+        ) from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f":{mark.line + 1}:{mark.column + 1}" if mark else ""
         problem = getattr(e, "problem", None) or "invalid YAML"
         raise ConfigError(f"{p}{where}: {problem}") from None
     if tree is None:
-        tree = {}
+        raise ConfigError(
+            f"{p}: empty config; allowed: a mapping of config keys (`qpatrol config keys`), "
+            "or {} to run every default"
+        )
+    if isinstance(tree, Mapping) and isinstance(tree.get("map"), str):
+        value = tree["map"]
+        if _looks_like_path(value) and not Path(value).is_absolute():
+            tree = {**tree, "map": os.path.normpath(os.path.abspath(p.parent / value))}
     try:
         cfg = from_mapping(tree)
-        overrides = list(overrides)
-        return cfg.with_overrides(overrides) if overrides else cfg
     except ConfigError as e:
         raise ConfigError(f"{p}: {e}") from None
+    overrides = list(overrides)
+    if not overrides:
+        return cfg
+    try:
+        return cfg.with_overrides(overrides)
+    except ConfigError as e:
+        text = str(e)
+        raise ConfigError(text if text.startswith("--set") else f"--set: {text}") from None
 
 
 def keys_table(fmt: Callable[[Field], str] | None = None) -> str:

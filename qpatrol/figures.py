@@ -16,8 +16,8 @@ Which heading the Q-value figures follow (Fig. 2, 3, 4)
     The paper plots "Q values for west and east options in state 34" as one series, but
     the Q-table has one row per arrival heading, and the rows evolve independently. We
     follow the row of the *east* heading, the orientation the paper names ("when each
-    state is reached with east orientation", §4; also how SPEC.md states the map
-    facts): there West goes back one way and East on the other way, the W/E choice the
+    state is reached with east orientation", §4; also how docs/model.md states the
+    map facts): there West goes back one way and East on the other way, the W/E choice the
     paper discusses. If that row has fewer than the requested updates, we fall back
     to the heading with the most updates (for Fig. 2, the one whose fewest updates
     over the multipliers is largest, so all panels follow the same row). The chosen
@@ -26,6 +26,7 @@ Which heading the Q-value figures follow (Fig. 2, 3, 4)
 
 from __future__ import annotations
 
+import dataclasses
 import json
 import math
 from collections.abc import Iterable
@@ -38,7 +39,9 @@ import pandas as pd
 from qpatrol import strategies, world
 from qpatrol.battery import MODE_NAMES
 from qpatrol.config import Config, from_mapping, load_config
-from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map
+from qpatrol.csvio import read_csv
+from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
+from qpatrol.provenance import MAP_FILE, read_meta
 from qpatrol.rng import Streams, run_seeds
 from qpatrol.run import advance, prepare
 from qpatrol.tours import dot_walk_lower_bound, dot_walk_tour
@@ -48,6 +51,7 @@ __all__ = [
     "figure34_data",
     "figure5_data",
     "figure6_data",
+    "folder_map",
     "gamma_data",
     "mean_ci",
     "read_sweep",
@@ -183,11 +187,24 @@ def read_sweep(sweep_dir: str | Path) -> pd.DataFrame:
 def _read_csv(path: Path, what: str) -> pd.DataFrame:
     if not path.is_file():
         raise FileNotFoundError(f"{path}: missing ({what})")
-    return pd.read_csv(path)
+    return read_csv(path)
 
 
 def _run_config(run_dir: Path) -> Config:
     return load_config(Path(run_dir) / "config.yaml")
+
+
+def folder_map(folder: str | Path, cfg: Config | None = None) -> Map:
+    """The map a run folder was made on: its copy ``map.txt`` (named as ``meta.json``
+    says), or, for a folder written before qpatrol kept that copy, the map its config
+    names, looked up now."""
+    d = Path(folder)
+    copy = d / MAP_FILE
+    if copy.is_file():
+        m = parse_map(copy.read_text(encoding="utf-8"), source=str(copy))
+        name = ((read_meta(d) or {}).get("map") or {}).get("name")
+        return dataclasses.replace(m, name=name) if name else m
+    return get_map((cfg if cfg is not None else _run_config(d))["map"])
 
 
 def _heading_index(heading: int | str) -> int:
@@ -260,17 +277,17 @@ def figure2_data(
     series = []
     for _, pt in points.iterrows():
         w, cfg = _watched(pt["path"], cell, run, agent)
-        series.append((cfg, w))
+        series.append((cfg, w, folder_map(pt["path"], cfg).name))
     if heading == "auto":
-        counts = [w.groupby("heading").size().to_dict() for _, w in series]
+        counts = [w.groupby("heading").size().to_dict() for _, w, _ in series]
         h = choose_heading(counts, n_updates)
     else:
         h = _heading_index(heading)
     parts = []
-    for cfg, w in series:
+    for cfg, w, map_name in series:
         f = _first_updates(w, h, n_updates)
         f.insert(0, "multiplier", cfg[key])
-        f["map"] = get_map(cfg["map"]).name
+        f["map"] = map_name
         parts.append(f)
     df = pd.concat(parts, ignore_index=True)
     df["heading"] = _letters(df["heading"])
@@ -321,7 +338,7 @@ def figure34_data(
     f = _first_updates(w, h, n_updates)
     f["heading"] = _letters(f["heading"])
     f["action"] = _letters(f["action"])
-    f["map"] = get_map(cfg["map"]).name
+    f["map"] = folder_map(run_dir, cfg).name
     f["gamma"] = cfg["learning.gamma"]
     cols = [
         "update",
@@ -392,7 +409,7 @@ def gamma_data(
         first = _first_episodes(pt["path"])
         runs = int(cfg["runs"])
         done = first[first["complete"] == 1]
-        m, lb, tour = reference(map if map is not None else cfg["map"])
+        m, lb, tour = reference(map if map is not None else folder_map(pt["path"], cfg))
         row: dict[str, Any] = {key.split(".")[-1]: cfg[key], "runs": runs}
         for col in ("steps", "distinct_states", "distinct_cells"):
             ci = mean_ci((done if col == "steps" else first)[col], level)
@@ -446,7 +463,9 @@ def team_size_data(
             "point": points["index"],
             "agents": [int(c["agents"]) for c in points["config"]],
             "communication": [bool(c["team.communication"]) for c in points["config"]],
-            "map": [get_map(c["map"]).name for c in points["config"]],
+            "map": [
+                folder_map(p, c).name for p, c in zip(points["path"], points["config"], strict=True)
+            ],
             **{k: [c[k] for c in points["config"]] for k in swept},
         }
     )
@@ -484,7 +503,7 @@ def figure6_data(run_dir: str | Path, agent: int = 0, run: int = 0) -> pd.DataFr
     """
     d = Path(run_dir)
     cfg = _run_config(d)
-    m = get_map(cfg["map"])
+    m = folder_map(d, cfg)
     with np.load(d / "q_table.npz") as z:
         q = z["q"][run, agent]  # [C, 4 heading, 4 action]
         n = z["n"][run, agent]

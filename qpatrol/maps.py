@@ -1,6 +1,6 @@
 """Text maps: parse, validate and turn into arrays once.
 
-A map is a text file (format fixed by SPEC.md)::
+A map is a text file (format in ``docs/model.md``)::
 
     ; name: map_a
     ; description: a small facility
@@ -61,6 +61,7 @@ class Map:
         homes: int ``[n_homes]``, states of the charging stations ``H``.
         starts: int ``[n_starts]``, the start state of agent k for k = 0..n_starts-1.
         source: the file it came from, if any.
+        text: the text it was parsed from (copied into run folders as ``map.txt``).
     """
 
     name: str
@@ -74,6 +75,7 @@ class Map:
     homes: np.ndarray
     starts: np.ndarray
     source: str = ""
+    text: str = field(default="", repr=False, compare=False)
     _dist: list = field(default_factory=list, repr=False, compare=False)
 
     @property
@@ -249,6 +251,7 @@ def parse_map(text: str, source: str = "<string>") -> Map:
         homes=homes.astype(np.int64),
         starts=starts,
         source=source,
+        text=text,
     )
 
 
@@ -264,10 +267,19 @@ def load_map(path: str | Path) -> Map:
     return parse_map(text, source=str(p))
 
 
-def maps_dirs() -> list[Path]:
-    """Folders searched for map names: ./maps, then the maps/ folder shipped with qpatrol."""
+def shipped_dir(kind: str) -> Path:
+    """The folder of shipped ``maps`` or ``configs``: the checkout's when qpatrol runs from
+    one, else the copy installed with the package (``qpatrol/data/<kind>``)."""
     here = Path(__file__).resolve().parent
-    dirs = [Path.cwd() / "maps", here.parent / "maps", here / "data" / "maps"]
+    checkout = here.parent
+    if (checkout / "pyproject.toml").is_file() and (checkout / kind).is_dir():
+        return checkout / kind
+    return here / "data" / kind
+
+
+def maps_dirs() -> list[Path]:
+    """Folders searched for map names: ./maps, then the maps shipped with qpatrol."""
+    dirs = [Path.cwd() / "maps", shipped_dir("maps")]
     seen: list[Path] = []
     for d in dirs:
         if d.is_dir() and d.resolve() not in [s.resolve() for s in seen]:

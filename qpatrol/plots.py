@@ -19,6 +19,8 @@ import pandas as pd  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
+from qpatrol import atomic  # noqa: E402
+from qpatrol.csvio import read_csv  # noqa: E402
 from qpatrol.maps import BIG, SMALL_DOT, Map, get_map  # noqa: E402
 
 #: colours of the actions/directions, used by every Q-value figure.
@@ -110,10 +112,27 @@ def plot_map(m: Map, path: str | Path) -> Path:
     ax.legend(loc="upper center", bbox_to_anchor=(0.5, -0.01), ncol=3, fontsize=8, frameon=False)
     fig.tight_layout()
     p = Path(path)
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=150)
-    plt.close(fig)
+    try:
+        with atomic.staged_file(p) as tmp:
+            fig.savefig(tmp, dpi=150, format=p.suffix.lstrip(".").lower() or "png")
+    finally:
+        plt.close(fig)
     return p
+
+
+def check_image_path(path: str | Path, extra: tuple[str, ...] = ()) -> None:
+    """Raise ValueError (one line) unless ``path`` has an image extension we can write."""
+    fig = plt.figure()
+    try:
+        formats = set(fig.canvas.get_supported_filetypes()) | set(extra)
+    finally:
+        plt.close(fig)
+    ext = Path(path).suffix.lstrip(".").lower()
+    if ext not in formats:
+        raise ValueError(
+            f"{path}: unknown image format {('.' + ext) if ext else '(no extension)'}; "
+            f"allowed: {', '.join('.' + f for f in sorted(formats))}"
+        )
 
 
 # --- helpers ---------------------------------------------------------------------------
@@ -123,9 +142,17 @@ def _save(fig, out: str | Path, dpi: int = 150) -> Path:
     p = Path(out)
     if not p.suffix:
         p = p.with_suffix(".png")
-    p.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(p, dpi=dpi, bbox_inches="tight", pad_inches=0.1)
-    plt.close(fig)
+    try:
+        with atomic.staged_file(p) as tmp:
+            fig.savefig(
+                tmp,
+                dpi=dpi,
+                bbox_inches="tight",
+                pad_inches=0.1,
+                format=p.suffix.lstrip(".").lower(),
+            )
+    finally:
+        plt.close(fig)
     return p
 
 
@@ -134,7 +161,7 @@ def _fmt_num(x: float) -> str:
 
 
 def _read(csv: str | Path, columns: list[str]) -> pd.DataFrame:
-    df = pd.read_csv(csv)
+    df = read_csv(csv)
     missing = [c for c in columns if c not in df.columns]
     if missing:
         raise ValueError(f"{csv}: missing column(s) {', '.join(missing)}")
@@ -713,14 +740,16 @@ def figure_5(
     out = Path(out)
     if out.suffix.lower() != ".gif":
         out = out.with_suffix(".gif")
-    out.parent.mkdir(parents=True, exist_ok=True)
     anim = FuncAnimation(fig, draw, frames=len(steps), interval=1000 / fps)
-    anim.save(out, writer=PillowWriter(fps=fps), dpi=dpi)
-    draw(len(steps) - 1)
     still_path = Path(still) if still is not None else out.with_suffix(".png")
-    still_path.parent.mkdir(parents=True, exist_ok=True)
-    fig.savefig(still_path, dpi=150)
-    plt.close(fig)
+    try:
+        with atomic.staged_file(out) as tmp:
+            anim.save(tmp, writer=PillowWriter(fps=fps), dpi=dpi)
+        draw(len(steps) - 1)
+        with atomic.staged_file(still_path) as tmp:
+            fig.savefig(tmp, dpi=150, format=still_path.suffix.lstrip(".").lower() or "png")
+    finally:
+        plt.close(fig)
     return out, still_path
 
 

@@ -4,7 +4,8 @@ Every number here is computed from the figure CSVs (``figures/*.csv``) and the
 experiments' ``results.csv`` files (``data/<experiment>-results.csv``); nothing is
 typed in by hand. A verdict is one of *reproduced*, *partly* or *not reproduced*,
 with the criterion stated next to it, so a reader can disagree with the criterion
-and still use the numbers.
+and still use the numbers. In quick mode (1 to 3 runs per point, short runs) every
+verdict is marked *indicative*: too few seeds to decide.
 """
 
 from __future__ import annotations
@@ -18,6 +19,7 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import atomic
+from qpatrol.csvio import read_csv
 
 
 @dataclass
@@ -302,10 +304,10 @@ def build(
     figs, data = results / "figures", results / "data"
 
     def f(name: str) -> pd.DataFrame:
-        return pd.read_csv(figs / f"{name}.csv")
+        return read_csv(figs / f"{name}.csv")
 
     def d(name: str) -> pd.DataFrame:
-        return pd.read_csv(data / f"{name}-results.csv")
+        return read_csv(data / f"{name}-results.csv")
 
     makers: list[Callable[[], Section]] = [
         lambda: figure_2(f("figure-2"), d("multiplier")),
@@ -315,14 +317,28 @@ def build(
         lambda: team_size(f("team-size")),
     ]
     sections = [m() for m in makers]
+    quick = mode == "quick"
+    if quick:
+        for sec in sections:
+            sec.verdict = f"{sec.verdict} (indicative only: quick mode)"
     lines = [
         "# qpatrol: reproduction report",
         "",
         "Hernandez, Barrientos, Rossi, del Cerro (2012), *Cooperative multi-robot system for "
-        "infrastructure security tasks*, reproduced with the model fixed in SPEC.md and the "
+        "infrastructure security tasks*, reproduced with the model of docs/model.md and the "
         "README. Written by `qpatrol reproduce` "
         f"({mode} mode) from the CSVs beside each figure; the configs are in `configs/`.",
         "",
+    ]
+    if quick:
+        lines += [
+            "**Quick mode: every verdict below is indicative only.** Each experiment ran with "
+            "1 to 3 runs per point and a small fraction of the full steps, too few seeds to "
+            "decide whether a claim holds. Run `qpatrol reproduce` (the full mode) for "
+            "verdicts to cite.",
+            "",
+        ]
+    lines += [
         "| figure | verdict |",
         "|---|---|",
         *[f"| {s.title} | {s.verdict} |" for s in sections],

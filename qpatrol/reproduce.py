@@ -1,33 +1,42 @@
 """Reproduce the paper: run every experiment, extract each figure's CSV, draw it, report.
 
-``qpatrol reproduce [--quick] [--out results/]`` calls :func:`reproduce`. Every
+``qpatrol reproduce [--quick] [--out DIR]`` calls :func:`reproduce`. Every
 experiment is a sweep folder (a single config is a sweep of one point, whose runs
 draw from ``SeedSequence(seed, spawn_key=(0, r))`` exactly as ``train`` does), so a
-killed reproduction resumes where it stopped. Layout under ``out``::
+killed reproduction resumes where it stopped. Layout under ``out`` (``results/`` for
+the full mode, ``results/quick/`` for the quick one, by default)::
 
     runs/<mode>/<experiment>/      raw sweep folders (git-ignored scratch)
-    figures/<figure>.png|gif|csv   each figure and the CSV it was drawn from (full run)
-    reference/quick/*.csv          the quick run's figure CSVs and sweep results, which
-                                   the test suite recomputes and compares byte for byte
+    figures/<figure>.png|gif|csv   each figure and the CSV it was drawn from
+    data/<experiment>-results.csv  each experiment's per-run measures
     REPORT.md                      each paper claim beside our figure and numbers
+    meta.json                      what made it (qpatrol.provenance)
+
+``results/reference/quick/`` holds the quick run's CSVs, which the test suite
+recomputes and compares byte for byte (``--update-references`` rewrites them).
 """
 
 from __future__ import annotations
 
+import json
 import shutil
+import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pandas as pd
 
-from qpatrol import atomic
-from qpatrol.config import Config, load_config
+from qpatrol import atomic, limits, provenance
+from qpatrol.config import Config, ConfigError, find_config, load_config
 from qpatrol.records import to_csv_text
-from qpatrol.sweep import NAMED_SWEEPS, Point, run_sweep
+from qpatrol.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep
 
 REPO = Path(__file__).resolve().parent.parent
+#: Where the quick references live, relative to the folder qpatrol is run from.
+REFERENCES = Path("results") / "reference" / "quick"
 
 
 @dataclass(frozen=True)
@@ -56,6 +65,11 @@ class Experiment:
         """The sweep's points, or one point without overrides."""
         return NAMED_SWEEPS[self.sweep].points() if self.sweep else [Point(0, {})]
 
+    def runs(self, quick: bool) -> int:
+        """Runs over all points."""
+        base = self.base(quick)
+        return sum(base.replace(**p.overrides)["runs"] for p in self.points())
+
 
 EXPERIMENTS: tuple[Experiment, ...] = (
     Experiment("team", "configs/figure6.yaml", None, ("runs=1", "episodes=25"), cost=10),
@@ -81,8 +95,12 @@ BY_NAME = {e.name: e for e in EXPERIMENTS}
 
 
 def _repo_file(relative: str) -> Path:
-    here = Path(relative)
-    return here if here.exists() else REPO / relative
+    return find_config(relative)
+
+
+def default_out(quick: bool) -> Path:
+    """``results`` (full mode) or ``results/quick``."""
+    return Path("results") / "quick" if quick else Path("results")
 
 
 def experiment_dir(out: Path, name: str, quick: bool) -> Path:
@@ -98,20 +116,55 @@ def run_experiment(exp: Experiment, out: Path, quick: bool) -> tuple[str, float,
 
 
 def run_all(
-    out: Path, quick: bool, jobs: int = 2, log: Callable[[str], None] = print
+    out: Path,
+    quick: bool,
+    jobs: int = 2,
+    log: Callable[[str], None] = print,
+    progress: Callable[[float, float], None] | None = None,
 ) -> dict[str, float]:
-    """Run every experiment, the costliest first, ``jobs`` at a time; seconds per experiment."""
+    """Run every experiment, the costliest first, ``jobs`` at a time; seconds per experiment.
+
+    ``progress(runs_done, runs_total)`` is called about twice a second, counting the runs
+    of every experiment (those of running points by their share of steps done).
+    """
     from joblib import Parallel, delayed
 
+    limits.check_jobs(jobs)
     todo = sorted(EXPERIMENTS, key=lambda e: -e.cost)
     seconds: dict[str, float] = {}
     failed: list[str] = []
-    tasks = (delayed(run_experiment)(e, out, quick) for e in todo)
-    runner = Parallel(n_jobs=min(jobs, len(todo)), return_as="generator_unordered")
-    for i, (name, secs, bad) in enumerate(runner(tasks), start=1):
-        seconds[name] = secs
-        failed += [f"{name}/{p}" for p in bad]
-        log(f"[{i}/{len(todo)}] {name}: {secs:.1f} s" + (f", FAILED {bad}" if bad else ""))
+    total = sum(e.runs(quick) for e in todo)
+    stop = threading.Event()
+
+    def runs_done() -> float:
+        return sum(progress_of(experiment_dir(out, e.name, quick))[0] for e in todo)
+
+    def poll() -> None:
+        shown = -1.0
+        while True:
+            done = runs_done()
+            if done > shown:
+                shown = done
+                progress(done, total)
+            if stop.wait(0.5):
+                return
+
+    watcher = threading.Thread(target=poll, daemon=True) if progress is not None else None
+    if watcher is not None:
+        watcher.start()
+    try:
+        tasks = (delayed(run_experiment)(e, out, quick) for e in todo)
+        runner = Parallel(n_jobs=min(jobs, len(todo)), return_as="generator_unordered")
+        for i, (name, secs, bad) in enumerate(runner(tasks), start=1):
+            seconds[name] = secs
+            failed += [f"{name}/{p}" for p in bad]
+            log(f"[{i}/{len(todo)}] {name}: {secs:.1f} s" + (f", FAILED {bad}" if bad else ""))
+    finally:
+        stop.set()
+        if watcher is not None:
+            watcher.join()
+    if progress is not None:
+        progress(total, total)
     if failed:
         raise RuntimeError(f"experiment points failed: {', '.join(failed)}")
     return seconds
@@ -141,14 +194,18 @@ class Figure:
         draw: (csv path, image path) -> drawn files.
         per_run: ``data`` wants the run folder of the experiment's single point.
         ext: default image extension.
+        sweep_key: for a figure drawn from a sweep, the key it must sweep.
+        wants_map: ``draw`` takes the map (``map=``), read from the run folder.
     """
 
     name: str
     experiment: str
     data: Callable[[Path], pd.DataFrame]
-    draw: Callable[[Path, Path], object]
+    draw: Callable[..., object]
     per_run: bool = False
     ext: str = ".png"
+    sweep_key: str | None = None
+    wants_map: bool = False
 
 
 def _figures() -> dict[str, Figure]:
@@ -158,7 +215,13 @@ def _figures() -> dict[str, Figure]:
     return {
         f.name: f
         for f in (
-            Figure("figure-2", "multiplier", fd.figure2_data, plots.figure_2),
+            Figure(
+                "figure-2",
+                "multiplier",
+                fd.figure2_data,
+                plots.figure_2,
+                sweep_key="learning.multiplier",
+            ),
             Figure(
                 "figure-3",
                 "figure-3",
@@ -173,10 +236,20 @@ def _figures() -> dict[str, Figure]:
                 plots.figure_4,
                 per_run=True,
             ),
-            Figure("gamma", "gamma", fd.gamma_data, plots.gamma),
-            Figure("figure-5", "team", fd.figure5_data, plots.figure_5, per_run=True, ext=".gif"),
+            Figure("gamma", "gamma", fd.gamma_data, plots.gamma, sweep_key="learning.gamma"),
+            Figure(
+                "figure-5",
+                "team",
+                fd.figure5_data,
+                plots.figure_5,
+                per_run=True,
+                ext=".gif",
+                wants_map=True,
+            ),
             Figure("figure-6", "team", fd.figure6_data, plots.figure_6, per_run=True),
-            Figure("team-size", "team-size", fd.team_size_data, plots.team_size),
+            Figure(
+                "team-size", "team-size", fd.team_size_data, plots.team_size, sweep_key="agents"
+            ),
         )
     }
 
@@ -188,8 +261,6 @@ def figure(name: str) -> Figure:
     """The :class:`Figure` called ``name``; a ConfigError lists the known ones."""
     figs = _figures()
     if name not in figs:
-        from qpatrol.config import ConfigError
-
         raise ConfigError(f"unknown figure {name!r}; known: {', '.join(FIGURE_NAMES)}")
     return figs[name]
 
@@ -205,39 +276,106 @@ def source_folder(fig: Figure, folder: Path) -> Path:
     return folder
 
 
+def _swept_keys(spec: dict[str, Any]) -> list[str]:
+    keys: list[str] = []
+    for pt in spec.get("points", []):
+        keys += [k for k in (pt.get("overrides") or {}) if k not in keys]
+    return keys
+
+
+def describe_folder(folder: Path) -> str:
+    """What an experiment folder holds, in a few words (for error messages)."""
+    d = Path(folder)
+    if (d / "sweep.json").is_file():
+        try:
+            spec = json.loads((d / "sweep.json").read_text(encoding="utf-8"))
+        except (OSError, ValueError):
+            return "an unreadable sweep.json"
+        points = spec.get("points") or []
+        done = sum((d / "points" / str(p.get("id"))).is_dir() for p in points)
+        keys = _swept_keys(spec)
+        over = f" over {', '.join(keys)}" if keys else ""
+        return f"a sweep of {len(points)} point{'s' * (len(points) != 1)}{over} ({done} finished)"
+    if (d / "config.yaml").is_file():
+        try:
+            cfg = load_config(d / "config.yaml")
+        except ConfigError:
+            return "a run folder with an unreadable config.yaml"
+        return f"a run folder ({cfg['agents']} agents on {cfg['map']}, {cfg['runs']} runs)"
+    return "no qpatrol experiment (neither sweep.json nor config.yaml)"
+
+
+def check_source(fig: Figure, folder: Path) -> None:
+    """Raise :class:`ConfigError` (one line naming what was found) unless ``folder`` holds
+    what ``fig`` is drawn from: a finished sweep over its key, or a run folder (or a
+    one-point sweep) for a per-run figure."""
+    d = Path(folder)
+    found = describe_folder(d)
+    sweep = (d / "sweep.json").is_file()
+    if fig.per_run:
+        if sweep:
+            spec = json.loads((d / "sweep.json").read_text(encoding="utf-8"))
+            if len(spec.get("points") or []) != 1:
+                raise ConfigError(
+                    f"{fig.name} needs a run folder or a one-point sweep; {d} holds {found}"
+                )
+        elif not (d / "config.yaml").is_file():
+            raise ConfigError(f"{fig.name} needs a run folder; {d} holds {found}")
+        return
+    if not sweep:
+        raise ConfigError(f"{fig.name} needs a sweep over {fig.sweep_key}; {d} holds {found}")
+    spec = json.loads((d / "sweep.json").read_text(encoding="utf-8"))
+    if fig.sweep_key and fig.sweep_key not in _swept_keys(spec):
+        raise ConfigError(f"{fig.name} needs a sweep over {fig.sweep_key}; {d} holds {found}")
+    if not any((d / "points" / str(p.get("id"))).is_dir() for p in spec.get("points") or []):
+        raise ConfigError(f"{fig.name}: {d} holds {found}; run the sweep first")
+
+
 def make_figure(name: str, folder: Path, image: Path, draw: bool = True) -> list[Path]:
     """Tabulate ``folder`` into ``image``'s CSV (same stem, ``.csv``), then draw it
     (unless ``draw`` is off). Returns the files written."""
+    from qpatrol.figures import folder_map
+
     fig = figure(name)
-    table = fig.data(source_folder(fig, folder))
+    source = source_folder(fig, folder)
+    table = fig.data(source)
     csv = write_csv(table, Path(image).with_suffix(".csv"))
     if not draw:
         return [csv]
-    drawn = fig.draw(csv, Path(image))
+    if fig.wants_map:
+        drawn = fig.draw(csv, Path(image), map=folder_map(source))
+    else:
+        drawn = fig.draw(csv, Path(image))
     files = list(drawn) if isinstance(drawn, tuple | list) else [Path(drawn)]
     return [csv, *files]
 
 
 def reproduce(
-    out: Path = Path("results"),
+    out: Path | None = None,
     quick: bool = False,
     jobs: int = 2,
     draw: bool = True,
     update_references: bool = False,
     log: Callable[[str], None] = print,
+    progress: Callable[[float, float], None] | None = None,
+    references: Path | None = None,
 ) -> Path:
     """Run every experiment, tabulate and draw every figure, write REPORT.md.
 
-    Full mode writes ``out/figures``, ``out/data`` and ``out/REPORT.md`` (the committed
-    reference results). Quick mode writes the same under ``out/quick/`` and, with
-    ``update_references``, copies its CSVs to ``out/reference/quick/``, which the test
-    suite compares byte for byte with a fresh quick run. Returns the report's path (or
-    the quick folder when ``draw`` is off).
+    Writes ``out/figures``, ``out/data``, ``out/REPORT.md`` and ``out/meta.json``
+    (``out`` defaults to ``results`` in full mode, ``results/quick`` in quick mode). In
+    quick mode the report marks every verdict as indicative, and ``update_references``
+    copies its CSVs to ``references`` (default ``results/reference/quick``), which the
+    test suite compares byte for byte with a fresh quick run. Returns the report's path
+    (or ``out`` when ``draw`` is off).
     """
-    out = Path(out)
+    out = Path(out) if out is not None else default_out(quick)
+    if update_references and not quick:
+        raise ValueError("update_references applies to the quick mode")
+    started = provenance.now()
     start = time.monotonic()
-    seconds = run_all(out, quick, jobs, log)
-    home = out / "quick" if quick else out
+    seconds = run_all(out, quick, jobs, log, progress)
+    home = out
     figs, data = home / "figures", home / "data"
     for exp in EXPERIMENTS:
         src = experiment_dir(out, exp.name, quick) / "results.csv"
@@ -249,13 +387,13 @@ def reproduce(
         if draw:
             log(f"figure {name}: {', '.join(str(p) for p in made)}")
     if update_references:
-        if not quick:
-            raise ValueError("update_references applies to the quick mode")
-        ref = out / "reference" / "quick"
+        ref = Path(references) if references is not None else REFERENCES
         for sub in ("figures", "data"):
             shutil.rmtree(ref / sub, ignore_errors=True)
             copy_tree_files(home / sub, ref / sub)
         log(f"updated the quick references in {ref}")
+    meta = provenance.collect(started=started, mode="quick" if quick else "full", jobs=jobs)
+    atomic.write_text(home / provenance.META_FILE, provenance.meta_text(meta))
     if not draw:
         return home
     from qpatrol import report
@@ -266,10 +404,10 @@ def reproduce(
 
 
 def compare_with_references(out: Path, references: Path) -> list[str]:
-    """Names of the CSVs of a quick run (``out/quick``) that differ from the references."""
+    """Names of the CSVs of a quick run written to ``out`` that differ from the references."""
     diffs = []
     for ref in sorted(references.glob("*/*.csv")):
-        new = out / "quick" / ref.parent.name / ref.name
+        new = out / ref.parent.name / ref.name
         if not new.exists() or new.read_bytes() != ref.read_bytes():
             diffs.append(f"{ref.parent.name}/{ref.name}")
     return diffs

@@ -22,7 +22,8 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic, measures, strategies, world
+from qpatrol import atomic, limits, measures, provenance, strategies, world
+from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
@@ -80,7 +81,9 @@ def prepare(cfg: Config) -> tuple[Map, world.Params]:
             "with record.watch)"
         )
     m = get_map(cfg["map"])
-    return m, world.make_params(cfg, m)
+    params = world.make_params(cfg, m)
+    limits.check_config_on_map(cfg, m)
+    return m, params
 
 
 def simulate(
@@ -89,27 +92,36 @@ def simulate(
     runs: range | None = None,
     progress: Progress | None = None,
     prepared: tuple[Map, world.Params] | None = None,
+    checkpoint: Checkpointer | None = None,
 ) -> RunResult:
     """Run ``runs`` (default: all of ``cfg['runs']``) of one config as one batch.
 
     Run r draws from ``SeedSequence(cfg['seed'], spawn_key=(point, r))``; the result
     of a run does not depend on which other runs share the batch. ``progress`` is
-    called as ``progress(steps_done, steps_total)``.
+    called as ``progress(steps_done, steps_total)``. With a ``checkpoint``, the loop's
+    whole mutable state (simulator state, random streams, recorders, step index) is
+    saved as it decides (:mod:`qpatrol.checkpoint`), and a checkpoint it loaded is
+    continued from instead of starting afresh: the result is the same to the bit.
     """
     m, p = prepared or prepare(cfg)
     idx = runs if runs is not None else range(cfg["runs"])
-    streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
-    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
-    state = world.init_state(p, starts)
-    strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
-    watch = measures.Measures(state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"])
-    rec = Recorder(
-        np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
-    )
+    resumed = checkpoint.resumed if checkpoint is not None else None
+    if resumed is None:
+        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
+        starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
+        state = world.init_state(p, starts)
+        strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
+        watch = measures.Measures(state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"])
+        rec = Recorder(
+            np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
+        )
+        tail = Tail(cfg["record.trajectory"], state)
+        first = 0
+    else:
+        (state, strategy, watch, streams, rec, tail), first = resumed.payload, resumed.position
     total = cfg["steps"]
     every = max(1, total // 200)
-    tail = Tail(cfg["record.trajectory"], state)
-    for i in range(total):
+    for i in range(first, total):
         if not state.active.any():
             break
         out = advance(state, p, strategy, streams.next(), rec)
@@ -117,6 +129,8 @@ def simulate(
         tail.observe(state)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
+        if checkpoint is not None:
+            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail))
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -156,17 +170,38 @@ def advance(
     return out
 
 
-def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path:
+def check_finite(result: RunResult) -> None:
+    """Raise :class:`ConfigError` if a Q-value became infinite or NaN during the run."""
+    tables = result.strategy.tables()
+    q = tables.get("q", np.zeros(0))
+    if not np.isfinite(q).all():
+        raise ConfigError(
+            f"learning: {int((~np.isfinite(q)).sum()):,} Q-values became inf or NaN during the "
+            "run; allowed: finite Q-values (lower learning.multiplier, learning.q_init.* or the "
+            "reward.* values, or learning.gamma)"
+        )
+
+
+def write_run(
+    result: RunResult, out: str | Path, replace: bool = False, meta: dict[str, Any] | None = None
+) -> Path:
     """Write a run folder atomically: it appears complete or not at all.
 
     Files: ``config.yaml``, ``episodes.csv``, ``summary.json``, ``visits.npz``
     (``visits`` int64 ``[runs, agents, cells]``), for a learning strategy its tables
     (``q_table.npz``: ``q`` float64 and ``n`` int64, ``[runs, agents, cells, heading,
-    action]``), and when recorded ``transitions.csv``, ``watch.csv`` and
-    ``trajectory.csv``.
+    action]``), ``meta.json`` (what
+    made it: :mod:`qpatrol.provenance`, from ``meta`` or collected now), ``map.txt``
+    (the map file used), and when recorded ``transitions.csv``, ``watch.csv`` and
+    ``trajectory.csv``. A run whose Q-values are not finite is not written
+    (:func:`check_finite`).
     """
     out = Path(out)
+    check_finite(result)
+    info = dict(meta) if meta is not None else provenance.collect()
+    info["map"] = provenance.map_entry(result.map.text, result.map.name)
     with atomic.staged_dir(out, replace=replace) as tmp:
+        (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
         (tmp / "config.yaml").write_text(result.config.to_yaml())
         (tmp / "episodes.csv").write_text(to_csv_text(result.episodes))
         summary = {
@@ -187,6 +222,7 @@ def write_run(result: RunResult, out: str | Path, replace: bool = False) -> Path
             (tmp / "watch.csv").write_text(to_csv_text(result.watch))
         if result.trajectory is not None:
             (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
+        (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
     return out
 
 

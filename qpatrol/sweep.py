@@ -34,6 +34,8 @@ import json
 import os
 import re
 import shutil
+import threading
+import time
 import traceback
 from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
@@ -42,8 +44,9 @@ from typing import Any, NamedTuple
 
 import pandas as pd
 
-from qpatrol import atomic
+from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
+from qpatrol.csvio import read_csv
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
 
@@ -55,6 +58,7 @@ RESULTS_FILE = "results.csv"
 POINTS_DIR = "points"
 LOCK_FILE = ".sweep.lock"
 FAILED_SUFFIX = ".failed.json"
+PROGRESS_SUFFIX = ".progress.tmp"  # .<id>.progress.tmp: "steps_done steps_total" of a point
 _FORMAT = "qpatrol-sweep/1"
 _MAX_ID = 160  # characters; longer ids are cut and get a hash suffix
 
@@ -220,7 +224,7 @@ class SweepResult:
 def load_results(out: str | Path) -> pd.DataFrame:
     """``results.csv`` of a sweep folder (or the CSV path itself) as a DataFrame."""
     p = Path(out)
-    return pd.read_csv(p / RESULTS_FILE if p.is_dir() else p)
+    return read_csv(p / RESULTS_FILE if p.is_dir() else p)
 
 
 # --------------------------------------------------------------------------- the sweep
@@ -235,6 +239,7 @@ def run_sweep(
     scheduler: str | None = None,
     progress: Progress | None = None,
     force: bool = False,
+    meta: dict[str, Any] | None = None,
 ) -> SweepResult:
     """Run every point of a sweep not yet complete in ``out``, then write ``results.csv``.
 
@@ -247,9 +252,13 @@ def run_sweep(
         backend: ``"joblib"`` (loky processes on this machine) or ``"dask"``.
         scheduler: address of a running Dask scheduler (``tcp://host:8786``); None starts
             a local cluster. Workers must see ``out`` at the same absolute path.
-        progress: called as ``progress(runs_done, runs_total)`` as points finish.
+        progress: called as ``progress(runs_done, runs_total)`` as points finish and,
+            about twice a second, as they advance (``runs_done`` then counts a running
+            point's runs by the share of its steps done, so it may be fractional).
         force: start over: remove ``points/`` and ``results.csv`` even if ``out`` holds
-            a different sweep.
+            a different sweep (only in a sweep folder or an empty one).
+        meta: provenance fields for ``meta.json`` (:func:`qpatrol.provenance.collect`),
+            written to ``out`` and, per point, into each point folder.
 
     Raises:
         ConfigError: a bad override, option, or ``out`` holding a different sweep
@@ -259,12 +268,21 @@ def run_sweep(
     out = Path(out).resolve()
     if backend not in BACKENDS:
         raise ConfigError(f"backend: got {backend!r}; allowed: one of {', '.join(BACKENDS)}")
-    if not isinstance(jobs, int) or isinstance(jobs, bool) or jobs == 0:
-        raise ConfigError(f"jobs: got {jobs!r}; allowed: an integer >= 1 (or -1: all cores)")
+    limits.check_jobs(jobs)
     if scheduler is not None and backend != "dask":
         raise ConfigError("scheduler: only used with backend 'dask'")
     configs = _point_configs(base, points)
+    maps: dict[str, Any] = {}
+    for point, cfg in zip(points, configs, strict=True):
+        m = _load_map(cfg["map"], maps)
+        if not isinstance(m, BaseException):  # a map that does not load fails its point
+            try:
+                limits.check_config_on_map(cfg, m)
+            except ConfigError as e:
+                raise ConfigError(f"sweep point {point.id}: {e}") from None
     spec = _describe(base, points)
+    outputs.check_sweep_target(out, force)
+    meta = dict(meta) if meta is not None else provenance.collect()
 
     if not force:
         _check_same_sweep(out, spec)  # read-only: a mismatch writes nothing
@@ -297,21 +315,110 @@ def run_sweep(
             progress(done_runs, total)
 
         runs_of = {p.id: c["runs"] for p, c in zip(points, configs, strict=True)}
-        for pid, error in _execute(todo, pdir, jobs, backend, scheduler):
-            if error is None:
-                result.done.append(pid)
-            else:
-                result.failed.append(pid)
-                result.errors[pid] = error
-            done_runs += runs_of[pid]
-            if progress is not None:
-                progress(done_runs, total)
+        tracker = _Tracker(pdir, {p.id: runs_of[p.id] for p, _ in todo}, done_runs, total, progress)
+        try:
+            for pid, error in _execute(todo, pdir, jobs, backend, scheduler, maps, meta):
+                if error is None:
+                    result.done.append(pid)
+                else:
+                    result.failed.append(pid)
+                    result.errors[pid] = error
+                tracker.finished(pid)
+        finally:
+            tracker.stop()
 
         order = {p.id: p.index for p in points}
         result.done.sort(key=order.__getitem__)
         result.failed.sort(key=order.__getitem__)
         result.results = write_results(out, points)
+        atomic.write_text(out / provenance.META_FILE, provenance.meta_text(meta))
     return result
+
+
+def read_progress(path: Path) -> float:
+    """The share (0..1) of its steps a running point has done, from its progress file."""
+    try:
+        done, total = path.read_text(encoding="ascii").split()
+        return min(1.0, max(0.0, float(done) / float(total))) if float(total) > 0 else 0.0
+    except (OSError, ValueError):
+        return 0.0
+
+
+def progress_of(out: str | Path) -> tuple[float, int]:
+    """``(runs done, runs in total)`` of a sweep folder, counting the runs of running
+    points by their share of steps done (read from the files the workers update)."""
+    out = Path(out)
+    try:
+        spec = json.loads((out / SWEEP_FILE).read_text(encoding="utf-8"))
+    except (OSError, ValueError):
+        return 0.0, 0
+    base_runs = int((spec.get("base") or {}).get("runs", 1))
+    pdir = out / POINTS_DIR
+    done, total = 0.0, 0
+    for pt in spec.get("points", []):
+        runs = int((pt.get("overrides") or {}).get("runs", base_runs))
+        total += runs
+        if (pdir / pt["id"]).is_dir():
+            done += runs
+        else:
+            done += runs * read_progress(pdir / f".{pt['id']}{PROGRESS_SUFFIX}")
+    return done, total
+
+
+class _Tracker:
+    """Reports ``progress(runs_done, runs_total)``: at once when a point finishes, and from
+    a background thread about twice a second as running points advance. Never goes
+    backwards."""
+
+    def __init__(
+        self,
+        pdir: Path,
+        running: dict[str, int],
+        done: float,
+        total: int,
+        progress: Progress | None,
+        every: float = 0.5,
+    ):
+        self.pdir, self.running, self.done, self.total = pdir, dict(running), done, total
+        self.progress = progress
+        self._shown = -1.0
+        self._lock = threading.Lock()
+        self._stop = threading.Event()
+        self._thread: threading.Thread | None = None
+        if progress is not None:
+            self._report(done)
+            if running:
+                self._thread = threading.Thread(target=self._poll, args=(every,), daemon=True)
+                self._thread.start()
+
+    def _report(self, value: float) -> None:
+        if self.progress is None:
+            return
+        with self._lock:
+            if value <= self._shown and value < self.total:
+                return
+            self._shown = max(self._shown, value)
+            self.progress(self._shown, self.total)
+
+    def _partial(self) -> float:
+        return sum(
+            runs * read_progress(self.pdir / f".{pid}{PROGRESS_SUFFIX}")
+            for pid, runs in list(self.running.items())
+        )
+
+    def _poll(self, every: float) -> None:
+        while not self._stop.wait(every):
+            self._report(self.done + self._partial())
+
+    def finished(self, pid: str) -> None:
+        runs = self.running.pop(pid, 0)
+        self.done += runs
+        self._report(self.done + self._partial())
+
+    def stop(self) -> None:
+        self._stop.set()
+        if self._thread is not None:
+            self._thread.join()
 
 
 def write_results(out: str | Path, points: list[Point]) -> Path:
@@ -485,14 +592,21 @@ def _remove_stray_tmp(folder: Path) -> None:
 
 
 def _execute(
-    todo: list[tuple[Point, Config]], pdir: Path, jobs: int, backend: str, scheduler: str | None
+    todo: list[tuple[Point, Config]],
+    pdir: Path,
+    jobs: int,
+    backend: str,
+    scheduler: str | None,
+    maps: dict[str, Any] | None = None,
+    meta: dict[str, Any] | None = None,
 ) -> Iterator[tuple[str, str | None]]:
     """Run the points, yielding ``(point id, None or one-line error)`` as each finishes."""
     if not todo:
         return
     # Maps are loaded here, where relative paths mean what the user meant, and shipped
     # to the workers with the task (they need not see the map files).
-    maps: dict[str, Any] = {}
+    maps = {} if maps is None else maps
+    meta = meta or {}
     tasks: list[tuple[Point, Config, Any]] = []
     for point, cfg in todo:
         m = _load_map(cfg["map"], maps)
@@ -503,21 +617,25 @@ def _execute(
     if not tasks:
         return
     if backend == "dask":
-        yield from _execute_dask(tasks, pdir, jobs, scheduler)
+        yield from _execute_dask(tasks, pdir, jobs, scheduler, meta)
         return
     from joblib import Parallel, delayed, effective_n_jobs
 
     n = min(effective_n_jobs(jobs), len(tasks))
     if n == 1:
         for point, cfg, m in tasks:
-            yield _run_point(point, cfg, m, pdir)
+            yield _run_point(point, cfg, m, pdir, meta)
         return
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
-    yield from parallel(delayed(_run_point)(point, cfg, m, pdir) for point, cfg, m in tasks)
+    yield from parallel(delayed(_run_point)(point, cfg, m, pdir, meta) for point, cfg, m in tasks)
 
 
 def _execute_dask(
-    tasks: list[tuple[Point, Config, Any]], pdir: Path, jobs: int, scheduler: str | None
+    tasks: list[tuple[Point, Config, Any]],
+    pdir: Path,
+    jobs: int,
+    scheduler: str | None,
+    meta: dict[str, Any] | None = None,
 ) -> Iterator[tuple[str, str | None]]:
     try:
         from dask.distributed import Client, LocalCluster, as_completed
@@ -543,7 +661,7 @@ def _execute_dask(
             raise ConfigError(f"scheduler: cannot connect to {scheduler} ({e})") from None
     try:
         futures = {
-            client.submit(_run_point, point, cfg, m, pdir, pure=False): point
+            client.submit(_run_point, point, cfg, m, pdir, meta, pure=False): point
             for point, cfg, m in tasks
         }
         for fut in as_completed(futures):
@@ -570,17 +688,47 @@ def _load_map(name: str, cache: dict[str, Any]) -> Any:
     return cache[name]
 
 
-def _run_point(point: Point, cfg: Config, m: Any, pdir: Path) -> tuple[str, str | None]:
+class _ProgressFile:
+    """``progress(done, total)`` for a worker: writes ``done total`` to a small file at
+    most every ``every`` seconds, which the main process reads (any backend, as long as
+    it shares the sweep folder)."""
+
+    def __init__(self, path: Path, every: float = 0.5):
+        self.path, self.every, self._last = path, every, 0.0
+
+    def __call__(self, done: int, total: int) -> None:
+        now = time.monotonic()
+        if now - self._last < self.every and done < total:
+            return
+        self._last = now
+        tmp = self.path.with_name(self.path.name + ".w.tmp")
+        with contextlib.suppress(OSError):
+            tmp.write_text(f"{done} {total}\n", encoding="ascii")
+            os.replace(tmp, self.path)
+
+    def remove(self) -> None:
+        self.path.unlink(missing_ok=True)
+
+
+def _run_point(
+    point: Point, cfg: Config, m: Any, pdir: Path, meta: dict[str, Any] | None = None
+) -> tuple[str, str | None]:
     """Run one point fully and write its folder (in a worker); errors become a
     ``<id>.failed.json`` and are returned as one line."""
     from qpatrol import world
     from qpatrol.run import simulate, write_run
 
+    info = {**(meta or {}), "started": provenance.now(), "ended": None, "point": point.describe()}
+    tick = _ProgressFile(pdir / f".{point.id}{PROGRESS_SUFFIX}")
     try:
-        result = simulate(cfg, point=point.index, prepared=(m, world.make_params(cfg, m)))
-        write_run(result, pdir / point.id)
+        result = simulate(
+            cfg, point=point.index, prepared=(m, world.make_params(cfg, m)), progress=tick
+        )
+        write_run(result, pdir / point.id, meta=info)
     except Exception as e:
         return point.id, _record_failure(pdir, point, e)
+    finally:
+        tick.remove()
     (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
     return point.id, None
 

@@ -1,5 +1,6 @@
 """Every CLI entry point at a tiny budget, bad input, and byte-identical reruns."""
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -9,6 +10,7 @@ import yaml
 from typer.testing import CliRunner
 
 from qpatrol.cli import app
+from qpatrol.csvio import read_csv
 from qpatrol.maps import DIRECTIONS
 
 runner = CliRunner()
@@ -47,6 +49,8 @@ def test_train_writes_every_file(tmp_path: Path):
         "visits.npz",
         "transitions.csv",
         "watch.csv",
+        "meta.json",
+        "map.txt",
     }
     with np.load(out / "q_table.npz") as z:
         assert z["q"].dtype == np.float64 and z["n"].dtype == np.int64
@@ -90,7 +94,7 @@ def test_every_transition_follows_the_update_rule_exactly(tmp_path: Path):
     from qpatrol.maps import get_map
 
     legal = get_map("map_b").neighbors >= 0
-    tr = pd.read_csv(out / "transitions.csv")
+    tr = read_csv(out / "transitions.csv")  # exact on pandas 2 too
     q = np.broadcast_to(q_init, (2, 4, 124, 4, 4)).copy()
     n = np.zeros(q.shape, dtype=np.int64)
     with np.load(out / "q_table.npz") as z:
@@ -114,6 +118,12 @@ def test_same_config_and_seed_give_byte_identical_files(tmp_path: Path):
     for name in ("a", "b"):
         assert invoke("train", cfg, "--out", tmp_path / name).exit_code == 0
     for f in (tmp_path / "a").iterdir():
+        if f.name == "meta.json":  # the one file with times in it: equal but for them
+            a, b = (json.loads((tmp_path / d / f.name).read_text()) for d in ("a", "b"))
+            for meta in (a, b):
+                del meta["started"], meta["ended"], meta["command"]
+            assert a == b
+            continue
         assert f.read_bytes() == (tmp_path / "b" / f.name).read_bytes(), f.name
     assert invoke("train", cfg, "--out", tmp_path / "c", "--set", "seed=6").exit_code == 0
     assert (tmp_path / "c" / "q_table.npz").read_bytes() != (

@@ -141,7 +141,7 @@ def test_quick_reproduction_matches_the_committed_references(tmp_path: Path):
     regenerated on purpose: `qpatrol reproduce --quick --update-references`."""
     assert list(REFERENCES.glob("*/*.csv")), "no committed references"
     rp.reproduce(tmp_path, quick=True, jobs=2, draw=False, log=lambda s: None)
-    fresh = {f"{p.parent.name}/{p.name}" for p in (tmp_path / "quick").glob("*/*.csv")}
+    fresh = {f"{p.parent.name}/{p.name}" for p in tmp_path.glob("*/*.csv")}
     committed = {f"{p.parent.name}/{p.name}" for p in REFERENCES.glob("*/*.csv")}
     assert fresh == committed
     assert rp.compare_with_references(tmp_path, REFERENCES) == []

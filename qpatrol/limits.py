@@ -1,0 +1,120 @@
+"""Checks of a config against its map and the machine, before any work starts.
+
+* ``record.watch`` must name states of the map.
+* The memory a batch needs is estimated from the world's and the strategy's arrays
+  (for Q-learning runs x agents x cells x 16 Q-values and visit counts; dot maps, visit
+  counts, the trajectory buffer, the Q-update log and the all-pairs distances of the
+  map); a config needing more than the machine has available is
+  refused with one line naming runs, steps and map, instead of failing with a
+  traceback (or swapping) later.
+"""
+
+from __future__ import annotations
+
+import os
+from dataclasses import dataclass
+
+from qpatrol.config import Config, ConfigError
+from qpatrol.maps import Map
+
+#: Memory of the Python process before any array (interpreter, numpy, pandas).
+BASE_BYTES = 200 * 2**20
+#: Bytes per Q-update row kept in memory by ``record.transitions`` (columns and tables).
+ROW_BYTES = 17 * 8 * 2
+
+
+@dataclass(frozen=True)
+class Estimate:
+    """Bytes a batch needs: ``total``, and the part taken by all-pairs distances."""
+
+    total: int
+    distances: int
+
+
+def estimate_memory(cfg: Config, m: Map) -> Estimate:
+    """Estimated peak memory (bytes) of simulating ``cfg`` as one batch on ``m``."""
+    r, k, c = cfg["runs"], cfg["agents"], m.n_cells
+    g = 1 if cfg["team.communication"] else k
+    policy = cfg["policy"]
+    strategy = {
+        "qlearning": 2 * k * c * 16 * 8,  # q and n
+        "conscientious": k * c * 8,  # each robot's memory
+        "evap": 2 * g * c * 8,  # pheromone and its time stamp
+    }.get(policy, 0)
+    per_run = (
+        strategy
+        + g * c * (1 + 8 + 1 + 4)  # dots, last visit, cells and states seen this episode
+        + 2 * c * 8  # cell occupancy, measures' last visits
+        + 2 * k * c * 8  # visits, window visits
+        + 512 * k * 2 * 8  # block of uniforms
+        + cfg["record.trajectory"] * k * 8
+    )
+    rows = cfg["steps"] * r * k if cfg["record.transitions"] else 0
+    dist = 2 * c * c * 8  # all-pairs distances (diameter, walks, placement)
+    homes = 2 * len(m.homes) * c * 8
+    return Estimate(BASE_BYTES + r * per_run + rows * ROW_BYTES + dist + homes, dist)
+
+
+def available_memory() -> int | None:
+    """Bytes of memory available to a new process (MemAvailable), or None if unknown."""
+    try:
+        with open("/proc/meminfo", encoding="ascii") as f:
+            for line in f:
+                if line.startswith("MemAvailable:"):
+                    return int(line.split()[1]) * 1024
+    except (OSError, ValueError, IndexError):
+        pass
+    try:
+        return os.sysconf("SC_PHYS_PAGES") * os.sysconf("SC_PAGE_SIZE")
+    except (ValueError, OSError, AttributeError):
+        return None
+
+
+def _gib(x: float) -> str:
+    return f"{x / 2**30:.3g} GiB"
+
+
+def check_config_on_map(cfg: Config, m: Map, available: int | None = None) -> None:
+    """Raise :class:`ConfigError` (one line) if ``cfg`` does not fit ``m`` or the machine."""
+    bad = [s for s in cfg["record.watch"] if s >= m.n_cells]
+    if bad:
+        raise ConfigError(
+            f"record.watch: got {bad}; allowed: states 0 to {m.n_cells - 1} of map {m.name} "
+            "(`qpatrol maps show` numbers them)"
+        )
+    need = estimate_memory(cfg, m)
+    have = available if available is not None else available_memory()
+    if have is not None and need.total > have:
+        why = ""
+        if need.distances > need.total / 2:
+            why = (
+                f", mostly the all-pairs distances of its {m.n_cells:,} cells, used to place "
+                f"{cfg['agents']} agents on a map with {len(m.starts)} start digits"
+            )
+        raise ConfigError(
+            f"memory: runs={cfg['runs']}, steps={cfg['steps']}, agents={cfg['agents']} on map "
+            f"{m.name} ({m.n_cells:,} cells) need about {_gib(need.total)}{why}; this machine "
+            f"has {_gib(have)} available; lower runs (a sweep can split them) or use a "
+            "smaller map"
+        )
+
+
+def cores() -> int:
+    """CPU cores this process may use (what ``--jobs -1`` means)."""
+    try:
+        from joblib import cpu_count
+
+        return max(1, int(cpu_count()))
+    except Exception:  # joblib missing or confused: fall back to the OS count
+        return max(1, os.cpu_count() or 1)
+
+
+def check_jobs(jobs: object, label: str = "jobs") -> int:
+    """Validate a worker count: -1 (all cores) or 1 to the number of cores; returns it."""
+    n = cores()
+    if isinstance(jobs, bool) or not isinstance(jobs, int) or not (jobs == -1 or 1 <= jobs <= n):
+        raise ConfigError(
+            f"{label}: got {jobs!r}; allowed: -1 (all cores) or an integer from 1 to {n} "
+            "(the cores of this machine)"
+        )
+    return jobs

@@ -1,0 +1,202 @@
+"""Checkpoints: the mechanics, and train killed (SIGKILL) or interrupted (SIGINT) halfway
+then resumed gives byte-identical files (meta.json aside: it holds times)."""
+
+from __future__ import annotations
+
+import json
+import os
+import signal
+import subprocess
+import sys
+import time
+from pathlib import Path
+
+import numpy as np
+import pytest
+import yaml
+
+from qpatrol import checkpoint as ck
+from qpatrol import cli
+from qpatrol.config import from_mapping
+from qpatrol.run import simulate
+
+CONFIG = {
+    "map": "map_b",
+    "agents": 4,
+    "runs": 2,
+    "seed": 11,
+    "steps": 2000,
+    "battery": {"capacity": 120, "charge_steps": 5},
+    "record": {"transitions": True, "watch": [34], "trajectory": 50, "warmup": 100},
+}
+
+
+def main(*args: object) -> int:
+    try:
+        cli.main([str(a) for a in args])
+    except SystemExit as e:
+        return int(e.code or 0)
+    return 0
+
+
+# --------------------------------------------------------------------- mechanics
+
+
+class Clock:
+    def __init__(self):
+        self.t = 0.0
+
+    def __call__(self) -> float:
+        return self.t
+
+
+def test_save_load_and_when(tmp_path: Path):
+    ck.save({"a": np.arange(3)}, tmp_path / "x.pkl")
+    assert ck.load(tmp_path / "x.pkl")["a"].tolist() == [0, 1, 2]
+    clock = Clock()
+    cp = ck.Checkpointer(tmp_path / "cp", every=10, key={"config": "abc"}, clock=clock)
+    cp.tick(1, "state-1")
+    assert not cp.exists()  # not due yet
+    clock.t = 10.5
+    cp.tick(2, "state-2")
+    assert cp.exists() and cp.saves == 1
+    info = json.loads((tmp_path / "cp" / ck.INFO_FILE).read_text())
+    assert info["position"] == 2
+    cp.request_stop(signal.SIGTERM)
+    with pytest.raises(ck.Interrupted) as e:
+        cp.tick(3, "state-3")
+    assert e.value.position == 3 and e.value.signum == signal.SIGTERM
+    again = ck.Checkpointer(tmp_path / "cp", key={"config": "abc"})
+    snap = again.load()
+    assert (snap.position, snap.payload) == (3, "state-3") and again.position == 3
+    with pytest.raises(ck.CheckpointError, match="differs in config"):
+        ck.Checkpointer(tmp_path / "cp", key={"config": "xyz"}).load()
+    with pytest.raises(ck.CheckpointError, match="no checkpoint"):
+        ck.Checkpointer(tmp_path / "none").load()
+    (tmp_path / "cp" / ck.STATE_FILE).write_bytes(b"garbage")
+    with pytest.raises(ck.CheckpointError, match="unreadable"):
+        again.load()
+    again.discard()
+    assert not (tmp_path / "cp").exists()
+
+
+def test_simulate_resumed_equals_uninterrupted(tmp_path: Path):
+    cfg = from_mapping({**CONFIG, "steps": 700})
+    whole = simulate(cfg)
+
+    class StopAt(ck.Checkpointer):
+        def tick(self, position, payload):
+            if position == 333:
+                self.request_stop()
+            super().tick(position, payload)
+
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(tmp_path / "cp", every=0))
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    assert resumed.load().position == 333
+    rest = simulate(cfg, checkpoint=resumed)
+    assert np.array_equal(rest.state.q, whole.state.q)
+    assert np.array_equal(rest.state.n, whole.state.n)
+    assert rest.summary == whole.summary
+    assert rest.transitions.equals(whole.transitions) and rest.watch.equals(whole.watch)
+    assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)
+
+
+# --------------------------------------------------------------------- train, killed
+
+
+@pytest.fixture(scope="module")
+def setup(tmp_path_factory):
+    root = tmp_path_factory.mktemp("ckpt")
+    cfg = root / "ck.yaml"
+    cfg.write_text(yaml.safe_dump(CONFIG))
+    ref = root / "ref"
+    assert main("train", cfg, "--out", ref, "-q") == 0
+    return cfg, ref
+
+
+def start_train(cfg: Path, out: Path) -> subprocess.Popen:
+    return subprocess.Popen(
+        [sys.executable, "-m", "qpatrol.cli", "train", str(cfg), "--out", str(out), "-q"],
+        env={**os.environ, "QPATROL_CHECKPOINT_EVERY": "0.2"},
+        stdout=subprocess.PIPE,
+        stderr=subprocess.PIPE,
+        text=True,
+    )
+
+
+def wait_for_checkpoint(proc: subprocess.Popen, folder: Path, timeout: float = 60) -> None:
+    deadline = time.monotonic() + timeout
+    while not ((folder / ck.STATE_FILE).is_file() and (folder / ck.INFO_FILE).is_file()):
+        if proc.poll() is not None:
+            pytest.fail(f"train ended before a checkpoint: {proc.communicate()}")
+        if time.monotonic() > deadline:
+            proc.kill()
+            pytest.fail("no checkpoint within the time limit")
+        time.sleep(0.02)
+
+
+def assert_same_files(a: Path, b: Path) -> None:
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir())
+    assert "meta.json" in names and "transitions.csv" in names
+    for name in names:
+        if name == "meta.json":
+            continue  # times differ; the rest is compared below
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    ma, mb = (json.loads((d / "meta.json").read_text()) for d in (a, b))
+    assert ma["map"] == mb["map"] and ma["overrides"] == mb["overrides"]
+
+
+def position_of(folder: Path) -> int:
+    return json.loads((folder / ck.INFO_FILE).read_text())["position"]
+
+
+def test_sigkill_halfway_then_resume_is_byte_identical(setup, tmp_path: Path):
+    cfg, ref = setup
+    out = tmp_path / "run"
+    folder = ck.location(out)
+    proc = start_train(cfg, out)
+    wait_for_checkpoint(proc, folder)
+    proc.send_signal(signal.SIGKILL)
+    proc.communicate()
+    assert not out.exists()
+    at = position_of(folder)
+    assert 0 < at < CONFIG["steps"]  # killed halfway: the test is not vacuous
+    # without --resume the checkpoint is not silently thrown away
+    assert main("train", cfg, "--out", out, "-q") == 2
+    assert main("train", cfg, "--out", out, "-q", "--resume") == 0
+    assert not folder.exists()
+    assert_same_files(out, ref)
+    meta = json.loads((out / "meta.json").read_text())
+    assert meta["resumed"]["from_step"] >= at
+
+
+def test_sigint_saves_says_so_and_resumes_byte_identical(setup, tmp_path: Path):
+    cfg, ref = setup
+    out = tmp_path / "run"
+    folder = ck.location(out)
+    proc = start_train(cfg, out)
+    wait_for_checkpoint(proc, folder)
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    assert proc.returncode == 130, err
+    lines = err.strip().splitlines()
+    assert len(lines) == 1 and "Traceback" not in err
+    assert "interrupted at team step" in lines[0] and "--resume" in lines[0]
+    assert str(folder) in lines[0]
+    at = position_of(folder)
+    assert 0 < at < CONFIG["steps"]
+    assert f"{at:,} of {CONFIG['steps']:,}" in lines[0]
+    # a resume with another config is refused, the checkpoint kept
+    assert main("train", cfg, "--out", out, "--set", "seed=12", "--resume") == 2
+    assert folder.exists()
+    assert main("train", cfg, "--out", out, "-q", "--resume") == 0
+    assert_same_files(out, ref)
+
+
+def test_resume_without_checkpoint(setup, tmp_path: Path, capsys):
+    cfg, _ = setup
+    assert main("train", cfg, "--out", tmp_path / "x", "--resume") == 2
+    assert "no checkpoint to resume from" in capsys.readouterr().err
+    assert not (tmp_path / "x").exists()
