@@ -26,7 +26,7 @@ from typer.core import TyperCommand, TyperGroup
 from qpatrol import __version__, outputs, provenance
 from qpatrol import config as config_mod
 from qpatrol.config import ConfigError
-from qpatrol.maps import MapError, available_maps, load_map, render_states, resolve_map
+from qpatrol.maps import MapError, available_maps, load_map, parse_map, render_states, resolve_map
 from qpatrol.progress import Bar
 
 HELP = {"help_option_names": ["-h", "--help"]}
@@ -84,7 +84,7 @@ def _typer(help: str) -> typer.Typer:
 
 
 app = _typer("Learned multi-robot patrolling: Q-learning teams on Pac-Man-like mazes.")
-maps_app = _typer("List, show and check maps.")
+maps_app = _typer("List, show, check and import maps.")
 config_app = _typer("Config keys, shipped configs and resolved configs.")
 app.add_typer(maps_app, name="maps")
 app.add_typer(config_app, name="config")
@@ -703,6 +703,87 @@ def maps_check(
             bad += 1
     if bad:
         raise typer.Exit(2)
+
+
+@maps_app.command(
+    **command(
+        "import",
+        examples=(
+            "qpatrol maps import floor.yaml --cell 1.2",
+            "qpatrol maps import floor.yaml --cell 0.6 --agents 6 --stations 4 --out maps/f6.txt",
+            "qpatrol maps import floor.yaml --cell 1.2 --out -",
+        ),
+    )
+)
+def maps_import(
+    yaml_file: Annotated[
+        Path, typer.Argument(metavar="FILE.yaml", help="ROS map_server map YAML (and its image).")
+    ],
+    cell: Annotated[
+        float | None,
+        typer.Option(help="Cell side in metres (required), at least one pixel."),
+    ] = None,
+    out: Annotated[
+        str | None,
+        typer.Option(
+            "--out", "-o", help="Map file to write (default: maps/<YAML stem>.txt; '-': stdout)."
+        ),
+    ] = None,
+    agents: Annotated[int, typer.Option(help="Start digits 0..N-1 to place (0 to 10).")] = 4,
+    stations: Annotated[
+        int | None,
+        typer.Option(help="Charging stations H (default: one per 150 free cells, rounded up)."),
+    ] = None,
+    force: Annotated[
+        bool, typer.Option("--force", metavar="", help="Replace an existing map file.")
+    ] = False,
+) -> None:
+    """Import a ROS occupancy map (map_server YAML + PGM/PNG) as a qpatrol map.
+
+    Cells are free only if all their pixels are free; the largest 4-connected free
+    region is kept and cropped; starts and stations are spread by farthest-point
+    sampling. Details: README (maps import) and qpatrol/mapimport.py.
+    """
+    from qpatrol import atomic
+    from qpatrol.mapimport import RosMapError, import_map
+
+    if cell is None:
+        fail("maps import: --cell METRES is required (the side of a grid cell)")
+    target = None if out == "-" else Path(out or Path("maps") / f"{yaml_file.stem}.txt")
+    if target is not None and target.exists() and not force:
+        fail(f"{target} already exists; pass --force to replace it or --out to choose another")
+    if target is not None:
+        outputs.check_writable_file(target)
+    name = target.stem if target is not None else None
+    try:
+        result = import_map(yaml_file, cell, agents=agents, stations=stations, name=name)
+        m = parse_map(result.text, source=str(target or "<stdout>"))
+    except (RosMapError, MapError) as e:
+        fail(str(e))
+    rows, cols = m.shape
+    reach = (
+        f"farthest cell {result.farthest_station} moves from an H"
+        if len(m.homes)
+        else "no H: train it with battery.enabled=false"
+    )
+    report = (
+        f"{cols} x {rows} grid, {m.n_cells} free cells of {cell:g} m ({result.cell_pixels:.4g} "
+        f"px), {len(m.starts)} starts, {len(m.homes)} H; {reach}"
+    )
+    if result.regions > 1:
+        report += (
+            f"; kept the largest of {result.regions} free regions "
+            f"({m.n_cells} of {result.free_cells} free cells)"
+        )
+    if target is None:
+        typer.echo(result.text, nl=False)
+        typer.echo(report, err=True)
+        return
+    try:
+        atomic.write_text(target, result.text)
+    except OSError as e:
+        fail(f"{target}: cannot write ({e.strerror or e})")
+    typer.echo(f"wrote {target}: {report}")
 
 
 # --------------------------------------------------------------------------- config
