@@ -71,8 +71,9 @@ def begin(s: State, p: Params, t: int) -> None:
     act = s.active[:, None]
     charging = act & (s.mode == CHARGING)
     s.rest[charging] -= 1
-    done = charging & (s.rest <= 0)
+    done = charging & (s.rest < 0)  # rested charge_steps whole steps
     if done.any():
+        s.rest[done] = 0
         s.mode[done] = PATROL
         s.charge[done] = p.capacity
         s.depart_left[done] = 2 * p.depart_len[s.goal[done]]
@@ -276,13 +277,15 @@ def station_pockets(
         chain = [h]
         for first in [nb for nb in neighbors[h].tolist() if nb >= 0]:
             prev, cur = h, first
-            while degree[cur] == 2:
+            while degree[cur] == 2 and cur != h:
                 chain.append(cur)
                 prev, cur = (
                     cur,
                     next(nb for nb in neighbors[cur].tolist() if nb >= 0 and nb != prev),
                 )
             ends.append(cur)
+        if h in ends:
+            continue  # a corridor that closes on itself (a ring): no dead end, no pocket
         junctions = [e for e in ends if degree[e] >= 3]
         if degree[h] == 1:
             junctions = ends if degree[ends[0]] >= 3 else []

@@ -211,7 +211,7 @@ SCHEMA: tuple[Field, ...] = (
         "choice",
         "staggered",
         "charge at the start: `full` for every robot, or `staggered` (robot k of K starts "
-        "with capacity x (K - k) / K, so the team does not go home all at once)",
+        "with capacity - floor(k x capacity / K), so the team does not go home all at once)",
         choices=("full", "staggered"),
     ),
     F(

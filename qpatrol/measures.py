@@ -30,7 +30,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol.world import Outcome
+from qpatrol.world import Outcome, Params
 
 
 class Measures:
@@ -122,13 +122,19 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
     return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
-def wait_bound(n_agents: int, charge_steps: int, diameter: int, battery: bool) -> int:
-    """The longest wait a live team may show: a fair station queue plus a crossing.
+def wait_bound(p: Params) -> int:
+    """The longest wait a live team may show: a fair station queue, then a crossing.
 
-    ``K x charge_steps + diameter`` with the battery on (a robot may queue behind the
-    whole team at one station), ``diameter`` without.
+    With the battery on, a robot may queue behind every other robot of the team, each of
+    which travels to a station (at most ``diameter`` moves), charges (``charge_steps``)
+    and clears the station's pocket (``2 x depart_len``); then it crosses the map. So
+    ``K x (charge_steps + 2 x max depart_len + diameter) + diameter``; without battery
+    ``diameter`` (a robot blocked longer than a crossing is stuck).
     """
-    return (n_agents * charge_steps if battery else 0) + diameter
+    if not p.battery:
+        return p.diameter
+    turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + p.diameter
+    return p.n_agents * turnaround + p.diameter
 
 
 def summarize(

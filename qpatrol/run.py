@@ -134,7 +134,7 @@ def simulate(
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
-    bound = measures.wait_bound(p.n_agents, p.charge_steps, p.diameter, p.battery)
+    bound = measures.wait_bound(p)
     return RunResult(
         config=cfg,
         map=m,

@@ -417,7 +417,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     s.t += 1
     t = s.t
     R, K = s.pos.shape
-    active = s.active
+    active = s.active.copy()  # the runs taking this step (an episode quota may end some)
     ar = np.arange(R)[:, None]
     choice = np.where(obs.choosing, choice, -1)
     legal_choice = (choice >= 0) & np.take_along_axis(

@@ -9,6 +9,10 @@ it left it.
 Two robots blocking each other head-on exchange their walks and targets: each turns
 back and carries on with the other's plan. The cells they visit are the ones they
 would have visited by passing through each other, and neither has to wait.
+
+A target in the pocket of a charging station that another robot holds (see
+:mod:`qpatrol.battery`) is skipped: the robot heads for the first cell of its walk past
+the pocket, and patrols the pocket again on a later lap.
 """
 
 from __future__ import annotations
@@ -81,8 +85,23 @@ class WalkFollower(base.Strategy):
         goal = self.goal_cells()
         advance = obs.choosing & (s.pos == goal) & ~self.hold
         self.target = np.where(advance, (self.target + 1) % self.length[self.wid], self.target)
+        self._skip_held_pockets(obs)
         goal = self.goal_cells()
         return np.where(obs.choosing, self.step_towards(s.pos, goal), -1)
+
+    def _skip_held_pockets(self, obs: Observation) -> None:
+        """Move targets that lie in another robot's held station pocket past it."""
+        p, s = self.params, obs.state
+        if not p.battery or (p.pocket_of < 0).all():
+            return
+        me = np.arange(self.n_agents)[None, :]
+        for _ in range(int(self.length.max())):
+            h = p.pocket_of[self.goal_cells()]
+            holder = s.reserved[np.arange(self.n_runs)[:, None], np.maximum(h, 0)]
+            skip = obs.choosing & (h >= 0) & (holder >= 0) & (holder != me)
+            if not skip.any():
+                return
+            self.target = np.where(skip, (self.target + 1) % self.length[self.wid], self.target)
 
     def step_towards(self, pos: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """int ``[R, K]``: the first move of a shortest path (N, E, S, W first); -1 there."""
