@@ -308,8 +308,8 @@ def sweep(
         list[str] | None,
         typer.Argument(
             metavar="[NAME|PARAM] [CONFIG]",
-            help="A named sweep (gamma, multiplier, team-size) with an optional CONFIG, or a "
-            "config key PARAM with --values and a CONFIG, or just CONFIG with --grid.",
+            help="A named sweep (gamma, multiplier, team-size, strategies) with an optional "
+            "CONFIG, or a config key PARAM with --values and a CONFIG, or just CONFIG with --grid.",
         ),
     ] = None,
     values: Annotated[
@@ -449,7 +449,8 @@ def plot(
         str,
         typer.Argument(
             metavar="FIGURE",
-            help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6 or team-size.",
+            help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6, team-size or "
+            "strategies.",
         ),
     ],
     from_: Annotated[

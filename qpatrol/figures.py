@@ -326,9 +326,9 @@ def figure34_data(
     The first ``n_updates`` Q-updates of state ``cell`` at one heading (module
     docstring) in run ``run`` of a run folder with ``record.watch`` holding ``cell``.
     ``bootstrap`` is ``gamma * max_a Q(s', a)`` over the legal actions of s';
-    ``q_west``/``q_east`` are the Q-row after the update. Columns: update, step,
-    heading, action, reward, bootstrap, q_west, q_east, next_cell, alpha, run, cell,
-    map, gamma.
+    ``q_west``/``q_east`` are the Q-row after the update; ``dot`` is 1 where a dot was
+    eaten on entering s'. Columns: update, step, heading, action, reward, dot,
+    bootstrap, q_west, q_east, next_cell, alpha, run, cell, map, gamma.
     """
     w, cfg = _watched(Path(run_dir), cell, run, agent)
     if heading == "auto":
@@ -346,6 +346,7 @@ def figure34_data(
         "heading",
         "action",
         "reward",
+        "dot",
         "bootstrap",
         "q_west",
         "q_east",
@@ -436,7 +437,14 @@ def gamma_data(
 
 # --- team size and communication ---------------------------------------------------------
 
-TEAM_MEASURES = ("mean_steps_per_episode", "division_of_labour", "avg_idleness")
+TEAM_MEASURES = (
+    "mean_steps_per_episode",
+    "division_of_labour",
+    "avg_idleness",
+    "worst_idleness",
+    "max_wait",
+)
+STRATEGY_MEASURES = ("avg_idleness", "worst_idleness", "mean_interval", "max_wait")
 
 
 def team_size_data(
@@ -447,22 +455,59 @@ def team_size_data(
     From a sweep over ``agents`` (and ``team.communication``), read ``results.csv``
     (one row per point and run). Points that share agents, communication and every
     other swept key are pooled. Columns: agents, communication, (other swept keys),
-    runs, and per measure ``<measure>_mean``, ``_lo``, ``_hi``, ``_n`` (runs with a
-    value: ``mean_steps_per_episode`` is empty for a run without a complete episode), map.
-    Without communication each agent has its own dot map, so an episode is one agent
-    eating all of its private dots.
+    runs, ``frozen`` (runs whose ``max_wait`` exceeds the fair-queue bound
+    ``wait_bound``), and per measure ``<measure>_mean``, ``_lo``, ``_hi``, ``_n`` (runs
+    with a value: ``mean_steps_per_episode`` is empty for a run without a complete
+    episode), ``max_wait_max``, map. Without communication each agent has its own dot
+    map, so an episode is one agent eating all of its private dots.
     """
+    keys = {"agents": int, "communication": bool}
+    return grouped_data(sweep_dir, keys, measures, level)
+
+
+def strategies_data(
+    sweep_dir: str | Path, level: float = 0.95, measures: Iterable[str] = STRATEGY_MEASURES
+) -> pd.DataFrame:
+    """Strategy x team size: mean and 95% t-interval over runs of each measure.
+
+    As :func:`team_size_data`, grouped by ``policy`` and ``agents``, plus
+    ``walk_length`` and ``walk_lower_bound`` (the cyclic strategy's closed walk L and a
+    proven lower bound on any closed walk through every cell) and ``bound_per_robot``
+    = L / K, the idleness interval of K robots evenly spaced on that walk.
+    """
+    df = grouped_data(sweep_dir, {"policy": str, "agents": int}, measures, level)
+    d = Path(sweep_dir)
+    walk = bound = None
+    for path, cfg in zip(*(read_sweep(d)[c] for c in ("path", "config")), strict=True):
+        summary = Path(path) / "summary.json"
+        if cfg["policy"] == "cyclic" and summary.is_file():
+            info = json.loads(summary.read_text()).get("strategy", {})
+            walk, bound = info.get("walk_length"), info.get("walk_lower_bound")
+            break
+    df["walk_length"] = walk
+    df["walk_lower_bound"] = bound
+    df["bound_per_robot"] = [walk / k if walk else None for k in df["agents"]]
+    return df
+
+
+def grouped_data(
+    sweep_dir: str | Path,
+    keys: dict[str, type],
+    measures: Iterable[str],
+    level: float = 0.95,
+) -> pd.DataFrame:
+    """Per-run results of a sweep pooled by ``keys`` (config key or ``communication``)."""
     d = Path(sweep_dir)
     points = read_sweep(d)
     res = _read_csv(d / "results.csv", "per-run results of the sweep")
+    config_key = {k: ("team.communication" if k == "communication" else k) for k in keys}
     swept: list[str] = []
     for ov in points["overrides"]:
-        swept += [k for k in ov if k not in swept and k not in ("agents", "team.communication")]
+        swept += [k for k in ov if k not in swept and k not in config_key.values()]
     keyed = pd.DataFrame(
         {
             "point": points["index"],
-            "agents": [int(c["agents"]) for c in points["config"]],
-            "communication": [bool(c["team.communication"]) for c in points["config"]],
+            **{k: [cast(c[config_key[k]]) for c in points["config"]] for k, cast in keys.items()},
             "map": [
                 folder_map(p, c).name for p, c in zip(points["path"], points["config"], strict=True)
             ],
@@ -471,12 +516,17 @@ def team_size_data(
     )
     res = res.drop(columns=[c for c in keyed.columns if c != "point" and c in res.columns])
     res = res.merge(keyed, on="point", how="inner")
-    group = ["agents", "communication", *swept]
+    group = [*keys, *swept]
     rows = []
     for values, g in res.groupby(group, sort=True):
         row: dict[str, Any] = dict(zip(group, values, strict=True))
         row["runs"] = len(g)
         row["map"] = ",".join(sorted(set(g["map"])))
+        if "max_wait" in g.columns and "wait_bound" in g.columns:
+            waits = pd.to_numeric(g["max_wait"], errors="coerce")
+            row["max_wait_max"] = float(waits.max())
+            row["wait_bound"] = float(pd.to_numeric(g["wait_bound"]).max())
+            row["frozen"] = int((waits > pd.to_numeric(g["wait_bound"])).sum())
         for col in measures:
             ci = mean_ci(pd.to_numeric(g[col], errors="coerce"), level)
             row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi", "n")})

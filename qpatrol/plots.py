@@ -764,3 +764,69 @@ __all__ = [
     "plot_map",
     "team_size",
 ]
+
+
+# --- strategies ----------------------------------------------------------------------------
+
+STRATEGY_STYLE = {
+    "qlearning": ("tab:red", "o"),
+    "random": ("0.5", "x"),
+    "conscientious": ("tab:blue", "s"),
+    "shared-conscientious": ("tab:cyan", "D"),
+    "cyclic": ("tab:green", "^"),
+    "partition": ("tab:olive", "v"),
+    "evap": ("tab:purple", "P"),
+}
+
+
+def strategies(csv: str | Path, out: str | Path) -> Path:
+    """Average and worst idleness vs team size for every strategy, with the walk's L/K."""
+    df = _read(csv, ["policy", "agents", "avg_idleness_mean", "worst_idleness_mean"])
+    fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
+    ks = sorted(df["agents"].unique())
+    names = [n for n in STRATEGY_STYLE if n in set(df["policy"])]
+    for i, name in enumerate(names):
+        d = df[df["policy"] == name].sort_values("agents")
+        colour, marker = STRATEGY_STYLE[name]
+        x = d["agents"] * 2 ** (0.03 * (i - len(names) / 2))
+        for ax, m in zip(axes, ("avg_idleness", "worst_idleness"), strict=True):
+            _errorbar(
+                ax,
+                x,
+                d[f"{m}_mean"],
+                d[f"{m}_lo"],
+                d[f"{m}_hi"],
+                color=colour,
+                marker=marker,
+                label=name,
+            )
+    if "bound_per_robot" in df.columns and df["bound_per_robot"].notna().any():
+        b = df.drop_duplicates("agents").sort_values("agents")
+        for ax in axes:
+            ax.plot(
+                b["agents"],
+                b["bound_per_robot"],
+                color="k",
+                ls="--",
+                lw=1,
+                label="L/K (cyclic walk / robots)",
+            )
+    axes[0].set_ylabel("average idleness (team steps)")
+    axes[0].set_title("Average idleness (mean over runs, 95% t-interval)", fontsize=10)
+    axes[1].set_ylabel("worst idleness (team steps)")
+    axes[1].set_title("Worst idleness", fontsize=10)
+    for ax in axes:
+        ax.set_xscale("log", base=2)
+        ax.set_yscale("log")
+        ax.set_xticks(ks, [str(k) for k in ks])
+        ax.minorticks_off()
+        ax.set_xlabel("team size K (robots)")
+        ax.grid(alpha=0.3, lw=0.4, which="both")
+    axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
+    runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
+    fig.suptitle(
+        f"Patrol strategies ({where}{runs}; battery on, measures after warm-up)", fontsize=10
+    )
+    fig.tight_layout()
+    return _save(fig, out)

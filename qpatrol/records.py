@@ -32,7 +32,7 @@ TRANSITION_COLUMNS = [
     "q_before",
     "q_after",
 ]
-WATCH_COLUMNS = TRANSITION_COLUMNS + ["bootstrap", "q_north", "q_east", "q_south", "q_west"]
+WATCH_COLUMNS = TRANSITION_COLUMNS + ["bootstrap", "q_north", "q_east", "q_south", "q_west", "dot"]
 EPISODE_COLUMNS = [
     "run",
     "episode",
@@ -75,7 +75,8 @@ class Recorder:
 
         ``runs``, ``agents``: int ``[B]`` batch rows and robots; ``cols`` holds ``[B]``
         arrays cell, heading, action, reward, next_cell, next_heading, alpha, q_before,
-        q_after, bootstrap (gamma max Q(s')) and ``q_row`` ``[B, 4]`` (after).
+        q_after, bootstrap (gamma max Q(s')), dot (a dot was eaten on entering s') and
+        ``q_row`` ``[B, 4]`` (after).
         """
         if not self.transitions:
             keep = np.isin(cols["cell"], self.watch)
@@ -89,6 +90,7 @@ class Recorder:
             [self.run_ids[runs], np.full(m, t), agents]
             + [cols[name] for name in WATCH_COLUMNS[3:13]]
             + [q_row[:, 0], q_row[:, 1], q_row[:, 2], q_row[:, 3]]
+            + [cols["dot"].astype(np.int64)]
         )
 
     def episodes(self, t: int, ends: EpisodeEnds) -> None:

@@ -20,6 +20,7 @@ import pandas as pd
 
 from qpatrol import atomic
 from qpatrol.csvio import read_csv
+from qpatrol.strategies import NAMES as STRATEGY_NAMES
 
 
 @dataclass
@@ -109,7 +110,7 @@ def figure_34(fig3: pd.DataFrame, fig4: pd.DataFrame) -> Section:
         return {
             "boot": float(late["bootstrap"].mean()),
             "r": float(d["reward"].mean()),
-            "dot": float((d["reward"] >= 1.0).mean()),
+            "dot": float(d["dot"].mean()),
             "n": len(d),
             "heading": d["heading"].iloc[0],
         }
@@ -128,9 +129,9 @@ def figure_34(fig3: pd.DataFrame, fig4: pd.DataFrame) -> Section:
             f"State 13 (map A, heading {a['heading']}, {a['n']} updates): mean gamma max "
             f"Q(s',a) after the first {min(20, a['n'] // 2)} updates = {_fmt(a['boot'])}, "
             f"mean r = {_fmt(a['r'])}, "
-            f"share of updates with r >= 1 (a dot eaten) = {_fmt(a['dot'])}.",
+            f"share of updates whose move ate a dot = {_fmt(a['dot'])}.",
             f"State 34 (map B, heading {b['heading']}, {b['n']} updates): mean gamma max "
-            f"Q(s',a) = {_fmt(b['boot'])}, mean r = {_fmt(b['r'])}, share with r >= 1 = "
+            f"Q(s',a) = {_fmt(b['boot'])}, mean r = {_fmt(b['r'])}, share that ate a dot = "
             f"{_fmt(b['dot'])}.",
             f"Ratio of the bootstrap terms 13/34 = {_fmt(ratio)}, against 22/4 = 5.5 for "
             "the corridor lengths east.",
@@ -252,11 +253,25 @@ def team_size(fig: pd.DataFrame) -> Section:
     for _, r in fig.sort_values(["communication", "agents"], ascending=[False, True]).iterrows():
         rows.append(
             f"| {int(r.agents)} | {'on' if r.communication else 'off'} | "
+            f"{_ci(r.avg_idleness_mean, r.avg_idleness_lo, r.avg_idleness_hi)} | "
+            f"{_ci(r.worst_idleness_mean, r.worst_idleness_lo, r.worst_idleness_hi)} | "
             f"{_ci(r.mean_steps_per_episode_mean, r.mean_steps_per_episode_lo, r.mean_steps_per_episode_hi)}"  # noqa: E501
             f" | {_ci(r.division_of_labour_mean, r.division_of_labour_lo, r.division_of_labour_hi)}"
-            f" | {_fmt(1 / r.agents)} | {_ci(r.avg_idleness_mean, r.avg_idleness_lo, r.avg_idleness_hi)} |"  # noqa: E501
+            f" | {_fmt(1 / r.agents)} | {int(r.max_wait_max)} | {int(r.frozen)} of {int(r.runs)} |"
         )
     runs = int(fig["runs"].max())
+    frozen = int(fig["frozen"].sum())
+    total = int(fig["runs"].sum())
+    on = fig[fig["communication"]].sort_values("agents")
+    falling = bool((on["avg_idleness_mean"].diff().dropna() < 0).all())
+    trend = (
+        "With communication on, average idleness falls at every step from 1 to "
+        f"{int(on['agents'].max())} agents ({' > '.join(_fmt(x) for x in on['avg_idleness_mean'])}"
+        " team steps)."
+        if falling
+        else "With communication on, average idleness does NOT fall at every step of team "
+        f"size: {', '.join(_fmt(x) for x in on['avg_idleness_mean'])} team steps."
+    )
     return Section(
         "Beyond the paper: team size and communication",
         ["figures/team-size.png"],
@@ -267,15 +282,78 @@ def team_size(fig: pd.DataFrame) -> Section:
             f"map A, {runs} runs per point, measures after the warm-up.",
             "\n".join(
                 [
-                    "| agents | communication | team steps per episode | division of labour "
-                    "| 1/K | average idleness |",
-                    "|---|---|---|---|---|---|",
+                    "| agents | communication | average idleness | worst idleness "
+                    "| team steps per episode | division of labour | 1/K | longest wait "
+                    "| frozen runs |",
+                    "|---|---|---|---|---|---|---|---|---|",
                     *rows,
                 ]
             ),
+            trend,
+            f"Frozen runs (a robot waited longer than a fair station queue, "
+            f"`wait_bound` in summary.json): {frozen} of {total}. 'Longest wait' is the "
+            "largest `max_wait` of any run of the point, in team steps.",
             "Without communication each agent clears its own private dot map, so an "
             "'episode' is one agent's and does not shorten with the team.",
             *_communication_effect(fig),
+        ],
+        "no paper numbers to compare with; mean [95% t-interval] over runs.",
+    )
+
+
+def strategies(fig: pd.DataFrame) -> Section:
+    rows = []
+    order = {n: i for i, n in enumerate(STRATEGY_NAMES)}
+    fig = fig.assign(_o=fig["policy"].map(order)).sort_values(["agents", "_o"])
+    for _, r in fig.iterrows():
+        rows.append(
+            f"| {int(r.agents)} | {r.policy} | "
+            f"{_ci(r.avg_idleness_mean, r.avg_idleness_lo, r.avg_idleness_hi)} | "
+            f"{_ci(r.worst_idleness_mean, r.worst_idleness_lo, r.worst_idleness_hi)} | "
+            f"{_fmt(r.bound_per_robot) if pd.notna(r.bound_per_robot) else '-'} | "
+            f"{int(r.max_wait_max)} | {int(r.frozen)} of {int(r.runs)} |"
+        )
+    lines = []
+    for k, d in fig.groupby("agents"):
+        ql = d[d["policy"] == "qlearning"]
+        best = d.sort_values("avg_idleness_mean").iloc[0]
+        if len(ql):
+            q = ql.iloc[0]
+            lines.append(
+                f"K = {int(k)}: the paper's learner has average idleness "
+                f"{_fmt(q.avg_idleness_mean)}, "
+                f"{_fmt(q.avg_idleness_mean / best.avg_idleness_mean)} times the best strategy "
+                f"({best.policy}, {_fmt(best.avg_idleness_mean)}); worst idleness "
+                f"{_fmt(q.worst_idleness_mean)} against {_fmt(best.worst_idleness_mean)}."
+            )
+    walk = fig["walk_length"].dropna()
+    bound = fig["walk_lower_bound"].dropna()
+    runs = int(fig["runs"].max())
+    return Section(
+        "Beyond the paper: the learned patrol against the classic strategies",
+        ["figures/strategies.png"],
+        "The paper does not compare its learner with other patrol strategies.",
+        "measured",
+        [
+            f"map A, {runs} runs per point, battery and collision rules as in training, "
+            "measures after the warm-up.",
+            (
+                f"The cyclic strategy's closed walk through all 185 cells has L = "
+                f"{int(walk.iloc[0])} moves; no closed walk through every cell is shorter than "
+                f"{int(bound.iloc[0])} (a proven lower bound). L/K is the interval of K robots "
+                "spaced evenly on it, without battery trips."
+                if len(walk) and len(bound)
+                else "No cyclic point: no walk length."
+            ),
+            "\n".join(
+                [
+                    "| robots | strategy | average idleness | worst idleness | L/K "
+                    "| longest wait | frozen runs |",
+                    "|---|---|---|---|---|---|---|",
+                    *rows,
+                ]
+            ),
+            *lines,
         ],
         "no paper numbers to compare with; mean [95% t-interval] over runs.",
     )
@@ -315,6 +393,7 @@ def build(
         lambda: figure_34(f("figure-3"), f("figure-4")),
         lambda: figure_56(f("figure-6"), d("team")),
         lambda: team_size(f("team-size")),
+        lambda: strategies(f("strategies")),
     ]
     sections = [m() for m in makers]
     quick = mode == "quick"

@@ -87,6 +87,13 @@ EXPERIMENTS: tuple[Experiment, ...] = (
         ("runs=3", "steps=4000", "max_episode_steps=4000"),
         cost=2,
     ),
+    Experiment(
+        "strategies",
+        "configs/strategies.yaml",
+        "strategies",
+        ("runs=2", "steps=1500", "record.warmup=500"),
+        cost=4,
+    ),
     Experiment("multiplier", "configs/multiplier.yaml", "multiplier", ("runs=1", "steps=2500")),
     Experiment("figure-3", "configs/figure3.yaml", None, ("runs=1", "steps=3000")),
     Experiment("figure-4", "configs/figure4.yaml", None, ("runs=1", "steps=2500")),
@@ -250,11 +257,27 @@ def _figures() -> dict[str, Figure]:
             Figure(
                 "team-size", "team-size", fd.team_size_data, plots.team_size, sweep_key="agents"
             ),
+            Figure(
+                "strategies",
+                "strategies",
+                fd.strategies_data,
+                plots.strategies,
+                sweep_key="policy",
+            ),
         )
     }
 
 
-FIGURE_NAMES = ("figure-2", "figure-3", "figure-4", "gamma", "figure-5", "figure-6", "team-size")
+FIGURE_NAMES = (
+    "figure-2",
+    "figure-3",
+    "figure-4",
+    "gamma",
+    "figure-5",
+    "figure-6",
+    "team-size",
+    "strategies",
+)
 
 
 def figure(name: str) -> Figure:

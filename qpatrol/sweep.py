@@ -5,7 +5,9 @@ Every point runs all its ``runs`` as one batch (run r of point p draws from
 ``SeedSequence(seed, spawn_key=(p, r))``) and writes its own run folder, so the
 numbers never depend on ``jobs``, on the backend or on which points ran earlier::
 
-    from qpatrol.config import load_config
+    from qpatrol.strategies import NAMES as STRATEGY_NAMES
+from qpatrol.strategies import NAMES as STRATEGY_NAMES
+from qpatrol.config import load_config
     from qpatrol.sweep import points_for, run_sweep, load_results
 
     base = load_config("configs/gamma.yaml")
@@ -185,6 +187,11 @@ NAMED_SWEEPS: dict[str, NamedSweep] = {
     "team-size": NamedSweep(
         "configs/team_size.yaml",
         {"agents": [1, 2, 4, 8], "team.communication": [True, False]},
+        None,
+    ),
+    "strategies": NamedSweep(
+        "configs/strategies.yaml",
+        {"policy": list(STRATEGY_NAMES), "agents": [1, 2, 4, 8]},
         None,
     ),
 }

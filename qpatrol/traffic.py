@@ -14,10 +14,10 @@ The moves are resolved in three parts:
 2. **Everyone else**, in priority order, moves if the asked cell is empty at that
    moment: a robot may follow one that left its cell this step, but never enters a
    cell that is still occupied, so no two robots meet and no two swap.
-3. **Passing the token** at the end of the step: a holder that pushed successfully
-   keeps it for up to ``diameter`` consecutive steps, long enough to clear any
-   corridor; a holder whose push failed hands it to the robot that blocked it (which
-   may then back it out of a dead end); otherwise it goes to the blocked robot of
+3. **Passing the token** at the end of the step: a holder that made its move keeps it
+   for up to ``diameter`` consecutive steps, long enough to clear any corridor; a
+   holder whose push failed hands it to the robot that blocked it (which may then back
+   it out of a dead end, or squeeze past it); otherwise it goes to the blocked robot of
    highest priority. Priority: a robot leaving a station first, then homing robots,
    then patrolling ones; among equals, the one that has waited longest, then a turn
    that rotates with the step number.
@@ -228,7 +228,8 @@ def pass_token(
     best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
     blocker = np.where(had, blocked_by[rows, np.maximum(tok, 0)], -1)
     blocker_waits = (blocker >= 0) & blocked[rows, np.maximum(blocker, 0)]
-    keep = had & res.pushed_ok & (s.token_held < p.diameter)
+    made_its_move = had & res.as_asked[rows, np.maximum(tok, 0)]
+    keep = made_its_move & (s.token_held < p.diameter)
     new = np.where(keep, tok, np.where(failed & blocker_waits, blocker, best))
     s.token_held = np.where((new == tok) & (new >= 0), s.token_held + 1, 0)
     s.token = new

@@ -99,6 +99,7 @@ class Strategy(base.Strategy):
                     "q_before": q_before,
                     "q_after": q_after,
                     "bootstrap": bootstrap,
+                    "dot": out.eaten[rr, kk],
                     "q_row": self.q[rr, kk, ca, ha],
                 },
             )

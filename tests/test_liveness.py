@@ -1,0 +1,134 @@
+"""Liveness and safety of the movement and battery rules, on maps the project never shipped.
+
+Every strategy runs with the battery on (a small capacity, so every robot goes home many
+times) on the shipped maps, the four arcade Ms. Pac-Man mazes (two stations each), and
+generated maps: a random tree maze with stations at the ends of dead ends, a maze with
+loops and stations on junctions, a ring with its only station at the end of a spur, and
+a comb of one-wide dead ends. At every step no two robots share a cell, none swaps with
+another, none stands in a wall and no charge is below 0; at the end no robot has waited
+longer than a fair station queue (:func:`qpatrol.measures.wait_bound`).
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import mazes
+import numpy as np
+import pytest
+
+from qpatrol import measures, strategies, world
+from qpatrol.config import from_flat
+from qpatrol.maps import get_map, parse_map
+from qpatrol.rng import Streams, run_seeds
+from qpatrol.run import advance
+
+DATA = Path(__file__).parent / "data"
+
+GENERATED = {
+    "maze-tree": lambda: mazes.random_maze(6, 8, 3),
+    "maze-loops": lambda: mazes.random_maze(6, 8, 4, loops=0.15, dead_end_stations=False),
+    "ring-spur": lambda: mazes.corridor_ring(40, spur=4),
+    "comb": lambda: mazes.comb(8, 4),
+}
+
+
+def load(name: str):
+    if name in GENERATED:
+        return parse_map(GENERATED[name]())
+    if name.startswith("mspacman"):
+        return parse_map((DATA / f"{name}.txt").read_text(), source=name)
+    return get_map(name)
+
+
+def drive(m, policy: str, k: int, seed: int, steps: int, runs: int = 2, **extra):
+    """Run and check safety at every step; returns (max_wait [R], bound, params)."""
+    dist = m.distances()
+    nearest = int(dist[m.homes].min(axis=0).max())
+    cfg = from_flat(
+        {
+            "agents": k,
+            "policy": policy,
+            "runs": runs,
+            "seed": seed,
+            "steps": steps,
+            "battery.capacity": max(3 * int(dist.max()), nearest + 10) + 20,
+            "battery.charge_steps": 20,
+            **extra,
+        }
+    )
+    p = world.make_params(cfg, m)
+    streams = Streams(run_seeds(seed, range(runs)), k)
+    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
+    s = world.init_state(p, starts)
+    strat = strategies.make(policy, cfg, m, p, starts)
+    watch = measures.Measures(runs, k, m.n_cells, 0)
+    other = ~np.eye(k, dtype=bool)[None]
+    for _ in range(steps):
+        before = s.pos.copy()
+        out = advance(s, p, strat, streams.next())
+        watch.observe(out, s.wait, s.charge)
+        cells = np.sort(s.pos, axis=1)
+        assert not (cells[:, 1:] == cells[:, :-1]).any(), "two robots in one cell"
+        swap = (s.pos[:, :, None] == before[:, None, :]) & (before[:, :, None] == s.pos[:, None, :])
+        assert not (swap & other).any(), "two robots swapped cells"
+        step = s.pos != before
+        adjacent = (p.neighbors[before] == s.pos[..., None]).any(axis=-1)
+        assert adjacent[step].all(), "a robot jumped or went through a wall"
+        assert (s.charge >= 0).all(), "a charge went below 0"
+    return watch.max_wait, measures.wait_bound(p), p
+
+
+CASES = [
+    (name, k) for name in ("map_a", "mspacman1", "maze-tree", "maze-loops") for k in (4, 8)
+] + [("ring-spur", 4), ("comb", 4), ("facility", 8), ("mspacman2", 8), ("mspacman3", 4)]
+
+#: Known failure, kept visible: three robots in the dead end above a junction station,
+#: two learners insisting on North and one robot homing South, take turns pushing each
+#: other for about 500 steps before the jam clears (not a freeze, but over the bound).
+KNOWN = {("maze-loops", 4, "qlearning")}
+
+
+@pytest.mark.parametrize("policy", strategies.NAMES)
+@pytest.mark.parametrize("name, k", CASES)
+def test_no_robot_waits_longer_than_a_fair_station_queue(name, k, policy, request):
+    if (name, k, policy) in KNOWN:
+        request.applymarker(pytest.mark.xfail(reason="known jam, see KNOWN", strict=True))
+    m = load(name)
+    seed = sum(map(ord, name + policy)) + k
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200)
+    assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
+
+
+def test_sixteen_robots_on_a_maze_with_dead_end_stations():
+    """Denser: 16 robots on a 95-cell tree maze whose two stations end dead ends."""
+    m = load("maze-tree")
+    max_wait, bound, _ = drive(m, "shared-conscientious", 16, 7, steps=1500)
+    assert max_wait.max() <= bound
+
+
+def test_regression_station_104_of_map_a_with_eight_robots():
+    """The freeze of the old rules: 8 learners on map A, batteries full at the start, all
+    went home together and stood forever around the station at cell 104."""
+    m = get_map("map_a")
+    assert 104 in m.homes.tolist()
+    max_wait, bound, p = drive(
+        m, "qlearning", 8, 2012, steps=3000, runs=4, **{"battery.initial_charge": "full"}
+    )
+    assert max_wait.max() <= bound
+    assert max_wait.max() < 1000  # the frozen runs waited 48,637 to 74,923 robot-steps
+
+
+def test_regression_dead_end_station():
+    """A homing robot finds a robot in the dead end of its station: the one inside leaves
+    first (the pocket is closed to others), then the homing robot goes in."""
+    m = parse_map("..0..\n##.##\n##.##\n##H##\n")
+    p_max_wait, bound, p = drive(m, "random", 2, 3, steps=800, runs=4)
+    assert p.pocket_entry.tolist() == [2]
+    assert p_max_wait.max() <= bound
+
+
+def test_the_safety_check_sees_shared_cells_without_collision_avoidance():
+    """The checks above are not vacuous: with avoidance off robots do share cells."""
+    with pytest.raises(AssertionError, match="two robots in one cell"):
+        drive(load("map_a"), "random", 8, 1, steps=400, **{"team.avoid_collisions": False})
