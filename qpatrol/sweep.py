@@ -5,7 +5,6 @@ Every point runs all its ``runs`` as one batch (run r of point p draws from
 ``SeedSequence(seed, spawn_key=(p, r))``) and writes its own run folder, so the
 numbers never depend on ``jobs``, on the backend or on which points ran earlier::
 
-    from qpatrol.strategies import NAMES as STRATEGY_NAMES
 from qpatrol.strategies import NAMES as STRATEGY_NAMES
 from qpatrol.config import load_config
     from qpatrol.sweep import points_for, run_sweep, load_results
