@@ -5,8 +5,7 @@ Every point runs all its ``runs`` as one batch (run r of point p draws from
 ``SeedSequence(seed, spawn_key=(p, r))``) and writes its own run folder, so the
 numbers never depend on ``jobs``, on the backend or on which points ran earlier::
 
-from qpatrol.strategies import NAMES as STRATEGY_NAMES
-from qpatrol.config import load_config
+    from qpatrol.config import load_config
     from qpatrol.sweep import points_for, run_sweep, load_results
 
     base = load_config("configs/gamma.yaml")
@@ -50,6 +49,7 @@ from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assig
 from qpatrol.csvio import read_csv
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
+from qpatrol.strategies import NAMES as STRATEGY_NAMES
 
 Progress = Callable[[int, int], None]
 
