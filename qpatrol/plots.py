@@ -802,15 +802,23 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
             )
     if "bound_per_robot" in df.columns and df["bound_per_robot"].notna().any():
         b = df.drop_duplicates("agents").sort_values("agents")
-        for ax in axes:
-            ax.plot(
-                b["agents"],
-                b["bound_per_robot"],
-                color="k",
-                ls="--",
-                lw=1,
-                label="L/K (cyclic walk / robots)",
-            )
+        axes[0].plot(
+            b["agents"],
+            b["bound_per_robot"] / 2,
+            color="k",
+            ls=":",
+            lw=1,
+            label="L/2K (K robots evenly spaced on the walk)",
+        )
+        axes[1].plot(
+            b["agents"],
+            b["bound_per_robot"],
+            color="k",
+            ls="--",
+            lw=1,
+            label="L/K (K robots evenly spaced on the walk)",
+        )
+        axes[0].legend(fontsize=8, loc="lower left")
     axes[0].set_ylabel("average idleness (team steps)")
     axes[0].set_title("Average idleness (mean over runs, 95% t-interval)", fontsize=10)
     axes[1].set_ylabel("worst idleness (team steps)")

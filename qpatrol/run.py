@@ -81,9 +81,8 @@ def prepare(cfg: Config) -> tuple[Map, world.Params]:
             "with record.watch)"
         )
     m = get_map(cfg["map"])
-    params = world.make_params(cfg, m)
-    limits.check_config_on_map(cfg, m)
-    return m, params
+    limits.check_config_on_map(cfg, m)  # before anything large is allocated
+    return m, world.make_params(cfg, m)
 
 
 def simulate(

@@ -95,8 +95,8 @@ def test_simulate_resumed_equals_uninterrupted(tmp_path: Path):
     resumed = ck.Checkpointer(tmp_path / "cp", every=0)
     assert resumed.load().position == 333
     rest = simulate(cfg, checkpoint=resumed)
-    assert np.array_equal(rest.state.q, whole.state.q)
-    assert np.array_equal(rest.state.n, whole.state.n)
+    assert np.array_equal(rest.strategy.q, whole.strategy.q)
+    assert np.array_equal(rest.strategy.n, whole.strategy.n)
     assert rest.summary == whole.summary
     assert rest.transitions.equals(whole.transitions) and rest.watch.equals(whole.watch)
     assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)

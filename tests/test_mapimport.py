@@ -343,7 +343,7 @@ def test_imported_map_trains_with_battery(tmp_path: Path):
     )
     result = simulate(cfg)
     assert result.map.n_cells == m.n_cells == 23
-    moves = result.state.visits.sum(axis=2)
+    moves = result.measures.visits.sum(axis=2)
     assert (moves > 30).all()  # more moves than one charge: every agent has recharged
     assert min(s["coverage"] for s in result.summary) > 0.5
 

@@ -260,7 +260,7 @@ def test_non_finite_q_at_the_end_is_not_saved(run, tmp_path, monkeypatch):
 
     def overflowing(*a, **k):
         result = real(*a, **k)
-        result.state.q[0, 0, 5, 1, 2] = np.inf
+        result.strategy.q[0, 0, 5, 1, 2] = np.inf
         return result
 
     monkeypatch.setattr(qpatrol.run, "simulate", overflowing)
