@@ -494,10 +494,8 @@ def gamma(csv: str | Path, out: str | Path) -> Path:
 
 
 def team_size(csv: str | Path, out: str | Path) -> Path:
-    """Steps per episode and division of labour vs team size, communication on and off."""
-    df = _read(
-        csv, ["agents", "communication", "mean_steps_per_episode_mean", "division_of_labour_mean"]
-    )
+    """Average idleness and division of labour vs team size, communication on and off."""
+    df = _read(csv, ["agents", "communication", "avg_idleness_mean", "division_of_labour_mean"])
     df["communication"] = df["communication"].astype(str).str.lower().isin(["true", "1", "on"])
     fig, (a, b) = plt.subplots(1, 2, figsize=(11, 4.2))
     ks = sorted(df["agents"].unique())
@@ -508,7 +506,7 @@ def team_size(csv: str | Path, out: str | Path) -> Path:
             continue
         colour, marker, label = COMM_STYLE[comm]
         x = d["agents"] * 2 ** offsets[comm]
-        m = "mean_steps_per_episode"
+        m = "avg_idleness"
         _errorbar(
             a,
             x,
@@ -533,8 +531,8 @@ def team_size(csv: str | Path, out: str | Path) -> Path:
     xs = np.geomspace(min(ks), max(ks) * 1.1, 100)
     b.plot(xs, 1 / xs, color="0.4", ls=":", label="1/K (no division)")
     b.axhline(1.0, color="0.6", lw=0.8, ls="--", label="1 (full partition)")
-    a.set_ylabel("team steps per episode (eat all dots)")
-    a.set_title("Episode length vs team size (mean over runs, 95% t-interval)", fontsize=10)
+    a.set_ylabel("average idleness (team steps)")
+    a.set_title("Average idleness vs team size (mean over runs, 95% t-interval)", fontsize=10)
     b.set_ylabel("division of labour (share of top visitor)")
     b.set_title("Division of labour vs team size", fontsize=10)
     b.set_ylim(0, 1.05)
@@ -549,8 +547,8 @@ def team_size(csv: str | Path, out: str | Path) -> Path:
     where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
     runs = f"{int(df['runs'].min())} runs per point; " if "runs" in df.columns else ""
     fig.suptitle(
-        f"Team size and communication ({where}{runs}without communication an episode "
-        "is one agent clearing its private dot map)",
+        f"Team size and communication ({where}{runs}the paper's learner, battery on, "
+        "measures after warm-up)",
         fontsize=10,
     )
     fig.tight_layout()
