@@ -816,7 +816,8 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
             lw=1,
             label="L/K (K robots evenly spaced on the walk)",
         )
-        axes[0].legend(fontsize=8, loc="lower left")
+        bound_line = [h for h in axes[0].get_lines() if h.get_label().startswith("L/2K")]
+        axes[0].legend(handles=bound_line, fontsize=8, loc="lower left")
     axes[0].set_ylabel("average idleness (team steps)")
     axes[0].set_title("Average idleness (mean over runs, 95% t-interval)", fontsize=10)
     axes[1].set_ylabel("worst idleness (team steps)")

@@ -439,11 +439,21 @@ def build(
             "",
             "| experiment | seconds |",
             "|---|---|",
-            *[f"| {k} | {v:.1f} |" for k, v in sorted(seconds.items())],
+            *[
+                f"| {k} | {v:.1f} |"
+                if v >= 1.0
+                else f"| {k} | resumed: computed by an "
+                "earlier run (its folders under runs/ hold meta.json with start and end) |"
+                for k, v in sorted(seconds.items())
+            ],
             "",
         ]
         if total is not None:
-            lines += [f"Whole reproduction, figures included: {total:.0f} s.", ""]
+            lines += [
+                f"This invocation, figures included: {total:.0f} s"
+                + (" (resumed experiments not counted)." if min(seconds.values()) < 1.0 else "."),
+                "",
+            ]
     return "\n".join(lines).rstrip() + "\n"
 
 
