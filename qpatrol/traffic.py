@@ -49,13 +49,11 @@ class Resolution:
     Attributes:
         moved: bool, entered a new cell (as asked or pushed aside).
         as_asked: bool, made the move it asked for.
-        pushed_ok: bool ``[R]``, the token holder needed a push and made its move.
-        push_failed: bool ``[R]``, the token holder needed a push and could not move.
+        push_failed: bool ``[R]``, the token holder could not make the move it asked for.
     """
 
     moved: np.ndarray
     as_asked: np.ndarray
-    pushed_ok: np.ndarray
     push_failed: np.ndarray
 
 
@@ -80,13 +78,12 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     R, K = s.pos.shape
     moved = np.zeros((R, K), dtype=bool)
     as_asked = np.zeros((R, K), dtype=bool)
-    pushed_ok = np.zeros(R, dtype=bool)
     push_failed = np.zeros(R, dtype=bool)
     want = np.where(s.active[:, None], want, -1)
     if not p.avoid_collisions:
         go = want >= 0
         s.pos[go] = want[go]
-        return Resolution(go, go.copy(), pushed_ok, push_failed)
+        return Resolution(go, go.copy(), push_failed)
 
     # 1. the token holder pushes the robots in its way aside, or steps aside itself
     holders = np.flatnonzero((s.token >= 0) & s.active)
@@ -109,7 +106,6 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
             _move(s, r, k, cell)
             moved[r, k] = True
             as_asked[r, k] = cell == want[r, k]
-            pushed_ok[r] = as_asked[r, k] and len(path) > 0
             push_failed[r] = not as_asked[r, k]
 
     # 2. everyone else, in priority order, into cells empty at that moment
@@ -130,7 +126,7 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
                 s.pos[rr, kk] = ww
                 moved[rr, kk] = as_asked[rr, kk] = True
                 progress = True
-    return Resolution(moved, as_asked, pushed_ok, push_failed)
+    return Resolution(moved, as_asked, push_failed)
 
 
 def _holder_move(
