@@ -63,14 +63,20 @@ def forced(s, p, strat, choice):
     return out
 
 
-def run_steps(cfg, m, steps, seed_runs=None):
-    """Run ``steps`` team steps as simulate does; yield (p, s, strategy, out, old) each step."""
+def start(cfg, m, seed_runs=None):
+    """The world, strategy and streams of ``cfg`` on ``m`` as simulate builds them:
+    ``(p, s, strategy, streams)``."""
     p = world.make_params(cfg, m)
     seeds = seed_runs or run_seeds(cfg["seed"], cfg["runs"])
     streams = Streams(seeds, p.n_agents)
     starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
     s = world.init_state(p, starts)
-    strat = strategies.make(cfg["policy"], cfg, m, p, starts)
+    return p, s, strategies.make(cfg["policy"], cfg, m, p, starts), streams
+
+
+def run_steps(cfg, m, steps, seed_runs=None):
+    """Run ``steps`` team steps as simulate does; yield (p, s, strategy, out, old) each step."""
+    p, s, strat, streams = start(cfg, m, seed_runs)
     for _ in range(steps):
         old = s.pos.copy()
         out = run.advance(s, p, strat, streams.next())
@@ -199,11 +205,7 @@ def test_evap_moves_to_least_pheromone_and_evaporates_lazily_but_exactly(communi
         }
     )
     m = parse_map(ROOMS)
-    p = world.make_params(cfg, m)
-    streams = Streams(run_seeds(cfg["seed"], cfg["runs"]), p.n_agents)
-    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
-    s = world.init_state(p, starts)
-    strat = strategies.make("evap", cfg, m, p, starts)
+    p, s, strat, streams = start(cfg, m)
     keep = 0.9
     eager = np.zeros((cfg["runs"], p.n_groups, p.n_cells))
     chose = 0
@@ -363,11 +365,7 @@ def test_qlearning_follows_the_update_rule_for_every_recorded_update():
         }
     )
     m = parse_map(ROOMS)
-    p = world.make_params(cfg, m)
-    streams = Streams(run_seeds(cfg["seed"], cfg["runs"]), p.n_agents)
-    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
-    s = world.init_state(p, starts)
-    strat = strategies.make("qlearning", cfg, m, p, starts)
+    p, s, strat, streams = start(cfg, m)
     rec = Recorder(np.arange(cfg["runs"]), transitions=True)
     expected = {}  # (step, run, agent) -> (cell, heading, action, next cell, reward)
     not_learning = 0
