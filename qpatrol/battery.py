@@ -126,14 +126,13 @@ def homing_ask(s: State, p: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     no = np.zeros(s.pos.shape, dtype=bool)
     if p.homes.size == 0:
         return none, no, no
-    R, K = s.pos.shape
+    K = s.pos.shape[1]
     goal = np.maximum(s.goal, 0)
     direction = p.home_dir[goal, s.pos]
     pocket = p.pocket_entry[goal] >= 0
     if not pocket.any():
         return direction, no, no
     # robots other than k in the pocket of k's station, and how deep the deepest is
-    rows = np.arange(R)[:, None, None]
     pocket_of_others = p.pocket_of[s.pos][:, None, :]  # [R, 1, K]
     same = (pocket_of_others == goal[..., None]) & ~np.eye(K, dtype=bool)[None]
     depth_others = np.where(same, p.pocket_depth[s.pos][:, None, :], -1).max(axis=-1)  # [R, K]
@@ -144,7 +143,6 @@ def homing_ask(s: State, p: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     entering = (direction >= 0) & (my_depth == 0) & ~at_entry & (nxt == p.pocket_entry[goal])
     held = pocket & occupied & entering
     yielding = pocket & occupied & (at_entry | (depth_others > my_depth) & (my_depth > 0))
-    del rows
     out = way_out(s, p, goal)
     direction = np.where(held, -1, np.where(yielding, out, direction))
     return direction, held, yielding & (out >= 0)
