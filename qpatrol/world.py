@@ -485,7 +485,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     ends = _end_episodes(s, p)
     return Outcome(
         t=t,
-        active=active.copy(),
+        active=active,
         choosing=obs.choosing,
         ask=ask,
         waiting_for_station=waiting_station,
