@@ -235,6 +235,13 @@ SCHEMA: tuple[Field, ...] = (
         high=10**6,
     ),
     F("record.warmup", "int", 0, "team steps before the patrolling measures start", low=0),
+    F(
+        "record.timeline",
+        "int",
+        0,
+        "write timeline.csv: average and worst idleness in windows of N team steps (0: off)",
+        low=0,
+    ),
 )
 FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
 KEYS: tuple[str, ...] = tuple(FIELDS)

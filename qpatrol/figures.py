@@ -490,6 +490,91 @@ def strategies_data(
     return df
 
 
+POLICY_MEASURES = ("avg_idleness", "worst_idleness", "mean_interval", "max_wait")
+
+
+def policies_data(
+    sweep_dir: str | Path, level: float = 0.95, measures: Iterable[str] = POLICY_MEASURES
+) -> pd.DataFrame:
+    """Map x strategy x team size: mean and 95% t-interval over runs of each measure.
+
+    As :func:`strategies_data`, grouped by ``map``, ``policy`` and ``agents``, with each
+    map's closed walk: ``walk_length`` L and ``walk_lower_bound`` (from the cyclic
+    strategy's summary on that map) and ``bound_per_robot`` = L / K. Also ``warmup``
+    and ``window`` (team steps measured) of each group, and ``learns`` (the strategy
+    learns as it patrols).
+    """
+    df = grouped_data(sweep_dir, {"policy": str, "agents": int}, measures, level)
+    d = Path(sweep_dir)
+    sw = read_sweep(d)
+    walks: dict[str, tuple[Any, Any]] = {}
+    steps: dict[tuple[str, str, int], tuple[int, int]] = {}
+    for path, cfg in zip(sw["path"], sw["config"], strict=True):
+        name = folder_map(path, cfg).name
+        steps[(name, cfg["policy"], int(cfg["agents"]))] = (
+            int(cfg["record.warmup"]),
+            int(cfg["steps"]) - int(cfg["record.warmup"]),
+        )
+        summary = Path(path) / "summary.json"
+        if cfg["policy"] == "cyclic" and name not in walks and summary.is_file():
+            info = json.loads(summary.read_text()).get("strategy", {})
+            walks[name] = (info.get("walk_length"), info.get("walk_lower_bound"))
+    df["walk_length"] = [walks.get(m, (None, None))[0] for m in df["map"]]
+    df["walk_lower_bound"] = [walks.get(m, (None, None))[1] for m in df["map"]]
+    df["bound_per_robot"] = [
+        w / k if w else None for w, k in zip(df["walk_length"], df["agents"], strict=True)
+    ]
+    key = list(zip(df["map"], df["policy"], df["agents"], strict=True))
+    df["warmup"] = [steps[k][0] for k in key]
+    df["window"] = [steps[k][1] for k in key]
+    df["learns"] = [strategies.learns(p) for p in df["policy"]]
+    order = {m: i for i, m in enumerate(dict.fromkeys(_sweep_maps(sw)))}
+    df["_order"] = [order.get(m, len(order)) for m in df["map"]]
+    names = {n: i for i, n in enumerate(strategies.NAMES)}
+    df["_policy"] = [names.get(p, len(names)) for p in df["policy"]]
+    df = df.sort_values(["_order", "agents", "_policy"], kind="stable")
+    return df.drop(columns=["_order", "_policy"]).reset_index(drop=True)
+
+
+def _sweep_maps(sw: pd.DataFrame) -> list[str]:
+    """The maps of a sweep's points, in point order."""
+    return [folder_map(p, c).name for p, c in zip(sw["path"], sw["config"], strict=True)]
+
+
+def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
+    """Idleness in windows along each strategy's run (from ``timeline.csv``).
+
+    One row per strategy and window: policy, learns, window, first_step, last_step,
+    ``avg_idleness_mean/_lo/_hi`` and ``worst_idleness_mean/_lo/_hi`` over runs (95%
+    t-interval), runs, map, agents.
+    """
+    d = Path(sweep_dir)
+    sw = read_sweep(d)
+    rows = []
+    for path, cfg in zip(sw["path"], sw["config"], strict=True):
+        tl = Path(path) / "timeline.csv"
+        if not tl.is_file():
+            raise FileNotFoundError(f"{tl}: missing; the learning figure needs record.timeline")
+        t = _read_csv(tl, "idleness in windows")
+        name = folder_map(path, cfg).name
+        for (w, first, last), g in t.groupby(["window", "first_step", "last_step"], sort=True):
+            row: dict[str, Any] = {
+                "policy": cfg["policy"],
+                "learns": strategies.learns(cfg["policy"]),
+                "window": int(w),
+                "first_step": int(first),
+                "last_step": int(last),
+                "runs": len(g),
+            }
+            for col in ("avg_idleness", "worst_idleness"):
+                ci = mean_ci(pd.to_numeric(g[col]), level)
+                row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi")})
+            row["map"] = name
+            row["agents"] = int(cfg["agents"])
+            rows.append(row)
+    return pd.DataFrame(rows)
+
+
 def grouped_data(
     sweep_dir: str | Path,
     keys: dict[str, type],

@@ -197,10 +197,10 @@ def _choice_marks(ax, df: pd.DataFrame, x: str = "update") -> None:
             )
 
 
-def _log_y(ax, label: str) -> None:
-    """Log y-axis with plain-number tick labels (1, 2, 5 per decade)."""
+def _log_y(ax, label: str, subs: tuple[float, ...] = (1.0, 2.0, 5.0)) -> None:
+    """Log y-axis with plain-number tick labels (1, 2, 5 per decade by default)."""
     ax.set_yscale("log")
-    ax.yaxis.set_major_locator(LogLocator(base=10, subs=(1.0, 2.0, 5.0)))
+    ax.yaxis.set_major_locator(LogLocator(base=10, subs=subs))
     ax.yaxis.set_major_formatter(FuncFormatter(lambda y, _: f"{y:g}"))
     ax.yaxis.set_minor_formatter(NullFormatter())
     ax.set_ylabel(label)
@@ -834,6 +834,154 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     fig.suptitle(
         f"Patrol strategies ({where}{runs}; battery on, measures after warm-up)", fontsize=10
+    )
+    fig.tight_layout()
+    return _save(fig, out)
+
+
+def _style(name: str, i: int) -> tuple[str, str]:
+    """Colour and marker of a strategy (a fixed one for the known, else from a cycle)."""
+    if name in STRATEGY_STYLE:
+        return STRATEGY_STYLE[name]
+    extra = ("tab:orange", "tab:brown", "tab:pink", "k")
+    return extra[i % len(extra)], "*"
+
+
+def _policy_order(names: set[str]) -> list[str]:
+    from qpatrol.strategies import NAMES
+
+    return [n for n in NAMES if n in names] + sorted(names - set(NAMES))
+
+
+POLICY_PANELS = (
+    ("avg_idleness", "average idleness", 2),
+    ("worst_idleness", "worst idleness", 1),
+    ("mean_interval", "mean interval between visits", 1),
+)
+
+
+def policies(csv: str | Path, out: str | Path) -> Path:
+    """One row per map: average idleness, worst idleness and mean interval against team
+    size for every strategy (mean over runs, 95% t-interval), with the cyclic bound."""
+    cols = [
+        "map",
+        "policy",
+        "agents",
+        *(f"{m}_{s}" for m, *_ in POLICY_PANELS for s in "mean lo hi".split()),
+    ]
+    df = _read(csv, cols)
+    maps = list(dict.fromkeys(df["map"]))
+    names = _policy_order(set(df["policy"]))
+    ks = sorted(df["agents"].unique())
+    fig, axes = plt.subplots(len(maps), 3, figsize=(13.5, 3.3 * len(maps)), squeeze=False)
+    for r, mname in enumerate(maps):
+        dm = df[df["map"] == mname]
+        for i, name in enumerate(names):
+            d = dm[dm["policy"] == name].sort_values("agents")
+            colour, marker = _style(name, i)
+            x = d["agents"] * 2 ** (0.025 * (i - len(names) / 2))
+            for ax, (m, _, _) in zip(axes[r], POLICY_PANELS, strict=True):
+                _errorbar(
+                    ax,
+                    x,
+                    d[f"{m}_mean"],
+                    d[f"{m}_lo"],
+                    d[f"{m}_hi"],
+                    color=colour,
+                    marker=marker,
+                    ms=4,
+                    lw=1.4 if name.startswith("qlearning") else 0.9,
+                    label=name,
+                )
+        b = dm.drop_duplicates("agents").sort_values("agents")
+        has_bound = "bound_per_robot" in dm.columns and b["bound_per_robot"].notna().any()
+        for c, (ax, (_m, label, div)) in enumerate(zip(axes[r], POLICY_PANELS, strict=True)):
+            if has_bound:
+                walk = int(b["walk_length"].iloc[0])
+                ax.plot(
+                    b["agents"],
+                    b["bound_per_robot"] / div,
+                    color="k",
+                    ls=":" if div == 2 else "--",
+                    lw=1,
+                    label=f"L/{'2' if div == 2 else ''}K (L = {walk})",
+                )
+                ax.legend(
+                    handles=[h for h in ax.get_lines() if h.get_label().startswith("L/")],
+                    fontsize=7,
+                    loc="lower left",
+                )
+            ax.set_xscale("log", base=2)
+            _log_y(ax, f"{label} (team steps)" if c == 0 else label)
+            ax.set_xticks(ks, [str(k) for k in ks])
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.grid(alpha=0.3, lw=0.4, which="both")
+            if r == len(maps) - 1:
+                ax.set_xlabel("team size K (robots)")
+            title = f"{mname}: {label}"
+            ax.set_title(title, fontsize=10)
+    handles = [
+        plt.Line2D([], [], color=_style(n, i)[0], marker=_style(n, i)[1], ms=5, label=n)
+        for i, n in enumerate(names)
+    ]
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        ncol=min(len(names), 8),
+        fontsize=9,
+        bbox_to_anchor=(0.5, 1.0),
+        frameon=False,
+    )
+    runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
+    window = f", {int(df['window'].min()):,} steps measured" if "window" in df.columns else ""
+    fig.suptitle(
+        f"Learned against classic patrol ({runs}{window} after warm-up; battery off). "
+        "L: the closed walk through every cell.",
+        fontsize=10,
+        y=1.025,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 0.975))
+    return _save(fig, out)
+
+
+def learning(csv: str | Path, out: str | Path) -> Path:
+    """Average and worst idleness in windows along the run: learners as curves with a
+    95% band over runs, the strategies that do not learn as flat lines at their mean
+    after the first window."""
+    cols = ["policy", "learns", "window", "last_step", "avg_idleness_mean", "worst_idleness_mean"]
+    df = _read(csv, cols)
+    names = _policy_order(set(df["policy"]))
+    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6))
+    end = float(df["last_step"].max())
+    for i, name in enumerate(names):
+        d = df[df["policy"] == name].sort_values("window")
+        colour, _ = _style(name, i)
+        learns = bool(d["learns"].iloc[0])
+        for ax, m in zip(axes, ("avg_idleness", "worst_idleness"), strict=True):
+            if learns:
+                ax.plot(d["last_step"], d[f"{m}_mean"], color=colour, lw=1.6, label=name)
+                ax.fill_between(
+                    d["last_step"], d[f"{m}_lo"], d[f"{m}_hi"], color=colour, alpha=0.2, lw=0
+                )
+            else:
+                level = d[d["window"] >= 1][f"{m}_mean"].mean()
+                ax.plot([0, end], [level, level], color=colour, lw=1, ls="--", label=name)
+    for ax, label in zip(axes, ("average idleness", "worst idleness"), strict=True):
+        _log_y(ax, f"{label} in the window (team steps)", subs=(1.0, 1.5, 2.0, 3.0, 5.0, 7.0))
+        ax.set_xlabel("team step (end of each window)")
+        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:,.0f}"))
+        ax.set_xlim(0, end * 1.01)
+        ax.grid(alpha=0.3, lw=0.4, which="both")
+    axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    w = int(df["last_step"].min())
+    where = f"{df['map'].iloc[0]}, K = {int(df['agents'].iloc[0])}, " if "map" in df.columns else ""
+    runs = f"{int(df['runs'].min())} runs" if "runs" in df.columns else ""
+    axes[0].set_title("Average idleness (mean over runs, 95% band)", fontsize=10)
+    axes[1].set_title("Worst idleness", fontsize=10)
+    fig.suptitle(
+        f"Learning over time ({where}{runs}, windows of {w:,} steps; battery off). "
+        "Dashed: strategies that do not learn, mean after their first window.",
+        fontsize=10,
     )
     fig.tight_layout()
     return _save(fig, out)

@@ -359,6 +359,192 @@ def strategies(fig: pd.DataFrame) -> Section:
     )
 
 
+#: The goal issue 8 set a learned patrol beyond the paper: worst idleness within this
+#: factor of the cyclic strategy's, and average idleness below conscientious reactive's.
+GOAL_WORST_FACTOR = 1.5
+
+
+def _times(a: float, b: float) -> str:
+    return f"{_fmt(a / b)}x" if b else "n/a"
+
+
+def policies(fig: pd.DataFrame) -> Section:
+    """Every map x team size: the learners against the best classic strategy."""
+    fig = fig.copy()
+    learners = [n for n in STRATEGY_NAMES if n in set(fig.loc[fig["learns"], "policy"])]
+    classic = fig[~fig["learns"]]
+    rows, verdicts, goal_rows = [], [], []
+    wins = {n: 0 for n in learners}
+    cells = 0
+    for (m, k), d in fig.groupby(["map", "agents"], sort=False):
+        c = classic[(classic["map"] == m) & (classic["agents"] == k)]
+        if not len(c):
+            continue
+        cells += 1
+        best_avg = c.sort_values("avg_idleness_mean").iloc[0]
+        best_worst = c.sort_values("worst_idleness_mean").iloc[0]
+        bound = d["bound_per_robot"].iloc[0]
+        row = [
+            f"| {m} | {int(k)} | {_fmt(bound) if pd.notna(bound) else '-'} "
+            f"| {_fmt(best_avg.avg_idleness_mean)} ({best_avg.policy}) "
+            f"| {_fmt(best_worst.worst_idleness_mean)} ({best_worst.policy}) "
+        ]
+        for n in learners:
+            q = d[d["policy"] == n]
+            if not len(q):
+                row.append("| - | - ")
+                continue
+            q = q.iloc[0]
+            times_avg = _times(q.avg_idleness_mean, best_avg.avg_idleness_mean)
+            row.append(
+                f"| {_fmt(q.avg_idleness_mean)} ({times_avg}) "
+                f"| {_fmt(q.worst_idleness_mean)} "
+                f"({_times(q.worst_idleness_mean, best_worst.worst_idleness_mean)}) "
+            )
+            if q.avg_idleness_mean < best_avg.avg_idleness_mean:
+                wins[n] += 1
+            if n != "qlearning":
+                cyc = c[c["policy"] == "cyclic"]
+                con = c[c["policy"] == "conscientious"]
+                if len(cyc) and len(con):
+                    cw, ca = cyc.iloc[0].worst_idleness_mean, con.iloc[0].avg_idleness_mean
+                    ok_w = q.worst_idleness_mean <= GOAL_WORST_FACTOR * cw
+                    ok_a = q.avg_idleness_mean < ca
+                    goal_rows.append(
+                        f"| {n} | {m} | {int(k)} | {_fmt(q.worst_idleness_mean)} "
+                        f"| {_fmt(GOAL_WORST_FACTOR * cw)} | {'yes' if ok_w else 'no'} "
+                        f"| {_fmt(q.avg_idleness_mean)} | {_fmt(ca)} | {'yes' if ok_a else 'no'} |"
+                    )
+        rows.append("".join(row) + "|")
+    head = "| map | K | L/K | best average (classic) | best worst (classic) "
+    rule = "|---|---|---|---|---"
+    for n in learners:
+        head += f"| {n} average (x best) | {n} worst (x best) "
+        rule += "|---|---"
+    table = "\n".join([head + "|", rule + "|", *rows])
+    for n in learners:
+        d = fig[fig["policy"] == n].merge(
+            classic.groupby(["map", "agents"], as_index=False).agg(
+                best_avg=("avg_idleness_mean", "min"), best_worst=("worst_idleness_mean", "min")
+            ),
+            on=["map", "agents"],
+        )
+        ra = d["avg_idleness_mean"] / d["best_avg"]
+        rw = d["worst_idleness_mean"] / d["best_worst"]
+        if not len(d):
+            continue
+        lo, hi = d.loc[ra.idxmin()], d.loc[ra.idxmax()]
+        verdicts.append(
+            f"**{n}** beats the best classic strategy's average idleness on {wins[n]} of "
+            f"{cells} map and team-size cells. Its average idleness is {_fmt(ra.min())} times "
+            f"the best at its closest ({lo['map']}, K = {int(lo.agents)}) and {_fmt(ra.max())} "
+            f"times at its farthest ({hi['map']}, K = {int(hi.agents)}); its worst idleness is "
+            f"{_fmt(rw.min())} to {_fmt(rw.max())} times the best."
+        )
+    goal = []
+    if goal_rows:
+        met = [r for r in goal_rows if r.count("| yes") == 2]
+        goal = [
+            f"Goal for a learned patrol beyond the paper: worst idleness within "
+            f"{GOAL_WORST_FACTOR}x the cyclic strategy's and average idleness below "
+            f"conscientious reactive's, on every map and team size. Met in {len(met)} of "
+            f"{len(goal_rows)} cells.",
+            "\n".join(
+                [
+                    "| learner | map | K | worst | 1.5 x cyclic worst | within | average "
+                    "| conscientious average | below |",
+                    "|---|---|---|---|---|---|---|---|---|",
+                    *goal_rows,
+                ]
+            ),
+        ]
+    runs = int(fig["runs"].min())
+    frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
+    missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
+    warm = fig[~fig["learns"]]["warmup"]
+    lwarm = fig[fig["learns"]]["warmup"]
+    window = int(fig["window"].min())
+    return Section(
+        "Beyond the paper: does learning patrol well? Every map and team size",
+        ["figures/policies.png"],
+        "The paper does not compare its learner with other patrol strategies, nor use other maps.",
+        "measured",
+        [
+            f"{runs} runs per point; battery off, collisions avoided, communication on. Every "
+            f"point measures {window:,} team steps after its warm-up: "
+            f"{int(warm.max()) if len(warm) else 0:,} steps for the strategies that do not "
+            f"learn, {int(lwarm.max()) if len(lwarm) else 0:,} for the learners (see the "
+            "learning-over-time section for why). L/K: K robots evenly spaced on the closed "
+            "walk of length L through every cell.",
+            f"Runs that went wrong: {frozen} frozen (a wait longer than a crossing of the map), "
+            f"{missing} without an idleness value.",
+            "Cells give the mean over runs; 'x best' divides by the best classic strategy "
+            "(not learning) on that map and team size. Full table with 95% t-intervals: "
+            "`figures/policies.csv`.",
+            table,
+            *verdicts,
+            *goal,
+        ],
+        "no paper numbers to compare with; mean over runs.",
+    )
+
+
+def learning(fig: pd.DataFrame) -> Section:
+    """Idleness in windows along a long run: do the learners approach the others?"""
+    lines = []
+    flat = {}
+    for n, d in fig[~fig["learns"]].groupby("policy"):
+        flat[n] = d[d["window"] >= 1]["avg_idleness_mean"].mean()
+    best = min(flat, key=flat.get) if flat else None
+    for n, d in fig[fig["learns"]].groupby("policy", sort=False):
+        d = d.sort_values("window")
+        first, last = d.iloc[0], d.iloc[-1]
+        text = (
+            f"**{n}**: average idleness {_fmt(first.avg_idleness_mean)} in the first window "
+            f"(steps 1 to {int(first.last_step):,}), {_fmt(last.avg_idleness_mean)} "
+            f"[{_fmt(last.avg_idleness_lo)}, {_fmt(last.avg_idleness_hi)}] in the last (to "
+            f"step {int(last.last_step):,}); worst idleness {_fmt(first.worst_idleness_mean)} "
+            f"then {_fmt(last.worst_idleness_mean)}."
+        )
+        for other, level in sorted(flat.items(), key=lambda x: x[1]):
+            below = d[d["avg_idleness_mean"] <= level]
+            if len(below):
+                text += (
+                    f" It first reaches {other}'s level ({_fmt(level)}) in the window ending at "
+                    f"step {int(below.iloc[0].last_step):,}."
+                )
+                break
+        else:
+            if best is not None:
+                text += (
+                    f" It never reaches any of them: in its last window it is "
+                    f"{_fmt(last.avg_idleness_mean / flat[best])} times the best ({best}, "
+                    f"{_fmt(flat[best])})."
+                )
+        half = d[d["avg_idleness_mean"] <= (first.avg_idleness_mean + last.avg_idleness_mean) / 2]
+        if len(half):
+            text += f" Half of its improvement is made by step {int(half.iloc[0].last_step):,}."
+        lines.append(text)
+    levels = ", ".join(f"{n} {_fmt(v)}" for n, v in sorted(flat.items(), key=lambda x: x[1]))
+    m = fig["map"].iloc[0]
+    k = int(fig["agents"].iloc[0])
+    runs = int(fig["runs"].min())
+    w = int(fig["last_step"].min())
+    return Section(
+        "Beyond the paper: learning over time",
+        ["figures/learning.png"],
+        "The paper shows learning over 2000 episodes, but not whether it approaches other "
+        "strategies.",
+        "measured",
+        [
+            f"{m}, K = {k}, {runs} runs, battery off; idleness in windows of {w:,} team steps. "
+            f"The strategies that do not learn, averaged after their first window: {levels}.",
+            *lines,
+        ],
+        "no paper numbers to compare with; mean [95% t-interval] over runs.",
+    )
+
+
 def _communication_effect(fig: pd.DataFrame) -> list[str]:
     """One sentence per team size > 1 comparing communication on and off."""
     out = []
@@ -394,6 +580,8 @@ def build(
         lambda: figure_56(f("figure-6"), d("team")),
         lambda: team_size(f("team-size")),
         lambda: strategies(f("strategies")),
+        lambda: policies(f("policies")),
+        lambda: learning(f("learning")),
     ]
     sections = [m() for m in makers]
     quick = mode == "quick"

@@ -61,14 +61,14 @@ class Experiment:
         """The experiment's config, with the quick overrides when asked."""
         return load_config(_repo_file(self.config), list(self.quick) if quick else [])
 
-    def points(self) -> list[Point]:
+    def points(self, quick: bool = False) -> list[Point]:
         """The sweep's points, or one point without overrides."""
-        return NAMED_SWEEPS[self.sweep].points() if self.sweep else [Point(0, {})]
+        return NAMED_SWEEPS[self.sweep].points(quick) if self.sweep else [Point(0, {})]
 
     def runs(self, quick: bool) -> int:
         """Runs over all points."""
         base = self.base(quick)
-        return sum(base.replace(**p.overrides)["runs"] for p in self.points())
+        return sum(base.replace(**p.overrides)["runs"] for p in self.points(quick))
 
 
 EXPERIMENTS: tuple[Experiment, ...] = (
@@ -94,6 +94,8 @@ EXPERIMENTS: tuple[Experiment, ...] = (
         ("runs=2", "steps=1500", "record.warmup=500"),
         cost=4,
     ),
+    Experiment("policies", "configs/policies.yaml", "policies", ("runs=2",), cost=20),
+    Experiment("learning", "configs/learning.yaml", "learning", ("record.timeline=1000",), cost=8),
     Experiment("multiplier", "configs/multiplier.yaml", "multiplier", ("runs=1", "steps=2500")),
     Experiment("figure-3", "configs/figure3.yaml", None, ("runs=1", "steps=3000")),
     Experiment("figure-4", "configs/figure4.yaml", None, ("runs=1", "steps=2500")),
@@ -118,7 +120,9 @@ def experiment_dir(out: Path, name: str, quick: bool) -> Path:
 def run_experiment(exp: Experiment, out: Path, quick: bool) -> tuple[str, float, list[str]]:
     """Run (or resume) one experiment; returns (name, seconds, failed point ids)."""
     start = time.monotonic()
-    res = run_sweep(exp.base(quick), exp.points(), experiment_dir(out, exp.name, quick), jobs=1)
+    res = run_sweep(
+        exp.base(quick), exp.points(quick), experiment_dir(out, exp.name, quick), jobs=1
+    )
     return exp.name, time.monotonic() - start, res.failed
 
 
@@ -264,6 +268,8 @@ def _figures() -> dict[str, Figure]:
                 plots.strategies,
                 sweep_key="policy",
             ),
+            Figure("policies", "policies", fd.policies_data, plots.policies, sweep_key="policy"),
+            Figure("learning", "learning", fd.learning_data, plots.learning, sweep_key="policy"),
         )
     }
 
@@ -277,6 +283,8 @@ FIGURE_NAMES = (
     "figure-6",
     "team-size",
     "strategies",
+    "policies",
+    "learning",
 )
 
 

@@ -29,6 +29,7 @@ from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
 from qpatrol.strategies.base import Strategy
+from qpatrol.timeline import Timeline
 
 Progress = Callable[[int, int], None]
 
@@ -50,6 +51,7 @@ class RunResult:
         watch: Q-updates of the watched states (None unless ``record.watch``).
         trajectory: agents' cells over each run's last steps (None unless
             ``record.trajectory``).
+        timeline: idleness in windows of each run (None unless ``record.timeline``).
         summary: one dict of measures per run.
     """
 
@@ -64,6 +66,7 @@ class RunResult:
     transitions: pd.DataFrame | None
     watch: pd.DataFrame | None
     trajectory: pd.DataFrame | None
+    timeline: pd.DataFrame | None
     summary: list[dict[str, Any]]
 
 
@@ -115,9 +118,11 @@ def simulate(
             np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
         )
         tail = Tail(cfg["record.trajectory"], state)
+        timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"])
         first = 0
     else:
-        (state, strategy, watch, streams, rec, tail), first = resumed.payload, resumed.position
+        (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload
+        first = resumed.position
     total = cfg["steps"]
     every = max(1, total // 200)
     for i in range(first, total):
@@ -126,10 +131,11 @@ def simulate(
         out = advance(state, p, strategy, streams.next(), rec)
         watch.observe(out, state.wait, state.charge if p.battery else None)
         tail.observe(state)
+        timeline.observe(out)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
         if checkpoint is not None:
-            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail))
+            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -146,6 +152,7 @@ def simulate(
         transitions=rec.transition_table(),
         watch=rec.watch_table(),
         trajectory=tail.table(state, rec.run_ids, m.coords),
+        timeline=timeline.table(rec.run_ids, state.steps_done),
         summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
     )
 
@@ -192,7 +199,7 @@ def write_run(
     action]``), ``meta.json`` (what
     made it: :mod:`qpatrol.provenance`, from ``meta`` or collected now), ``map.txt``
     (the map file used), and when recorded ``transitions.csv``, ``watch.csv`` and
-    ``trajectory.csv``. A run whose Q-values are not finite is not written
+    ``trajectory.csv`` and ``timeline.csv``. A run whose Q-values are not finite is not written
     (:func:`check_finite`).
     """
     out = Path(out)
@@ -221,6 +228,8 @@ def write_run(
             (tmp / "watch.csv").write_text(to_csv_text(result.watch))
         if result.trajectory is not None:
             (tmp / "trajectory.csv").write_text(to_csv_text(result.trajectory))
+        if result.timeline is not None:
+            (tmp / "timeline.csv").write_text(to_csv_text(result.timeline))
         (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
     return out
 

@@ -163,19 +163,95 @@ def parse_values(key: str, text: str) -> list[Any]:
     return out
 
 
+def listed_points(overrides: Sequence[Mapping[str, Any]]) -> list[Point]:
+    """One point per mapping of ``{key: value}`` overrides, numbered from 0, validated."""
+    if not overrides:
+        raise ConfigError("a sweep needs at least one point")
+    return [
+        Point(i, {k: check_value(k, v) for k, v in ov.items()}) for i, ov in enumerate(overrides)
+    ]
+
+
 class NamedSweep(NamedTuple):
     """A built-in sweep: ``config`` (path relative to the repo root), ``param`` (one key,
-    or a grid ``{key: values}``) and ``values`` (None for a grid)."""
+    a grid ``{key: values}``, or a function giving each point's overrides) and ``values``
+    (None unless ``param`` is one key)."""
 
     config: str
-    param: str | dict[str, list[Any]]
+    param: str | dict[str, list[Any]] | Callable[[bool], list[dict[str, Any]]]
     values: list[Any] | None
 
-    def points(self) -> list[Point]:
-        """The sweep's points."""
+    def points(self, quick: bool = False) -> list[Point]:
+        """The sweep's points (``quick``: the smaller set of ``qpatrol reproduce --quick``,
+        for a sweep whose points set their own steps)."""
         if isinstance(self.param, str):
             return points_for(self.param, self.values or [])
+        if callable(self.param):
+            return listed_points(self.param(quick))
         return grid_points(self.param)
+
+
+#: The maps and team sizes of the policies study (``qpatrol sweep policies``).
+POLICY_MAPS = ("map_a", "map_b", "pacman", "facility")
+POLICY_TEAMS = (1, 2, 4, 8)
+#: Team steps every point of the policies study measures, after its warm-up.
+POLICY_WINDOW = 5_000
+#: Warm-up of a strategy that does not learn (the cyclic robots gather on their slots,
+#: conscientious ones spread out), and of a learner, which improves for much longer.
+POLICY_WARMUP = 2_000
+POLICY_LEARNER_WARMUP = 45_000
+#: Team steps of a learner's run in the learning-over-time experiment (and of the others).
+LEARNING_STEPS = 200_000
+LEARNING_OTHERS_STEPS = 20_000
+
+
+def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every map x strategy x team size, the learners with their longer warm-up.
+
+    ``quick``: two maps, K = 1 and 4, and short runs (a smoke test, not a result).
+    """
+    from qpatrol.strategies import learns
+
+    maps, teams = (("map_b", "pacman"), (1, 4)) if quick else (POLICY_MAPS, POLICY_TEAMS)
+    window, warmup, learner = (
+        (500, 200, 1000)
+        if quick
+        else (
+            POLICY_WINDOW,
+            POLICY_WARMUP,
+            POLICY_LEARNER_WARMUP,
+        )
+    )
+    points = []
+    for m in maps:
+        for name in STRATEGY_NAMES:
+            warm = learner if learns(name) else warmup
+            for k in teams:
+                points.append(
+                    {
+                        "map": m,
+                        "policy": name,
+                        "agents": k,
+                        "steps": warm + window,
+                        "record.warmup": warm,
+                    }
+                )
+    return points
+
+
+def learning_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy but ``random``: learners for a long run, the others shorter.
+
+    ``quick``: 6,000 and 2,000 steps (with ``record.timeline=1000`` from the quick mode).
+    """
+    from qpatrol.strategies import learns
+
+    long, short = (6_000, 2_000) if quick else (LEARNING_STEPS, LEARNING_OTHERS_STEPS)
+    return [
+        {"policy": name, "steps": long if learns(name) else short}
+        for name in STRATEGY_NAMES
+        if name != "random"
+    ]
 
 
 NAMED_SWEEPS: dict[str, NamedSweep] = {
@@ -193,6 +269,8 @@ NAMED_SWEEPS: dict[str, NamedSweep] = {
         {"policy": list(STRATEGY_NAMES), "agents": [1, 2, 4, 8]},
         None,
     ),
+    "policies": NamedSweep("configs/policies.yaml", policies_overrides, None),
+    "learning": NamedSweep("configs/learning.yaml", learning_overrides, None),
 }
 
 

@@ -35,6 +35,11 @@ def strategy_class(name: str) -> type[Strategy]:
     return module.Strategy
 
 
+def learns(name: str) -> bool:
+    """True when policy ``name`` learns as it patrols (and so needs a longer warm-up)."""
+    return strategy_class(name).learns
+
+
 def make(name: str, *args: Any, **kwargs: Any) -> Strategy:
     """A new strategy of policy ``name`` (arguments as :class:`base.Strategy`)."""
     return strategy_class(name)(*args, **kwargs)

@@ -37,6 +37,8 @@ class Strategy:
     """
 
     name: ClassVar[str] = "base"
+    #: True for a strategy that learns as it patrols (it needs a warm-up to settle).
+    learns: ClassVar[bool] = False
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         self.cfg = cfg

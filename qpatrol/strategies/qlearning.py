@@ -35,6 +35,7 @@ class Strategy(base.Strategy):
     """Tabular Q-learning; ``q`` and ``n`` are ``[R, K, C, 4 heading, 4 action]``."""
 
     name = "qlearning"
+    learns = True
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)
