@@ -596,7 +596,8 @@ def grouped_data(
             "map": [
                 folder_map(p, c).name for p, c in zip(points["path"], points["config"], strict=True)
             ],
-            **{k: [c[k] for c in points["config"]] for k in swept},
+            # a swept map is grouped by the map's name (above), not by its path
+            **{k: [c[k] for c in points["config"]] for k in swept if k != "map"},
         }
     )
     res = res.drop(columns=[c for c in keyed.columns if c != "point" and c in res.columns])

@@ -275,3 +275,74 @@ def test_plots_write_images(folders, tmp_path, tiny_map):
     gif, still = plots.figure_5(tr, tmp_path / "f5.gif", frames=10, trail=4)
     assert gif.read_bytes()[:6] in (b"GIF89a", b"GIF87a")
     assert still.read_bytes()[:8] == PNG
+
+
+RING12 = "; name: ring12\n....\n.##.\n.##.\n....\n"
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory, tiny_map):
+    """A policies-like sweep over two maps, a learner and two classic strategies, K = 1, 2;
+    and a learning-like sweep with record.timeline."""
+    root = tmp_path_factory.mktemp("study")
+    ring = root / "ring12.txt"
+    ring.write_text(RING12)
+    flat = base(tiny_map, steps=300, **{"record.warmup": 100})
+    pol = make_sweep(
+        root / "policies",
+        flat,
+        {
+            "map": [tiny_map, str(ring)],
+            "policy": ["qlearning", "conscientious", "cyclic"],
+            "agents": [1, 2],
+        },
+    )
+    learn = make_sweep(
+        root / "learning",
+        base(str(ring), steps=120, **{"record.timeline": 12}),
+        {"policy": ["qlearning", "cyclic"]},
+    )
+    return pol, learn
+
+
+def test_policies_data(study):
+    df = figures.policies_data(study[0])
+    assert len(df) == 2 * 3 * 2
+    assert list(dict.fromkeys(df["map"])) == ["tiny", "ring12"]  # sweep order
+    ring = df[df["map"] == "ring12"]
+    # the closed walk through the 12-ring is the ring itself: L = 12, L/K = 12/K
+    assert (ring["walk_length"] == 12).all()
+    assert (
+        sorted(zip(ring["agents"], ring["bound_per_robot"], strict=True))
+        == [(1, 12.0)] * 3 + [(2, 6.0)] * 3
+    )
+    # a cyclic robot on the ring: every cell every 12 steps, whatever happened before
+    cyc = ring[(ring["policy"] == "cyclic") & (ring["agents"] == 1)].iloc[0]
+    assert cyc["mean_interval_mean"] == 12 and cyc["avg_idleness_mean"] == 5.5
+    assert (df["warmup"] == 100).all() and (df["window"] == 200).all()
+    assert df.set_index("policy")["learns"].to_dict() == {
+        "qlearning": True,
+        "conscientious": False,
+        "cyclic": False,
+    }
+
+
+def test_learning_data(study):
+    df = figures.learning_data(study[1])
+    assert set(df["policy"]) == {"qlearning", "cyclic"}
+    cyc = df[df["policy"] == "cyclic"].sort_values("window")
+    assert list(cyc["last_step"]) == list(range(12, 121, 12))
+    late = cyc[cyc["window"] >= 2]
+    assert (late["avg_idleness_mean"] == 5.5).all() and (late["worst_idleness_mean"] == 11).all()
+    assert (df["runs"] == 2).all()
+
+
+def test_study_plots_write_images(study, tmp_path):
+    for name, data, draw in (
+        ("policies", figures.policies_data, plots.policies),
+        ("learning", figures.learning_data, plots.learning),
+    ):
+        folder = study[0] if name == "policies" else study[1]
+        csv = tmp_path / f"{name}.csv"
+        csv.write_text(to_csv_text(data(folder)))
+        assert draw(csv, tmp_path / f"{name}.png").read_bytes()[:8] == PNG

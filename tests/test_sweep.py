@@ -387,3 +387,32 @@ def test_edited_map_is_not_resumed(tmp_path: Path):
     m.write_text("0....\n.#.#.\n....o\n")
     with pytest.raises(ConfigError, match="has changed since the sweep started"):
         run_sweep(base, pts, tmp_path / "s")
+
+
+def test_policies_and_learning_sweeps():
+    """Every map x strategy x team size; each point measures the same window, learners
+    after a longer warm-up; the quick set is a subset with the same rule."""
+    from qpatrol import sweep as sw
+    from qpatrol.strategies import NAMES, learns
+
+    for quick in (False, True):
+        pts = NAMED_SWEEPS["policies"].points(quick)
+        ov = [p.overrides for p in pts]
+        maps = {o["map"] for o in ov}
+        teams = {o["agents"] for o in ov}
+        assert len(pts) == len(maps) * len(NAMES) * len(teams)
+        assert {o["policy"] for o in ov} == set(NAMES)
+        windows = {o["steps"] - o["record.warmup"] for o in ov}
+        assert len(windows) == 1
+        for o in ov:
+            longer = o["record.warmup"] > min(x["record.warmup"] for x in ov)
+            assert longer == learns(o["policy"])
+    full = [p.overrides for p in NAMED_SWEEPS["policies"].points()]
+    assert (
+        {o["map"] for o in full} == set(sw.POLICY_MAPS) == {"map_a", "map_b", "pacman", "facility"}
+    )
+    assert {o["agents"] for o in full} == {1, 2, 4, 8}
+    assert full[0]["steps"] - full[0]["record.warmup"] == sw.POLICY_WINDOW
+    learning = [p.overrides for p in NAMED_SWEEPS["learning"].points()]
+    assert {o["policy"] for o in learning} == set(NAMES) - {"random"}
+    assert all((o["steps"] == sw.LEARNING_STEPS) == learns(o["policy"]) for o in learning)

@@ -1,0 +1,73 @@
+"""Report sections computed from hand-made figure tables (qpatrol.report)."""
+
+from __future__ import annotations
+
+import pandas as pd
+
+from qpatrol import report
+
+
+def study_table(rows: list[tuple]) -> pd.DataFrame:
+    """A policies table: (map, K, policy, learns, avg, worst) per row, 10 runs each."""
+    df = pd.DataFrame(rows, columns=["map", "agents", "policy", "learns", "avg", "worst"])
+    out = pd.DataFrame(
+        {
+            "map": df["map"],
+            "agents": df["agents"],
+            "policy": df["policy"],
+            "learns": df["learns"],
+            "runs": 10,
+            "frozen": 0,
+            "avg_idleness_mean": df["avg"],
+            "avg_idleness_n": 10,
+            "worst_idleness_mean": df["worst"],
+            "walk_length": 20,
+            "bound_per_robot": 20 / df["agents"],
+            "warmup": [5000 if x else 100 for x in df["learns"]],
+            "window": 1000,
+        }
+    )
+    return out
+
+
+def test_policies_section_by_hand():
+    fig = study_table(
+        [
+            ("m", 1, "qlearning", True, 30.0, 200),
+            ("m", 1, "conscientious", False, 10.0, 40),
+            ("m", 1, "cyclic", False, 12.0, 20),
+            ("m", 2, "qlearning", True, 4.0, 30),
+            ("m", 2, "conscientious", False, 5.0, 25),
+            ("m", 2, "cyclic", False, 6.0, 10),
+        ]
+    )
+    sec = report.policies(fig)
+    text = "\n".join(sec.findings)
+    # K = 1: best average 10 (conscientious), learner 30 = 3x; best worst 20 (cyclic), 200 = 10x
+    assert "| m | 1 | 20 | 10 (conscientious) | 20 (cyclic) | 30 (3x) | 200 (10x) |" in text
+    # K = 2: the learner wins on average (4 against 5: 0.8x), loses on worst (30 / 10 = 3x)
+    assert "| m | 2 | 10 | 5 (conscientious) | 10 (cyclic) | 4 (0.8x) | 30 (3x) |" in text
+    assert "beats the best classic strategy's average idleness on 1 of 2" in text
+    assert "0.8 times the best at its closest (m, K = 2) and 3 times at its farthest" in text
+    assert "100 steps for the strategies that do not learn, 5,000 for the learners" in text
+
+
+def test_learning_section_by_hand():
+    rows = []
+    for w, avg in enumerate([100.0, 60.0, 40.0, 30.0]):
+        rows.append(("qlearning", True, w, (w + 1) * 10, avg))
+    for w in range(3):
+        rows.append(("cyclic", False, w, (w + 1) * 10, 50.0 if w == 0 else 35.0))
+    df = pd.DataFrame(
+        rows, columns=["policy", "learns", "window", "last_step", "avg_idleness_mean"]
+    )
+    df["avg_idleness_lo"] = df["avg_idleness_mean"] - 1
+    df["avg_idleness_hi"] = df["avg_idleness_mean"] + 1
+    df["worst_idleness_mean"] = df["avg_idleness_mean"] * 4
+    df["runs"], df["map"], df["agents"] = 4, "m", 2
+    text = "\n".join(report.learning(df).findings)
+    # cyclic's level is the mean after its first window: 35; the learner first gets to 30
+    # <= 35 in window 3, ending at step 40; half of 100 -> 30 is 65, reached at step 20
+    assert "cyclic 35" in text
+    assert "first reaches cyclic's level (35) in the window ending at step 40" in text
+    assert "Half of its improvement is made by step 20" in text
