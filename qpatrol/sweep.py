@@ -195,18 +195,18 @@ class NamedSweep(NamedTuple):
 POLICY_MAPS = ("map_a", "map_b", "pacman", "facility")
 POLICY_TEAMS = (1, 2, 4, 8)
 #: Team steps every point of the policies study measures, after its warm-up.
-POLICY_WINDOW = 5_000
+POLICY_WINDOW = 4_000
 #: Warm-up of a strategy that does not learn (the cyclic robots gather on their slots,
 #: conscientious ones spread out), and of a learner, which improves for much longer.
-POLICY_WARMUP = 2_000
-POLICY_LEARNER_WARMUP = 45_000
+POLICY_WARMUP = 1_000
+POLICY_LEARNER_WARMUP = 20_000
 #: Team steps of a learner's run in the learning-over-time experiment (and of the others).
 LEARNING_STEPS = 200_000
 LEARNING_OTHERS_STEPS = 20_000
 
 
 def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
-    """Every map x strategy x team size, the learners with their longer warm-up.
+    """Every strategy x map x team size, the learners with their longer warm-up.
 
     ``quick``: two maps, K = 1 and 4, and short runs (a smoke test, not a result).
     """
@@ -223,9 +223,9 @@ def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
         )
     )
     points = []
-    for m in maps:
-        for name in STRATEGY_NAMES:
-            warm = learner if learns(name) else warmup
+    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
+        warm = learner if learns(name) else warmup
+        for m in maps:
             for k in teams:
                 points.append(
                     {
