@@ -622,8 +622,9 @@ def build(
         lines += [
             "## Run time",
             "",
-            f"Measured on the machine that wrote this report ({os.cpu_count()} cores), "
-            "experiments run two at a time:",
+            f"Measured on the machine that wrote this report ({os.cpu_count()} cores). The "
+            "points of every experiment share the workers (`--jobs`), the longest first; "
+            "'seconds' sums the run time of an experiment's points:",
             "",
             "| experiment | seconds |",
             "|---|---|",

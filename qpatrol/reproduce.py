@@ -24,6 +24,7 @@ import threading
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from datetime import datetime
 from pathlib import Path
 from typing import Any
 
@@ -32,7 +33,7 @@ import pandas as pd
 from qpatrol import atomic, limits, provenance
 from qpatrol.config import Config, ConfigError, find_config, load_config
 from qpatrol.records import to_csv_text
-from qpatrol.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep
+from qpatrol.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep, run_sweeps
 
 REPO = Path(__file__).resolve().parent.parent
 #: Where the quick references live, relative to the folder qpatrol is run from.
@@ -48,14 +49,12 @@ class Experiment:
         config: config path relative to the repository root.
         sweep: a named sweep (``qpatrol sweep NAME``) or None for the config alone.
         quick: ``KEY=VALUE`` overrides that make ``--quick`` fast.
-        cost: rough relative run time, to start the longest first.
     """
 
     name: str
     config: str
     sweep: str | None = None
     quick: tuple[str, ...] = ()
-    cost: float = 1.0
 
     def base(self, quick: bool) -> Config:
         """The experiment's config, with the quick overrides when asked."""
@@ -72,30 +71,27 @@ class Experiment:
 
 
 EXPERIMENTS: tuple[Experiment, ...] = (
-    Experiment("team", "configs/figure6.yaml", None, ("runs=1", "episodes=25"), cost=10),
+    Experiment("team", "configs/figure6.yaml", None, ("runs=1", "episodes=25")),
     Experiment(
         "team-size",
         "configs/team_size.yaml",
         "team-size",
         ("runs=2", "steps=1500", "record.warmup=500"),
-        cost=3,
     ),
     Experiment(
         "gamma",
         "configs/gamma.yaml",
         "gamma",
         ("runs=3", "steps=4000", "max_episode_steps=4000"),
-        cost=2,
     ),
     Experiment(
         "strategies",
         "configs/strategies.yaml",
         "strategies",
         ("runs=2", "steps=1500", "record.warmup=500"),
-        cost=4,
     ),
-    Experiment("policies", "configs/policies.yaml", "policies", ("runs=2",), cost=20),
-    Experiment("learning", "configs/learning.yaml", "learning", ("record.timeline=1000",), cost=8),
+    Experiment("policies", "configs/policies.yaml", "policies", ("runs=2",)),
+    Experiment("learning", "configs/learning.yaml", "learning", ("record.timeline=1000",)),
     Experiment("multiplier", "configs/multiplier.yaml", "multiplier", ("runs=1", "steps=2500")),
     Experiment("figure-3", "configs/figure3.yaml", None, ("runs=1", "steps=3000")),
     Experiment("figure-4", "configs/figure4.yaml", None, ("runs=1", "steps=2500")),
@@ -118,12 +114,27 @@ def experiment_dir(out: Path, name: str, quick: bool) -> Path:
 
 
 def run_experiment(exp: Experiment, out: Path, quick: bool) -> tuple[str, float, list[str]]:
-    """Run (or resume) one experiment; returns (name, seconds, failed point ids)."""
+    """Run (or resume) one experiment alone; returns (name, seconds, failed point ids)."""
     start = time.monotonic()
     res = run_sweep(
         exp.base(quick), exp.points(quick), experiment_dir(out, exp.name, quick), jobs=1
     )
     return exp.name, time.monotonic() - start, res.failed
+
+
+def point_seconds(folder: Path) -> float:
+    """Seconds the points of an experiment folder took, summed (from each point's
+    ``meta.json`` start and end); 0 for points computed by an older qpatrol."""
+    total = 0.0
+    for meta in sorted(Path(folder).glob("points/*/meta.json")):
+        info = provenance.read_meta(meta.parent) or {}
+        try:
+            started = datetime.fromisoformat(str(info["started"]))
+            ended = datetime.fromisoformat(str(info["ended"]))
+        except (KeyError, TypeError, ValueError):
+            continue
+        total += (ended - started).total_seconds()
+    return total
 
 
 def run_all(
@@ -133,22 +144,19 @@ def run_all(
     log: Callable[[str], None] = print,
     progress: Callable[[float, float], None] | None = None,
 ) -> dict[str, float]:
-    """Run every experiment, the costliest first, ``jobs`` at a time; seconds per experiment.
+    """Run every experiment's points in one pool of ``jobs`` workers, the costliest
+    first; returns each experiment's summed point run time in seconds (0.0 for an
+    experiment resumed whole).
 
     ``progress(runs_done, runs_total)`` is called about twice a second, counting the runs
     of every experiment (those of running points by their share of steps done).
     """
-    from joblib import Parallel, delayed
-
     limits.check_jobs(jobs)
-    todo = sorted(EXPERIMENTS, key=lambda e: -e.cost)
-    seconds: dict[str, float] = {}
-    failed: list[str] = []
-    total = sum(e.runs(quick) for e in todo)
+    total = sum(e.runs(quick) for e in EXPERIMENTS)
     stop = threading.Event()
 
     def runs_done() -> float:
-        return sum(progress_of(experiment_dir(out, e.name, quick))[0] for e in todo)
+        return sum(progress_of(experiment_dir(out, e.name, quick))[0] for e in EXPERIMENTS)
 
     def poll() -> None:
         shown = -1.0
@@ -163,19 +171,29 @@ def run_all(
     watcher = threading.Thread(target=poll, daemon=True) if progress is not None else None
     if watcher is not None:
         watcher.start()
+    sweeps = [
+        (e.base(quick), e.points(quick), experiment_dir(out, e.name, quick)) for e in EXPERIMENTS
+    ]
     try:
-        tasks = (delayed(run_experiment)(e, out, quick) for e in todo)
-        runner = Parallel(n_jobs=min(jobs, len(todo)), return_as="generator_unordered")
-        for i, (name, secs, bad) in enumerate(runner(tasks), start=1):
-            seconds[name] = secs
-            failed += [f"{name}/{p}" for p in bad]
-            log(f"[{i}/{len(todo)}] {name}: {secs:.1f} s" + (f", FAILED {bad}" if bad else ""))
+        results = run_sweeps(sweeps, jobs=jobs, meta=provenance.collect())
     finally:
         stop.set()
         if watcher is not None:
             watcher.join()
     if progress is not None:
         progress(total, total)
+    failed: list[str] = []
+    seconds: dict[str, float] = {}
+    for i, (exp, res) in enumerate(zip(EXPERIMENTS, results, strict=True), start=1):
+        failed += [f"{exp.name}/{p}" for p in res.failed]
+        seconds[exp.name] = point_seconds(res.out) if res.done else 0.0
+        ran = f"{len(res.done)} points run" + (
+            f", {len(res.skipped)} resumed" if res.skipped else ""
+        )
+        log(
+            f"[{i}/{len(EXPERIMENTS)}] {exp.name}: {ran}, {seconds[exp.name]:.1f} s"
+            + (f", FAILED {res.failed}" if res.failed else "")
+        )
     if failed:
         raise RuntimeError(f"experiment points failed: {', '.join(failed)}")
     return seconds

@@ -349,12 +349,122 @@ def run_sweep(
             (one line). A point whose run raises does not raise here: it is recorded
             in ``points/<id>.failed.json`` and listed in ``SweepResult.failed``.
     """
-    out = Path(out).resolve()
     if backend not in BACKENDS:
         raise ConfigError(f"backend: got {backend!r}; allowed: one of {', '.join(BACKENDS)}")
     limits.check_jobs(jobs)
     if scheduler is not None and backend != "dask":
         raise ConfigError("scheduler: only used with backend 'dask'")
+    meta = dict(meta) if meta is not None else provenance.collect()
+    with contextlib.ExitStack() as stack:
+        sw = _open(stack, base, points, out, force, meta)
+        if progress is not None:
+            progress(sw.done_runs, sw.total)
+        runs_of = {p.id: c["runs"] for p, c in sw.todo}
+        tracker = _Tracker(sw.pdir, runs_of, sw.done_runs, sw.total, progress)
+        try:
+            for pid, error in _execute(sw.todo, sw.pdir, jobs, backend, scheduler, sw.maps, meta):
+                sw.record(pid, error)
+                tracker.finished(pid)
+        finally:
+            tracker.stop()
+        return sw.close(meta)
+
+
+def run_sweeps(
+    sweeps: Sequence[tuple[Config, list[Point], str | Path]],
+    jobs: int = 1,
+    meta: dict[str, Any] | None = None,
+    cost: Callable[[Config], float] | None = None,
+) -> list[SweepResult]:
+    """Run several sweeps' points in one pool of ``jobs`` workers (joblib).
+
+    As :func:`run_sweep` for each ``(base, points, out)``, but the points of all of them
+    share the workers, the costliest first (``cost(config)``, default steps x (1 +
+    agents)), so that a large sweep never runs on one core while the others idle. Each
+    sweep folder is the same as :func:`run_sweep` would write, and resumes the same way.
+    """
+    limits.check_jobs(jobs)
+    meta = dict(meta) if meta is not None else provenance.collect()
+    cost = cost or (lambda c: float(c["steps"]) * (1 + c["agents"]))
+    with contextlib.ExitStack() as stack:
+        opened = [_open(stack, base, points, out, False, meta) for base, points, out in sweeps]
+        tasks: list[tuple[float, int, Point, Config, Any]] = []
+        for i, sw in enumerate(opened):
+            for point, cfg in sw.todo:
+                m = _load_map(cfg["map"], sw.maps)
+                if isinstance(m, BaseException):
+                    sw.record(point.id, _record_failure(sw.pdir, point, m))
+                else:
+                    tasks.append((cost(cfg), i, point, cfg, m))
+        tasks.sort(key=lambda x: -x[0])
+        if tasks:
+            from joblib import Parallel, delayed, effective_n_jobs
+
+            n = min(effective_n_jobs(jobs), len(tasks))
+            calls = (
+                delayed(_run_indexed)(i, point, cfg, m, opened[i].pdir, meta)
+                for _, i, point, cfg, m in tasks
+            )
+            if n == 1:
+                finished = (
+                    _run_indexed(i, p, c, m, opened[i].pdir, meta) for _, i, p, c, m in tasks
+                )
+            else:
+                finished = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")(
+                    calls
+                )
+            for i, (pid, error) in finished:
+                opened[i].record(pid, error)
+        return [sw.close(meta) for sw in opened]
+
+
+def _run_indexed(
+    i: int, point: Point, cfg: Config, m: Any, pdir: Path, meta: dict[str, Any]
+) -> tuple[int, tuple[str, str | None]]:
+    return i, _run_point(point, cfg, m, pdir, meta)
+
+
+@dataclass
+class _Open:
+    """A sweep folder set up and locked: what is left to run, and what happened."""
+
+    out: Path
+    points: list[Point]
+    pdir: Path
+    maps: dict[str, Any]
+    todo: list[tuple[Point, Config]]
+    result: SweepResult
+    done_runs: int
+    total: int
+
+    def record(self, pid: str, error: str | None) -> None:
+        if error is None:
+            self.result.done.append(pid)
+        else:
+            self.result.failed.append(pid)
+            self.result.errors[pid] = error
+
+    def close(self, meta: dict[str, Any]) -> SweepResult:
+        """Sort the outcome, write ``results.csv`` and ``meta.json``."""
+        order = {p.id: p.index for p in self.points}
+        self.result.done.sort(key=order.__getitem__)
+        self.result.failed.sort(key=order.__getitem__)
+        self.result.results = write_results(self.out, self.points)
+        atomic.write_text(self.out / provenance.META_FILE, provenance.meta_text(meta))
+        return self.result
+
+
+def _open(
+    stack: contextlib.ExitStack,
+    base: Config,
+    points: list[Point],
+    out: str | Path,
+    force: bool,
+    meta: dict[str, Any],
+) -> _Open:
+    """Validate a sweep, lock its folder (until ``stack`` closes), write ``sweep.json``
+    and list the points not yet complete."""
+    out = Path(out).resolve()
     configs = _point_configs(base, points)
     maps: dict[str, Any] = {}
     for point, cfg in zip(points, configs, strict=True):
@@ -366,57 +476,33 @@ def run_sweep(
                 raise ConfigError(f"sweep point {point.id}: {e}") from None
     spec = _describe(base, points)
     outputs.check_sweep_target(out, force)
-    meta = dict(meta) if meta is not None else provenance.collect()
-
     if not force:
         _check_same_sweep(out, spec)  # read-only: a mismatch writes nothing
     out.mkdir(parents=True, exist_ok=True)
-    with _lock(out):
-        pdir = out / POINTS_DIR
-        if force:
-            shutil.rmtree(pdir, ignore_errors=True)
-            (out / RESULTS_FILE).unlink(missing_ok=True)
+    stack.enter_context(_lock(out))
+    pdir = out / POINTS_DIR
+    if force:
+        shutil.rmtree(pdir, ignore_errors=True)
+        (out / RESULTS_FILE).unlink(missing_ok=True)
+    else:
+        _check_same_sweep(out, spec)  # again, now that we hold the lock
+    if force or not (out / SWEEP_FILE).exists():
+        atomic.write_text(out / SWEEP_FILE, json.dumps(spec, indent=2) + "\n")
+    _remove_stray_tmp(out)
+    pdir.mkdir(exist_ok=True)
+    _remove_stray_tmp(pdir)
+    result = SweepResult(out=out, points=list(points))
+    done_runs = 0
+    todo: list[tuple[Point, Config]] = []
+    for point, cfg in zip(points, configs, strict=True):
+        if (pdir / point.id).is_dir():
+            (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
+            result.skipped.append(point.id)
+            done_runs += cfg["runs"]
         else:
-            _check_same_sweep(out, spec)  # again, now that we hold the lock
-        if force or not (out / SWEEP_FILE).exists():
-            atomic.write_text(out / SWEEP_FILE, json.dumps(spec, indent=2) + "\n")
-        _remove_stray_tmp(out)
-        pdir.mkdir(exist_ok=True)
-        _remove_stray_tmp(pdir)
-
-        result = SweepResult(out=out, points=list(points))
-        total = sum(c["runs"] for c in configs)
-        done_runs = 0
-        todo: list[tuple[Point, Config]] = []
-        for point, cfg in zip(points, configs, strict=True):
-            if (pdir / point.id).is_dir():
-                (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
-                result.skipped.append(point.id)
-                done_runs += cfg["runs"]
-            else:
-                todo.append((point, cfg))
-        if progress is not None:
-            progress(done_runs, total)
-
-        runs_of = {p.id: c["runs"] for p, c in zip(points, configs, strict=True)}
-        tracker = _Tracker(pdir, {p.id: runs_of[p.id] for p, _ in todo}, done_runs, total, progress)
-        try:
-            for pid, error in _execute(todo, pdir, jobs, backend, scheduler, maps, meta):
-                if error is None:
-                    result.done.append(pid)
-                else:
-                    result.failed.append(pid)
-                    result.errors[pid] = error
-                tracker.finished(pid)
-        finally:
-            tracker.stop()
-
-        order = {p.id: p.index for p in points}
-        result.done.sort(key=order.__getitem__)
-        result.failed.sort(key=order.__getitem__)
-        result.results = write_results(out, points)
-        atomic.write_text(out / provenance.META_FILE, provenance.meta_text(meta))
-    return result
+            todo.append((point, cfg))
+    total = sum(c["runs"] for c in configs)
+    return _Open(out, list(points), pdir, maps, todo, result, done_runs, total)
 
 
 def read_progress(path: Path) -> float:
