@@ -9,6 +9,7 @@ patrol measures with :func:`qpatrol.run.simulate` on the same config and seed.
 from __future__ import annotations
 
 import importlib.util
+import subprocess
 import sys
 import warnings
 from pathlib import Path
@@ -248,3 +249,13 @@ def test_example_runs():
     spec.loader.exec_module(module)
     m = module.main(steps=300, seed=1)
     assert m["steps"] == 300 and m["avg_idleness"] > 0
+
+
+def test_core_does_not_import_the_rl_libraries():
+    """The base install works without pettingzoo/gymnasium: only qpatrol.envs imports them."""
+    code = (
+        "import sys, qpatrol.run, qpatrol.cli, qpatrol.sweep, qpatrol.reproduce\n"
+        "bad = [m for m in ('pettingzoo', 'gymnasium') if m in sys.modules]\n"
+        "assert not bad, bad\n"
+    )
+    subprocess.run([sys.executable, "-c", code], check=True, cwd=ROOT)
