@@ -95,7 +95,7 @@ def test_spaces_are_stable_and_observation_layout():
     obs, infos = env.reset(seed=5)
     c = env.params.n_cells
     assert obs[a].shape == (len(FEATURES) + c,) and obs[a].dtype == np.float32
-    s = env.state
+    s = env.world_state
     k = 1
     assert obs[a][0] == s.pos[0, k] and obs[a][3] == s.head[0, k] and obs[a][4] == s.charge[0, k]
     walls = env.params.neighbors[s.pos[0, k]] < 0
@@ -155,7 +155,7 @@ def test_qlearning_through_the_env_reproduces_train(train_run):
     cfg, res = train_run
     env = PatrolParallelEnv(cfg)
     obs, infos = env.reset(seed=cfg["seed"])  # run 0 of train
-    learner = strategies.make("qlearning", cfg, env.map, env.params, env.state.pos.copy())
+    learner = strategies.make("qlearning", cfg, env.map, env.params, env.world_state.pos.copy())
     cells, world_moved = [], 0
     while env.agents:
         wo = env.world_observation
@@ -186,15 +186,15 @@ def test_metrics_match_simulate_for_a_baseline_team():
     res = run.simulate(cfg)
     env = PatrolEnv(cfg, teammates="conscientious", agent=2)
     env.reset(seed=9, options={"run": 2})
-    mirror = strategies.make("conscientious", cfg, env.sim.map, env.sim.params, env.sim.starts)
+    mirror = strategies.make("conscientious", cfg, env.map, env.params, env.world_state.pos.copy())
     done = False
     while not done:
-        action = mirror.act(env.sim.obs, env.sim.uniforms[None])[0, 2]
+        action = mirror.act(env.world_observation, env.uniforms[None])[0, 2]
         _, _, term, trunc, _ = env.step(int(max(action, 0)))
-        mirror.learn(env.sim.outcome)
+        mirror.learn(env.last_outcome)
         done = term or trunc
     assert env.metrics() == res.summary[2]
-    assert np.array_equal(env.state.pos, res.state.pos[2:3])
+    assert np.array_equal(env.world_state.pos, res.state.pos[2:3])
 
 
 def test_render_modes():

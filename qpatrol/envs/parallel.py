@@ -10,15 +10,14 @@ import numpy as np
 from gymnasium import spaces
 from pettingzoo import ParallelEnv
 
-from qpatrol import world
 from qpatrol.config import Config
 from qpatrol.envs import observe, render
-from qpatrol.envs.sim import Sim, make_config
+from qpatrol.envs.sim import Sim, WorldView, make_config
 
 RENDER_MODES = ("rgb_array", "ansi")
 
 
-class PatrolParallelEnv(ParallelEnv):
+class PatrolParallelEnv(WorldView, ParallelEnv):
     """A team of patrol robots, one PettingZoo agent each (``agent_0`` .. ``agent_{K-1}``).
 
     The world is qpatrol's own (:mod:`qpatrol.world`): the same maps, rewards, battery,
@@ -78,7 +77,7 @@ class PatrolParallelEnv(ParallelEnv):
         config: str | Path | Config | None = None,
         overrides: Iterable[str] = (),
         *,
-        map: str | None = None,  # noqa: A002 (the config key's name)
+        map: str | None = None,
         agents: int | None = None,
         max_steps: int | None = None,
         idleness_map: bool = False,
@@ -109,42 +108,6 @@ class PatrolParallelEnv(ParallelEnv):
 
     def action_space(self, agent: str) -> spaces.Discrete:
         return self.action_spaces[agent]
-
-    # --- what the world says ------------------------------------------------------------
-    @property
-    def map(self):
-        """The :class:`~qpatrol.maps.Map`."""
-        return self.sim.map
-
-    @property
-    def params(self) -> world.Params:
-        return self.sim.params
-
-    @property
-    def state(self) -> world.State:
-        """The world (``R = 1``); read only."""
-        return self.sim.state
-
-    @property
-    def world_observation(self) -> world.Observation:
-        """What a qpatrol strategy sees before the step about to be taken."""
-        return self.sim.obs
-
-    @property
-    def uniforms(self) -> np.ndarray:
-        """float ``[K, 2]``: the uniforms ``train`` would give its strategy this step."""
-        return self.sim.uniforms
-
-    @property
-    def last_outcome(self) -> world.Outcome | None:
-        """The :class:`~qpatrol.world.Outcome` of the last step (what strategies learn from)."""
-        return self.sim.outcome
-
-    def metrics(self) -> dict[str, Any]:
-        """Patrol measures of the run so far, computed by :mod:`qpatrol.measures`
-        exactly as ``train`` does (``avg_idleness``, ``worst_idleness``,
-        ``mean_interval``, ``max_interval``, ``coverage``, ...)."""
-        return self.sim.metrics()
 
     # --- the PettingZoo API -------------------------------------------------------------
     def reset(

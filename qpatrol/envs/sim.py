@@ -26,6 +26,7 @@ import numpy as np
 
 from qpatrol import measures, run, world
 from qpatrol.config import Config, from_flat, load_config
+from qpatrol.maps import Map
 from qpatrol.records import Recorder
 from qpatrol.rng import Streams, run_seeds
 
@@ -33,7 +34,7 @@ from qpatrol.rng import Streams, run_seeds
 def make_config(
     config: str | Path | Config | None = None,
     overrides: Iterable[str] = (),
-    map: str | None = None,  # noqa: A002 (the config key's name)
+    map: str | None = None,
     agents: int | None = None,
 ) -> Config:
     """The config of an env: a YAML path or shipped name, a Config, or None (defaults).
@@ -194,3 +195,45 @@ class Sim:
         bound = measures.wait_bound(self.params)
         steps = self.state.steps_done
         return measures.summarize(self.measures, episodes, self.recorder.run_ids, steps, bound)[0]
+
+
+class WorldView:
+    """What both envs expose of their :class:`Sim` (``self.sim``), for qpatrol code."""
+
+    sim: Sim
+
+    @property
+    def map(self) -> Map:
+        """The :class:`~qpatrol.maps.Map`."""
+        return self.sim.map
+
+    @property
+    def params(self) -> world.Params:
+        """The world's parameters."""
+        return self.sim.params
+
+    @property
+    def world_state(self) -> world.State:
+        """The world (``R = 1``); read only."""
+        return self.sim.state
+
+    @property
+    def world_observation(self) -> world.Observation:
+        """What a qpatrol strategy sees before the step about to be taken."""
+        return self.sim.obs
+
+    @property
+    def uniforms(self) -> np.ndarray:
+        """float ``[K, 2]``: the uniforms ``train`` would give its strategy this step."""
+        return self.sim.uniforms
+
+    @property
+    def last_outcome(self) -> world.Outcome | None:
+        """The :class:`~qpatrol.world.Outcome` of the last step (what strategies learn from)."""
+        return self.sim.outcome
+
+    def metrics(self) -> dict[str, Any]:
+        """Patrol measures of the run so far, computed by :mod:`qpatrol.measures` exactly
+        as ``train`` does (``avg_idleness``, ``worst_idleness``, ``mean_interval``,
+        ``max_interval``, ``coverage``, ...): :meth:`Sim.metrics`."""
+        return self.sim.metrics()

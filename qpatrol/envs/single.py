@@ -10,14 +10,14 @@ import gymnasium
 import numpy as np
 from gymnasium import spaces
 
-from qpatrol import strategies, world
+from qpatrol import strategies
 from qpatrol.config import Config
 from qpatrol.envs import observe, render
 from qpatrol.envs.parallel import RENDER_MODES, _direction
-from qpatrol.envs.sim import Sim, make_config
+from qpatrol.envs.sim import Sim, WorldView, make_config
 
 
-class PatrolEnv(gymnasium.Env):
+class PatrolEnv(WorldView, gymnasium.Env):
     """Robot ``agent`` of a patrol team; the others, if any, run a qpatrol strategy.
 
     Args:
@@ -45,7 +45,7 @@ class PatrolEnv(gymnasium.Env):
         config: str | Path | Config | None = None,
         overrides: Iterable[str] = (),
         *,
-        map: str | None = None,  # noqa: A002 (the config key's name)
+        map: str | None = None,
         agents: int | None = None,
         teammates: str | None = None,
         agent: int = 0,
@@ -86,15 +86,6 @@ class PatrolEnv(gymnasium.Env):
         )
         self.observation_space = spaces.Box(low, high, dtype=np.float32)
         self.action_space = spaces.Discrete(4)
-
-    @property
-    def state(self) -> world.State:
-        """The world (``R = 1``); read only."""
-        return self.sim.state
-
-    def metrics(self) -> dict[str, Any]:
-        """The team's patrol measures so far (:meth:`PatrolParallelEnv.metrics`)."""
-        return self.sim.metrics()
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
