@@ -11,7 +11,7 @@ $(BIN)/python:
 
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev]"
+	$(BIN)/python -m pip install --quiet -e ".[dev,envs]"
 	touch $(STAMP)
 
 install: $(STAMP)
@@ -20,16 +20,16 @@ reproduce: $(STAMP)
 	$(BIN)/qpatrol reproduce --out results
 
 test: $(STAMP)
-	$(BIN)/ruff check qpatrol tests benchmarks
-	$(BIN)/ruff format --check qpatrol tests benchmarks
+	$(BIN)/ruff check qpatrol tests benchmarks examples
+	$(BIN)/ruff format --check qpatrol tests benchmarks examples
 	$(BIN)/python -m pytest
 
 lint: $(STAMP)
-	$(BIN)/ruff check qpatrol tests benchmarks
+	$(BIN)/ruff check qpatrol tests benchmarks examples
 
 format: $(STAMP)
-	$(BIN)/ruff format qpatrol tests benchmarks
-	$(BIN)/ruff check --fix qpatrol tests benchmarks
+	$(BIN)/ruff format qpatrol tests benchmarks examples
+	$(BIN)/ruff check --fix qpatrol tests benchmarks examples
 
 clean:
 	rm -rf $(VENV) results/runs results/scratch .pytest_cache .ruff_cache
