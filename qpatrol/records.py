@@ -111,6 +111,17 @@ class Recorder:
             ]
         )
 
+    def episode_rows(self, rows: np.ndarray) -> None:
+        """Keep episode ends given as rows int ``[E, 9]``: batch row, group, episode,
+        start, dots, distinct cells, distinct states, complete, step ended (the compiled
+        engine's buffer, :mod:`qpatrol.engines.numba_core`)."""
+        if rows.shape[0] == 0:
+            return
+        r, g, ep, start, dots, cells, states, complete, t = (rows[:, i] for i in range(9))
+        self._episodes.append(
+            [self.run_ids[r], ep, start + 1, t - start, dots, cells, complete, states, g]
+        )
+
     def _table(
         self, parts: list[list[np.ndarray]], columns: list[str], order: list[str]
     ) -> pd.DataFrame:

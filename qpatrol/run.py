@@ -22,7 +22,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic, limits, measures, provenance, strategies, world
+from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
 from qpatrol.maps import Map, get_map
@@ -65,6 +65,8 @@ class RunResult:
     watch: pd.DataFrame | None
     trajectory: pd.DataFrame | None
     summary: list[dict[str, Any]]
+    engine: str = "numpy"
+    engine_note: str = ""
 
 
 #: Most Q-update rows ``record.transitions`` may keep in memory for one batch.
@@ -101,8 +103,12 @@ def simulate(
     whole mutable state (simulator state, random streams, recorders, step index) is
     saved as it decides (:mod:`qpatrol.checkpoint`), and a checkpoint it loaded is
     continued from instead of starting afresh: the result is the same to the bit.
+
+    The time loop runs on the engine of config key ``engine`` (:mod:`qpatrol.engines`);
+    the result does not depend on it. ``result.engine`` is the one that ran.
     """
     m, p = prepared or prepare(cfg)
+    engine, note = engines.choose(cfg)
     idx = runs if runs is not None else range(cfg["runs"])
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
@@ -119,17 +125,22 @@ def simulate(
     else:
         (state, strategy, watch, streams, rec, tail), first = resumed.payload, resumed.position
     total = cfg["steps"]
-    every = max(1, total // 200)
-    for i in range(first, total):
-        if not state.active.any():
-            break
-        out = advance(state, p, strategy, streams.next(), rec)
-        watch.observe(out, state.wait, state.charge if p.battery else None)
-        tail.observe(state)
-        if progress is not None and (i + 1) % every == 0:
-            progress(i + 1, total)
-        if checkpoint is not None:
-            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail))
+    if engine == "numba":
+        _compiled_loop(
+            state, p, strategy, watch, streams, rec, tail, first, total, progress, checkpoint
+        )
+    else:
+        every = max(1, total // 200)
+        for i in range(first, total):
+            if not state.active.any():
+                break
+            out = advance(state, p, strategy, streams.next(), rec)
+            watch.observe(out, state.wait, state.charge if p.battery else None)
+            tail.observe(state)
+            if progress is not None and (i + 1) % every == 0:
+                progress(i + 1, total)
+            if checkpoint is not None:
+                checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail))
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -147,7 +158,46 @@ def simulate(
         watch=rec.watch_table(),
         trajectory=tail.table(state, rec.run_ids, m.coords),
         summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
+        engine=engine,
+        engine_note=note,
     )
+
+
+#: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
+#: and Ctrl-C are served every few tens of milliseconds, long enough to hide the call.
+COMPILED_BLOCK = 1 << 18
+
+
+def _compiled_loop(
+    state: world.State,
+    p: world.Params,
+    strategy: Strategy,
+    watch: measures.Measures,
+    streams: Streams,
+    rec: Recorder,
+    tail: Tail,
+    first: int,
+    total: int,
+    progress: Progress | None,
+    checkpoint: Checkpointer | None,
+) -> None:
+    """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
+    results as the numpy loop; checkpoints are taken between blocks)."""
+    from qpatrol.engines import numba_core
+
+    block = max(1, COMPILED_BLOCK // (state.n_runs * p.n_agents))
+    i = first
+    while i < total and state.active.any():
+        n = min(block, total - i)
+        taken, ends = numba_core.advance(state, p, strategy, watch, tail, streams.take(n))
+        rec.episode_rows(ends)
+        i += taken
+        if progress is not None:
+            progress(i, total)
+        if checkpoint is not None:
+            checkpoint.tick(i, (state, strategy, watch, streams, rec, tail))
+        if taken < n:
+            break
 
 
 def advance(
@@ -199,6 +249,9 @@ def write_run(
     check_finite(result)
     info = dict(meta) if meta is not None else provenance.collect()
     info["map"] = provenance.map_entry(result.map.text, result.map.name)
+    info["loop_engine"] = result.engine
+    if result.engine_note:
+        info["loop_engine_note"] = result.engine_note
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
         (tmp / "config.yaml").write_text(result.config.to_yaml())
