@@ -60,6 +60,7 @@ def run(
         use_heading: state ``(cell, heading)``; False: ``(cell, 0)``.
     """
     nbrs = p.neighbors.tolist()
+    legal_dirs = [[d for d in range(4) if row[d] >= 0] for row in nbrs]
     dot_value = p.dot_value.tolist()
     has_dot = p.has_dot.tolist()
     n_dots = sum(has_dot)
@@ -89,17 +90,17 @@ def run(
             c = pos[k]
             s = (k, c, head[k] if use_heading else 0)
             row = q.get(s) or q_init
-            legal = [d for d in range(4) if nbrs[c][d] >= 0]
+            legal = legal_dirs[c]
             if avoid:
                 free = [d for d in legal if nbrs[c][d] not in occupied]
-                if free:
+                if len(free) < len(legal) and free:
                     legal = free
             if not legal:
                 continue
             if epsilon > 0.0 and ut[k][0] < epsilon:
                 cand = legal
             else:
-                best = max(row[d] for d in legal)
+                best = max([row[d] for d in legal])
                 cand = [d for d in legal if row[d] == best]
             j = min(int(ut[k][1] * len(cand)), len(cand) - 1)
             want[k] = cand[j]
@@ -133,7 +134,7 @@ def run(
             s = (k, c0, head[k] if use_heading else 0)
             head[k] = a
             nxt = q.get((k, c1, a if use_heading else 0)) or q_init
-            bootstrap = gamma * max(nxt[d] for d in range(4) if nbrs[c1][d] >= 0)
+            bootstrap = gamma * max([nxt[d] for d in legal_dirs[c1]])
             target = reward + bootstrap
             qs = q.get(s)
             if qs is None:
