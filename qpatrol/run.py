@@ -25,6 +25,7 @@ import pandas as pd
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
+from qpatrol.engines import numpy_solo
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
@@ -131,12 +132,21 @@ def simulate(
         )
     else:
         every = max(1, total // 200)
+        solo = None
+        if numpy_solo.covers(p, strategy) and not rec.wants_updates:
+            solo = numpy_solo.prepare(p, state.n_runs)
         for i in range(first, total):
             if not state.active.any():
                 break
-            out = advance(state, p, strategy, streams.next(), rec)
-            watch.observe(out, state.wait, state.charge if p.battery else None)
-            tail.observe(state)
+            u = streams.next()
+            if (
+                solo is None
+                or not state.active.all()
+                or not numpy_solo.step(solo, state, p, strategy, u, watch, rec, tail)
+            ):
+                out = advance(state, p, strategy, u, rec)
+                watch.observe(out, state.wait, state.charge if p.battery else None)
+                tail.observe(state)
             if progress is not None and (i + 1) % every == 0:
                 progress(i + 1, total)
             if checkpoint is not None:

@@ -1,6 +1,7 @@
 """The compiled engine writes the numpy engine's files to the bit, on every config.
 
-Configs the compiled engine covers (qlearning, battery off) run through both loops;
+Configs the compiled engine covers (qlearning, without transition/watch recorders) run
+through both loops;
 the rest must fall back to the numpy engine and say so. Every file of the run folder
 is compared byte for byte; in ``meta.json`` only ``loop_engine``/``loop_engine_note``
 (which loop ran) may differ.
@@ -11,6 +12,7 @@ from __future__ import annotations
 import json
 from pathlib import Path
 
+import mazes
 import pytest
 
 from qpatrol import engines
@@ -53,14 +55,37 @@ BASE = {"runs": 2, "seed": 11, "steps": 160, "max_episode_steps": 60, "record.tr
 @pytest.mark.parametrize("agents", [1, 2, 4, 8])
 @pytest.mark.parametrize("communication", [True, False])
 @pytest.mark.parametrize("avoid", [True, False])
-def test_compiled_qlearning_teams(rooms_map, tmp_path, agents, communication, avoid):
+@pytest.mark.parametrize("battery", [True, False])
+def test_compiled_qlearning_teams(rooms_map, tmp_path, agents, communication, avoid, battery):
     flat = {
         **BASE,
         "map": str(rooms_map),
         "agents": agents,
-        "battery.enabled": False,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "battery.charge_steps": 4,
         "team.communication": communication,
         "team.avoid_collisions": avoid,
+        "steps": 300,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("agents", [3, 6])
+def test_compiled_battery_on_dead_end_stations(tmp_path, seed, agents):
+    """Station pockets, queues, homing yields and pushes: random tree-like mazes."""
+    path = tmp_path / "maze.txt"
+    path.write_text(mazes.random_maze(5, 6, seed, loops=0.1 * seed, stations=2))
+    flat = {
+        **BASE,
+        "map": str(path),
+        "agents": agents,
+        "battery.capacity": 90,
+        "battery.charge_steps": 3 * (seed - 1),
+        "battery.initial_charge": "full" if seed == 1 else "staggered",
+        "steps": 900,
+        "max_episode_steps": 300,
     }
     assert both(flat, tmp_path) == ("numba", "")
 
@@ -92,7 +117,7 @@ def test_every_strategy_and_battery(rooms_map, tmp_path, policy, battery):
         "steps": 120,
     }
     engine, note = both(flat, tmp_path)
-    if policy == "qlearning" and not battery:
+    if policy == "qlearning":
         assert (engine, note) == ("numba", "")
     else:
         assert engine == "numpy" and note.startswith("fallback from numba")

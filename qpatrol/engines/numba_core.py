@@ -10,9 +10,11 @@ each robot that entered a cell is paid, and each that made the move it chose upd
 ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max Q(s', .) - Q(s, a))``. The arithmetic is
 the numpy engine's, operation for operation, so results are equal to the bit.
 
-Covered: ``policy: qlearning`` with ``battery.enabled: off``, any team size, with or
-without communication and collision avoidance, ``record.trajectory``; other configs
-run on the numpy engine (:func:`qpatrol.engines.compiled_gap`).
+Covered: ``policy: qlearning``, any team size, with or without battery, communication
+and collision avoidance (right of way, pushes, station pockets and queues), episode
+quotas, ``record.trajectory``; not covered (they run on the numpy engine, see
+:func:`qpatrol.engines.compiled_gap`): the other strategies, ``record.transitions``
+and ``record.watch``.
 """
 
 from __future__ import annotations
@@ -27,20 +29,68 @@ from qpatrol.world import Params, State
 EP_COLS = 9
 
 
+PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
+
+
 @njit(cache=True, nogil=True)
-def _priority(wait: int, k: int, n_agents: int, t: int) -> int:
-    """:func:`qpatrol.traffic.priority` of a patrolling robot (battery off: class 1)."""
+def _priority(wait, mode, depart_left, k, n_agents, t):
+    """:func:`qpatrol.traffic.priority` of robot k: class, then wait, then turn."""
+    if depart_left > 0:
+        cls = 3
+    elif mode == HOMING:
+        cls = 2
+    elif mode == PATROL:
+        cls = 1
+    else:
+        cls = 0
     turn = (n_agents - 1) - (k - t) % n_agents
-    return (1 << 40) + min(wait, 1 << 30) * n_agents + turn
+    return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
 
 
 @njit(cache=True, nogil=True)
-def _push_path(nbrs, occ_r, own, start, parent, seen, queue, path):
-    """Breadth-first from ``start`` to the nearest empty cell, never through ``own``.
+def _kept_out(c, pocket_of, reserved_r):
+    """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    h = pocket_of[c]
+    return h >= 0 and reserved_r[h] >= 0
+
+
+@njit(cache=True, nogil=True)
+def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
+    """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
+    if station < 0:
+        return -1
+    h = station
+    if pocket_of[c] == h:
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb >= 0 and (pocket_of[nb] != h or pocket_depth[nb] < pocket_depth[c]):
+                return d
+        return -1
+    if c != pocket_entry[h]:
+        return -1
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h and occ_r[nb] < 0:
+            return d
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h:
+            return d
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _push_path(
+    nbrs, occ_r, own, start, parent, seen, queue, path, battery, mode_r, pocket_of, reserved_r
+):
+    """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
+    charging robots, nor (battery on) cells of held pockets.
 
     Fills ``path[:m]`` with ``[start, ..., empty]`` and returns m (0: none). ``parent``
     and ``seen`` are scratch arrays ``[C]`` left clean on return.
     """
+    if battery and mode_r[occ_r[start]] == CHARGING:
+        return 0
     n_seen = 0
     seen[n_seen] = start
     n_seen += 1
@@ -57,6 +107,12 @@ def _push_path(nbrs, occ_r, own, start, parent, seen, queue, path):
             nb = nbrs[c, d]
             if nb < 0 or nb == own or parent[nb] != -2:
                 continue
+            if battery:
+                if _kept_out(nb, pocket_of, reserved_r):
+                    continue
+                j = occ_r[nb]
+                if j >= 0 and mode_r[j] == CHARGING:
+                    continue
             parent[nb] = c
             seen[n_seen] = nb
             n_seen += 1
@@ -133,6 +189,26 @@ def run_block(
     tail_pos,
     tail_n,
     ep_buf,
+    battery,
+    homes,
+    home_dist,
+    home_dir,
+    nearest,
+    depart_len,
+    pocket_of,
+    pocket_depth,
+    pocket_entry,
+    capacity,
+    margin,
+    charge_steps,
+    charge,
+    mode,
+    rest,
+    goal,
+    queued_since,
+    depart_left,
+    reserved,
+    min_charge,
 ):
     """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
 
@@ -157,6 +233,10 @@ def run_block(
     blocked_by = np.empty(n_agents, np.int64)
     order = np.empty(n_agents, np.int64)
     key = np.empty(n_agents, np.int64)
+    choosing = np.empty(n_agents, np.bool_)
+    yielding = np.empty(n_agents, np.bool_)
+    held_back = np.empty(n_agents, np.bool_)
+    n_homes = homes.shape[0]
     mask = np.empty(4, np.bool_)
     cand = np.empty(4, np.int64)
     parent = np.full(n_cells, -2, np.int64)
@@ -171,14 +251,75 @@ def run_block(
                 break
             t = t0 + i + 1
             tok = token[r]
+            if battery:
+                # battery.begin: charging countdown, robots that need a station, the queue
+                for k in range(n_agents):
+                    if mode[r, k] == CHARGING:
+                        rest[r, k] -= 1
+                        if rest[r, k] < 0:
+                            rest[r, k] = 0
+                            mode[r, k] = PATROL
+                            charge[r, k] = capacity
+                            depart_left[r, k] = 2 * depart_len[goal[r, k]]
+                any_queued = False
+                for k in range(n_agents):
+                    if (
+                        mode[r, k] == PATROL
+                        and depart_left[r, k] == 0
+                        and charge[r, k] <= nearest[pos[r, k]] + margin + 1
+                    ):
+                        mode[r, k] = QUEUED
+                        queued_since[r, k] = t
+                    if mode[r, k] == QUEUED:
+                        any_queued = True
+                if any_queued:
+                    # _assign_stations: first come first served (ties: lower index)
+                    for k in range(n_agents):
+                        order[k] = k
+                        if mode[r, k] == QUEUED:
+                            key[k] = queued_since[r, k] * n_agents + k
+                        else:
+                            key[k] = (1 << 50) * n_agents + k
+                    for a in range(1, n_agents):
+                        x = order[a]
+                        b = a - 1
+                        while b >= 0 and key[order[b]] > key[x]:
+                            order[b + 1] = order[b]
+                            b -= 1
+                        order[b + 1] = x
+                    for a in range(n_agents):
+                        k = order[a]
+                        if mode[r, k] != QUEUED:
+                            break
+                        best_h = -1
+                        best_d = np.iinfo(np.int64).max
+                        for h in range(n_homes):
+                            dist = home_dist[h, pos[r, k]]
+                            if reserved[r, h] < 0 and dist <= charge[r, k] and dist < best_d:
+                                best_d = dist
+                                best_h = h
+                        if best_h >= 0:
+                            reserved[r, best_h] = k
+                            goal[r, k] = best_h
+                            mode[r, k] = HOMING
             # --- choose (qlearning.act): greedy over open moves, ties by u[..., 1] ----
             for k in range(n_agents):
                 c = pos[r, k]
                 h = head[r, k] if use_heading else 0
+                choosing[k] = mode[r, k] == PATROL
+                held_back[k] = False
+                yielding[k] = False
                 any_open = False
                 for d in range(4):
                     nb = nbrs[c, d]
                     ok = nb >= 0
+                    if ok and battery:  # battery.closed_cells: deeper into a held pocket
+                        hp = pocket_of[nb]
+                        if hp >= 0:
+                            holder = reserved[r, hp]
+                            if holder >= 0 and holder != k:
+                                if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
+                                    ok = False
                     if ok and avoid and k != tok and occ[r, nb] >= 0:
                         ok = False
                     mask[d] = ok
@@ -196,17 +337,67 @@ def run_block(
                     if mask[d] and (explore or q[r, k, c, h, d] == best):
                         cand[count] = d
                         count += 1
-                if count == 0:
+                if count == 0 or not choosing[k]:
                     ask[k] = -1
-                    want[k] = -1
                 else:
                     j = min(np.int64(u[r, i, k, 1] * count), count - 1)
                     ask[k] = cand[j]
-                    want[k] = nbrs[c, cand[j]]
                 prev_pos[k] = c
                 prev_head[k] = head[r, k]
                 moved[k] = False
                 as_asked[k] = False
+            if battery:
+                for k in range(n_agents):
+                    c = pos[r, k]
+                    if mode[r, k] == HOMING:  # battery.homing_ask
+                        gk = max(goal[r, k], 0)
+                        direction = home_dir[gk, c]
+                        entry = pocket_entry[gk]
+                        if entry >= 0:
+                            depth_others = -1
+                            for j2 in range(n_agents):
+                                if j2 != k and pocket_of[pos[r, j2]] == gk:
+                                    depth_others = max(depth_others, pocket_depth[pos[r, j2]])
+                            occupied = depth_others >= 0
+                            my_depth = pocket_depth[c] if pocket_of[c] == gk else 0
+                            at_entry = c == entry
+                            nxt = nbrs[c, max(direction, 0)]
+                            entering = (
+                                direction >= 0 and my_depth == 0 and not at_entry and nxt == entry
+                            )
+                            held = occupied and entering
+                            yld = occupied and (
+                                at_entry or (depth_others > my_depth and my_depth > 0)
+                            )
+                            out = _way_out(
+                                nbrs, pocket_of, pocket_depth, pocket_entry, occ[r], c, gk
+                            )
+                            if held:
+                                direction = -1
+                            elif yld:
+                                direction = out
+                            held_back[k] = held
+                            yielding[k] = yld and out >= 0
+                        ask[k] = direction
+                    elif mode[r, k] == QUEUED:  # battery.queued_ask
+                        station = -1
+                        hp = pocket_of[c]
+                        if hp >= 0:
+                            holder = reserved[r, hp]
+                            if holder >= 0 and holder != k:
+                                station = hp
+                        for hh in range(n_homes):
+                            if c == pocket_entry[hh] and reserved[r, hh] >= 0:
+                                if reserved[r, hh] != k:
+                                    station = hh
+                                    break
+                        ask[k] = _way_out(
+                            nbrs, pocket_of, pocket_depth, pocket_entry, occ[r], c, station
+                        )
+                        if ask[k] >= 0:
+                            yielding[k] = True
+            for k in range(n_agents):
+                want[k] = nbrs[pos[r, k], ask[k]] if ask[k] >= 0 else -1
             # --- move (traffic.resolve) ---------------------------------------------
             push_failed = False
             if not avoid:
@@ -228,11 +419,26 @@ def run_block(
                             cell = nbrs[own, ci - 1]
                             if cell < 0 or cell == want[tok]:
                                 continue
+                            if battery and _kept_out(cell, pocket_of, reserved[r]):
+                                continue
                         if occ[r, cell] < 0:
                             dest = cell
                             m = 0
                             break
-                        m = _push_path(nbrs, occ[r], own, cell, parent, seen, queue, path)
+                        m = _push_path(
+                            nbrs,
+                            occ[r],
+                            own,
+                            cell,
+                            parent,
+                            seen,
+                            queue,
+                            path,
+                            battery,
+                            mode[r],
+                            pocket_of,
+                            reserved[r],
+                        )
                         if m > 0:
                             dest = cell
                             break
@@ -253,8 +459,16 @@ def run_block(
                         as_asked[tok] = dest == want[tok]
                         push_failed = not as_asked[tok]
                 # 2. everyone else, in priority order, into cells empty at that moment
-                for k in range(n_agents):
-                    key[k] = _priority(wait[r, k], k, n_agents, t)
+                if n_agents == 1:  # alone: the priority order is trivial
+                    w = want[0]
+                    if w >= 0 and not moved[0] and occ[r, w] < 0:
+                        occ[r, pos[r, 0]] = -1
+                        occ[r, w] = 0
+                        pos[r, 0] = w
+                        moved[0] = True
+                        as_asked[0] = True
+                for k in range(n_agents if n_agents > 1 else 0):
+                    key[k] = _priority(wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t)
                     order[k] = k
                 for a in range(1, n_agents):  # insertion sort, largest key first
                     x = order[a]
@@ -263,7 +477,7 @@ def run_block(
                         order[b + 1] = order[b]
                         b -= 1
                     order[b + 1] = x
-                progress = True
+                progress = n_agents > 1
                 while progress:
                     progress = False
                     for a in range(n_agents):
@@ -305,18 +519,56 @@ def run_block(
                     + lam * ep_dots[r, g] / ep_visits[r, g]
                 )
                 head[r, k] = a
+            if battery:
+                # a move costs one unit; yielding (pushed aside, or out of a pocket) is free
+                for k in range(n_agents):
+                    if not moved[k]:
+                        continue
+                    if as_asked[k] and not yielding[k]:
+                        charge[r, k] -= 1
+                    elif mode[r, k] == HOMING or mode[r, k] == QUEUED:  # credit_detour
+                        gk = max(goal[r, k], 0)
+                        if mode[r, k] == HOMING:
+                            d_before = home_dist[gk, prev_pos[k]]
+                            d_after = home_dist[gk, pos[r, k]]
+                        else:
+                            d_before = nearest[prev_pos[k]]
+                            d_after = nearest[pos[r, k]]
+                        credit = max(d_after - d_before, 0)
+                        charge[r, k] = min(charge[r, k] + credit, capacity)
+                # battery.end: departed robots release stations, arrivals start charging
+                for k in range(n_agents):
+                    if depart_left[r, k] > 0:
+                        depart_left[r, k] -= 1
+                        if depart_left[r, k] == 0 or ask[k] < 0:
+                            reserved[r, goal[r, k]] = -1
+                            goal[r, k] = -1
+                            depart_left[r, k] = 0
+                for k in range(n_agents):
+                    if mode[r, k] == HOMING and pos[r, k] == homes[max(goal[r, k], 0)]:
+                        if charge_steps > 0:
+                            mode[r, k] = CHARGING
+                            rest[r, k] = charge_steps
+                        else:
+                            mode[r, k] = PATROL
+                            charge[r, k] = capacity
+                            depart_left[r, k] = 2 * depart_len[goal[r, k]]
             # --- waits, who blocked whom, the right of way -----------------------------
             for k in range(n_agents):
                 failed = ask[k] >= 0 and not as_asked[k]
-                wait[r, k] = wait[r, k] + 1 if failed else 0
                 blocked_by[k] = occ[r, want[k]] if failed else -1
+                if battery and (mode[r, k] == QUEUED or held_back[k]):
+                    failed = True
+                wait[r, k] = wait[r, k] + 1 if failed else 0
             if avoid and n_agents > 1:
                 best_k = -1
                 best_key = -1
                 for k in range(n_agents):
                     kk = -1
                     if want[k] >= 0 and not as_asked[k]:
-                        kk = _priority(wait[r, k], k, n_agents, t + 1)
+                        kk = _priority(
+                            wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t + 1
+                        )
                     if tok >= 0 and push_failed and k == tok:
                         kk = -1
                     if kk > best_key:
@@ -374,7 +626,7 @@ def run_block(
                 active[r] = low < quota
             # --- learn (qlearning.learn): robots that made the move they chose ----------
             for k in range(n_agents):
-                if not as_asked[k] or ask[k] < 0:
+                if not as_asked[k] or not choosing[k]:
                     continue
                 ca = prev_pos[k]
                 ha = prev_head[k] if use_heading else 0
@@ -410,6 +662,11 @@ def run_block(
                     gap_max[r] = max(gap_max[r], gap)
                     if t - 1 > warmup:
                         worst[r] = max(worst[r], t - 1 - prev)
+            if battery:
+                low = charge[r, 0]
+                for k in range(1, n_agents):
+                    low = min(low, charge[r, k])
+                min_charge[r] = min(min_charge[r], low)
             if in_window:
                 idle_total[r] += n_cells * t - m_last_sum[r]
                 measured[r] += 1
@@ -505,12 +762,38 @@ def advance(
         tail_pos,
         tail.n,
         ep_buf,
+        p.battery,
+        p.homes,
+        p.home_dist,
+        p.home_dir,
+        p.nearest_home_dist,
+        p.depart_len,
+        p.pocket_of,
+        p.pocket_depth,
+        p.pocket_entry,
+        p.capacity,
+        p.margin,
+        p.charge_steps,
+        s.charge,
+        s.mode,
+        s.rest,
+        s.goal,
+        s.queued_since,
+        s.depart_left,
+        s.reserved,
+        m.min_charge,
     )
     s.t = int(t_end)
-    # a run that stopped before the batch did sat out its last steps: no wait, no token
+    # a run that stopped before the batch did sat out its last steps: no wait, no token,
+    # and a robot leaving a station released it
     out = s.steps_done < s.t
     if out.any():
         s.wait[out] = 0
-        s.token[out] = -1
-        s.token_held[out] = 0
+        if p.avoid_collisions and p.n_agents > 1:
+            s.token[out] = -1
+            s.token_held[out] = 0
+        rows, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
+        s.reserved[rows, s.goal[rows, ks]] = -1
+        s.goal[rows, ks] = -1
+        s.depart_left[rows, ks] = 0
     return int(t_end) - t0, ep_buf[:n_ep]
