@@ -195,12 +195,16 @@ def _compiled_loop(
     results as the numpy loop; checkpoints are taken between blocks)."""
     from qpatrol.engines import numba_core
 
-    block = max(1, COMPILED_BLOCK // (state.n_runs * p.n_agents))
+    size = COMPILED_BLOCK // 4 if rec.wants_updates else COMPILED_BLOCK  # update buffers
+    block = max(1, size // (state.n_runs * p.n_agents))
     i = first
     while i < total and state.active.any():
         n = min(block, total - i)
-        taken, ends = numba_core.advance(state, p, strategy, watch, tail, streams.take(n))
+        taken, ends, up_int, up_float = numba_core.advance(
+            state, p, strategy, watch, tail, rec, streams.take(n)
+        )
         rec.episode_rows(ends)
+        rec.update_rows(up_int, up_float)
         i += taken
         if progress is not None:
             progress(i, total)

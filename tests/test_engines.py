@@ -123,11 +123,26 @@ def test_every_strategy_and_battery(rooms_map, tmp_path, policy, battery):
         assert engine == "numpy" and note.startswith("fallback from numba")
 
 
-@pytest.mark.parametrize("record", [{"record.watch": [3, 4]}, {"record.transitions": True}])
-def test_recorders(rooms_map, tmp_path, record):
-    flat = {**BASE, "map": str(rooms_map), "agents": 2, "battery.enabled": False, **record}
-    engine, note = both(flat, tmp_path)
-    assert engine == "numpy" and "record." in note
+@pytest.mark.parametrize(
+    "record",
+    [
+        {"record.watch": [3, 4, 17]},
+        {"record.transitions": True, "learning.state_space": "cell"},
+        {"record.transitions": True, "record.watch": [5], "agents": 4},
+    ],
+)
+@pytest.mark.parametrize("battery", [True, False])
+def test_recorders(rooms_map, tmp_path, record, battery):
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "agents": 2,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "steps": 300,
+        **record,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
 
 
 def test_engine_choice(monkeypatch):

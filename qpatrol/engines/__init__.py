@@ -26,8 +26,6 @@ def compiled_gap(cfg: Config) -> str | None:
     """Why the compiled engine cannot run ``cfg`` (None: it can)."""
     if cfg["policy"] != "qlearning":
         return f"policy {cfg['policy']} (compiled: qlearning only)"
-    if cfg["record.transitions"] or cfg["record.watch"]:
-        return "record.transitions/record.watch (compiled: not recorded)"
     return None
 
 

@@ -27,6 +27,10 @@ from qpatrol.world import Params, State
 #: Columns of the episode buffer: run, group, episode, start, dots, cells, states,
 #: complete, t.
 EP_COLS = 9
+#: Columns of the Q-update buffers: ints run, step, agent, cell, heading, action,
+#: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
+#: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
+UP_INT, UP_FLOAT = 9, 9
 
 
 PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
@@ -209,12 +213,18 @@ def run_block(
     depart_left,
     reserved,
     min_charge,
+    record_all,
+    watched,
+    up_int,
+    up_float,
 ):
     """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
 
     ``u``: float ``[R, T, K, 2]``. Arrays are the engine's state (see module doc),
     modified in place. Ended episodes are written to ``ep_buf`` ``[E, EP_COLS]``.
-    Returns ``(last team step taken by any run, episode rows written)``.
+    Q-updates of every robot (``record_all``) or of the ``watched`` cells (bool ``[C]``)
+    go to ``up_int`` ``[U, UP_INT]`` and ``up_float`` ``[U, UP_FLOAT]``.
+    Returns ``(last team step taken by any run, episode rows, update rows written)``.
     """
     n_runs, n_steps, n_agents = u.shape[0], u.shape[1], u.shape[2]
     n_cells = nbrs.shape[0]
@@ -234,6 +244,8 @@ def run_block(
     order = np.empty(n_agents, np.int64)
     key = np.empty(n_agents, np.int64)
     choosing = np.empty(n_agents, np.bool_)
+    eaten = np.empty(n_agents, np.bool_)
+    n_up = 0
     yielding = np.empty(n_agents, np.bool_)
     held_back = np.empty(n_agents, np.bool_)
     n_homes = homes.shape[0]
@@ -493,6 +505,7 @@ def run_block(
             # --- entering a cell: dots, visits, reward, heading -------------------------
             for k in range(n_agents):
                 reward[k] = 0.0
+                eaten[k] = False
                 if not moved[k]:
                     continue
                 g = 0 if communication else k
@@ -504,6 +517,7 @@ def run_block(
                         a = d
                         break
                 ate = dots[r, g, c1]
+                eaten[k] = ate
                 dots[r, g, c1] = False
                 if ate:
                     dots_left[r, g] -= 1
@@ -643,6 +657,26 @@ def run_block(
                 alpha = 1.0 / n_after
                 q[r, k, ca, ha, aa] = q_sa + alpha * (target - q_sa)
                 n[r, k, ca, ha, aa] = n_after
+                if record_all or watched[ca]:  # Recorder.updates
+                    ri = up_int[n_up]
+                    ri[0] = r
+                    ri[1] = t
+                    ri[2] = k
+                    ri[3] = ca
+                    ri[4] = ha
+                    ri[5] = aa
+                    ri[6] = cb
+                    ri[7] = hb
+                    ri[8] = 1 if eaten[k] else 0
+                    rf = up_float[n_up]
+                    rf[0] = reward[k]
+                    rf[1] = alpha
+                    rf[2] = q_sa
+                    rf[3] = q[r, k, ca, ha, aa]
+                    rf[4] = gamma * top
+                    for d in range(4):
+                        rf[5 + d] = q[r, k, ca, ha, d]
+                    n_up += 1
             # --- measures (Measures.observe) and the trajectory ring -------------------
             in_window = t > warmup
             for k in range(n_agents):
@@ -683,7 +717,7 @@ def run_block(
                     tail_pos[r, (t - 1) % tail_n, k] = pos[r, k]
             if t > t_end:
                 t_end = t
-    return t_end, n_ep
+    return t_end, n_ep, n_up
 
 
 def advance(
@@ -692,12 +726,14 @@ def advance(
     strategy,
     measures,
     tail,
+    rec,
     u: np.ndarray,
-) -> tuple[int, np.ndarray]:
+) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
     """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float ``[R, T, K, 2]``).
 
-    Returns ``(team steps taken, episode rows int [E, EP_COLS])``; the loop stops early
-    when every run has met its episode quota.
+    Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
+    [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as ``rec`` wants them); the
+    loop stops early when every run has met its episode quota.
     """
     s, m = state, measures
     n_runs, n_steps, k = u.shape[:3]
@@ -708,8 +744,13 @@ def advance(
     cap = n_runs * p.n_groups * (n_steps // max(1, shortest) + 1)
     ep_buf = np.empty((cap, EP_COLS), dtype=np.int64)
     tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
+    watched = np.zeros(p.n_cells, dtype=bool)
+    watched[rec.watch[(rec.watch >= 0) & (rec.watch < p.n_cells)]] = True
+    rows = n_runs * k * n_steps if rec.wants_updates else 1
+    up_int = np.empty((rows, UP_INT), dtype=np.int64)
+    up_float = np.empty((rows, UP_FLOAT), dtype=np.float64)
     t0 = s.t
-    t_end, n_ep = run_block(
+    t_end, n_ep, n_up = run_block(
         t0,
         u,
         p.neighbors,
@@ -782,6 +823,10 @@ def advance(
         s.depart_left,
         s.reserved,
         m.min_charge,
+        rec.transitions,
+        watched,
+        up_int,
+        up_float,
     )
     s.t = int(t_end)
     # a run that stopped before the batch did sat out its last steps: no wait, no token,
@@ -796,4 +841,4 @@ def advance(
         s.reserved[rows, s.goal[rows, ks]] = -1
         s.goal[rows, ks] = -1
         s.depart_left[rows, ks] = 0
-    return int(t_end) - t0, ep_buf[:n_ep]
+    return int(t_end) - t0, ep_buf[:n_ep], up_int[:n_up], up_float[:n_up]
