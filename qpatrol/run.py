@@ -174,8 +174,11 @@ def simulate(
 
 
 #: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
-#: and Ctrl-C are served every few tens of milliseconds, long enough to hide the call.
-COMPILED_BLOCK = 1 << 18
+#: and Ctrl-C are served within a fraction of a second, long enough to hide the call;
+#: and at least COMPILED_MIN_STEPS team steps, so each run's tables stay in cache for a
+#: while and the per-run draws of uniforms come in long blocks.
+COMPILED_BLOCK = 1 << 20
+COMPILED_MIN_STEPS = 512
 
 
 def _compiled_loop(
@@ -195,8 +198,9 @@ def _compiled_loop(
     results as the numpy loop; checkpoints are taken between blocks)."""
     from qpatrol.engines import numba_core
 
-    size = COMPILED_BLOCK // 4 if rec.wants_updates else COMPILED_BLOCK  # update buffers
-    block = max(1, size // (state.n_runs * p.n_agents))
+    block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (state.n_runs * p.n_agents))
+    if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
+        block = max(1, (COMPILED_BLOCK // 8) // (state.n_runs * p.n_agents))
     i = first
     while i < total and state.active.any():
         n = min(block, total - i)
