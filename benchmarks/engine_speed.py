@@ -60,12 +60,14 @@ def run_point(engine: str, agents: int, runs: int, steps: int) -> dict:
 
 def plot(results: list[dict], path: Path) -> None:
     import matplotlib
+    import numpy as np
 
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
     fig, ax = plt.subplots(figsize=(7.5, 4.8))
     styles = {"numpy": ("tab:blue", "o"), "numba": ("tab:red", "s")}
+    team = {1: "1 agent", 4: "teams of 4"}
     for engine, (color, marker) in styles.items():
         for agents, line in ((1, "-"), (4, "--")):
             pts = sorted(
@@ -75,22 +77,15 @@ def plot(results: list[dict], path: Path) -> None:
             )
             if pts:
                 xs, ys = zip(*pts, strict=True)
-                ax.plot(
-                    xs, ys, line, color=color, marker=marker, label=f"{engine}, {agents} agent(s)"
-                )
-    for agents, marker in ((1, "^"), (4, "v")):
-        pts = sorted(
-            (b["runs"], b["reference_agent_steps_per_s"]) for b in results if b["agents"] == agents
-        )
-        if pts:
-            xs, ys = zip(*pts, strict=True)
-            ax.plot(
-                xs,
-                ys,
-                ":",
-                color="0.4",
-                marker=marker,
-                label=f"plain-Python reference, {agents} agent(s) (one run)",
+                ax.plot(xs, ys, line, color=color, marker=marker, label=f"{engine}, {team[agents]}")
+    for agents, line in ((1, ":"), (4, "-.")):
+        refs = [b["reference_agent_steps_per_s"] for b in results if b["agents"] == agents]
+        if refs:
+            ax.axhline(
+                float(np.median(refs)),
+                linestyle=line,
+                color="0.35",
+                label=f"plain-Python loop, {team[agents]} (median of {len(refs)})",
             )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
@@ -98,7 +93,7 @@ def plot(results: list[dict], path: Path) -> None:
     ax.set_ylabel("agent-steps per second")
     ax.set_title("qpatrol bench: Q-learning, battery off, map_a (2 cores, noisy)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="best")
+    ax.legend(fontsize=8, loc="lower right")
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
