@@ -134,7 +134,7 @@ def simulate(
         every = max(1, total // 200)
         solo = None
         if numpy_solo.covers(p, strategy) and not rec.wants_updates:
-            solo = numpy_solo.prepare(p, state.n_runs)
+            solo = numpy_solo.prepare(p, state, strategy, watch)
         for i in range(first, total):
             if not state.active.any():
                 break

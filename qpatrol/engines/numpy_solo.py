@@ -31,7 +31,8 @@ def covers(p: Params, strategy: object) -> bool:
 
 @dataclass
 class Solo:
-    """Constants of the fast step for one batch (built once per simulate call)."""
+    """Constants and flat views of the fast step for one batch, built once per loop
+    (the views stay valid: neither step rebinds these arrays)."""
 
     nbrs: np.ndarray  # int [C 4], next cell per (cell, direction), -1 = wall
     legal: np.ndarray  # bool [C, 4]
@@ -40,11 +41,30 @@ class Solo:
     cell0: np.ndarray  # int [R]: r C, first cell of run r in [R C] maps
     nth: np.ndarray  # int [16 4]: learner._NTH flattened
     bits: np.ndarray  # int [4]: 1, 2, 4, 8
+    no_wait: np.ndarray  # int [R, 1] zeros: the waits after a step of this kind
+    q2: np.ndarray  # float [R C 4, 4]: the Q-table, one row per (run, cell, heading)
+    q1: np.ndarray  # float [R C 4 4]
+    n1: np.ndarray  # int [R C 4 4]
+    pos: np.ndarray  # int [R]: views of the world's [R, 1] and [R, 1, C...] arrays
+    head: np.ndarray
+    occ: np.ndarray  # [R C]
+    dots: np.ndarray  # [R C]
+    last: np.ndarray  # [R C]
+    ep_seen: np.ndarray  # [R C]
+    ep_seen_state: np.ndarray  # [R C 4]
+    dots_left: np.ndarray  # [R]
+    ep_dots: np.ndarray
+    ep_visits: np.ndarray
+    ep_start: np.ndarray
+    m_last: np.ndarray  # [R C]: the measures' arrays
+    visits: np.ndarray  # [R C]
+    window_visits: np.ndarray  # [R C]
 
 
-def prepare(p: Params, n_runs: int) -> Solo:
-    """The constants of :func:`step` for ``n_runs`` runs on ``p``'s map."""
+def prepare(p: Params, s: State, strategy: object, m: Measures) -> Solo:
+    """The constants and views of :func:`step` for batch ``s`` on ``p``'s map."""
     c = p.n_cells
+    n_runs = s.n_runs
     nbrs = p.neighbors
     dir_of = (nbrs[:, None, :] == nbrs[:, :, None]).argmax(axis=2)  # first d with same cell
     return Solo(
@@ -55,7 +75,32 @@ def prepare(p: Params, n_runs: int) -> Solo:
         cell0=np.arange(n_runs, dtype=np.int64) * c,
         nth=_NTH.reshape(-1),
         bits=np.array([1, 2, 4, 8]),
+        no_wait=np.zeros_like(s.wait),
+        q2=_view(strategy.q, (-1, 4)),
+        q1=_view(strategy.q, -1),
+        n1=_view(strategy.n, -1),
+        pos=s.pos[:, 0],
+        head=s.head[:, 0],
+        occ=_view(s.occ, -1),
+        dots=_view(s.dots, -1),
+        last=_view(s.last, -1),
+        ep_seen=_view(s.ep_seen, -1),
+        ep_seen_state=_view(s.ep_seen_state, -1),
+        dots_left=s.dots_left[:, 0],
+        ep_dots=s.ep_dots[:, 0],
+        ep_visits=s.ep_visits[:, 0],
+        ep_start=s.ep_start[:, 0],
+        m_last=_view(m.last, -1),
+        visits=_view(m.visits, -1),
+        window_visits=_view(m.window_visits, -1),
     )
+
+
+def _view(a: np.ndarray, shape: int | tuple[int, ...]) -> np.ndarray:
+    """``a`` reshaped without a copy (writes through to ``a``)."""
+    v = a.view()
+    v.shape = shape  # raises rather than copying
+    return v
 
 
 def step(
@@ -70,12 +115,9 @@ def step(
 ) -> bool:
     """One team step of every run (all active), in place; False if it does not apply
     this step (a robot without a legal move), and then nothing was changed."""
-    q2 = strategy.q.reshape(-1, 4)  # [R C 4, 4], views of [R, 1, C, 4, 4]
-    q1 = strategy.q.reshape(-1)
-    n1 = strategy.n.reshape(-1)
-    pos = s.pos[:, 0]
+    q2, q1, n1, pos = solo.q2, solo.q1, solo.n1, solo.pos
     c0 = pos.copy()
-    h0 = s.head[:, 0] if strategy.use_heading else 0
+    h0 = solo.head if strategy.use_heading else 0
     row = solo.row0 + c0 * 4 + h0
     legal = solo.legal[c0]
     masked = np.where(legal, q2[row], -np.inf)
@@ -95,34 +137,31 @@ def step(
     pos[:] = c1
     gi = solo.cell0 + c1  # flat [R C] index of the cell entered
     if p.avoid_collisions:
-        occ = s.occ.reshape(-1)
-        occ[solo.cell0 + c0] = -1
-        occ[gi] = 0
-    s.head[:, 0] = d
+        solo.occ[solo.cell0 + c0] = -1
+        solo.occ[gi] = 0
+    solo.head[:] = d
     # --- entering the cell: dots, visits, reward (world.step) ---------------------------
-    dots = s.dots.reshape(-1)
-    ate = dots[gi]
-    dots[gi] = False
-    dots_left, ep_dots, ep_visits = s.dots_left[:, 0], s.ep_dots[:, 0], s.ep_visits[:, 0]
-    dots_left -= ate
+    ate = solo.dots[gi]
+    solo.dots[gi] = False
+    ep_dots, ep_visits = solo.ep_dots, solo.ep_visits
+    solo.dots_left -= ate
     ep_dots += ate
     ep_visits += 1
-    last = s.last.reshape(-1)
-    idle = t - last[gi]
-    last[gi] = t
-    s.ep_seen.reshape(-1)[gi] = True
-    s.ep_seen_state.reshape(-1)[gi * 4 + d] = True
+    idle = t - solo.last[gi]
+    solo.last[gi] = t
+    solo.ep_seen[gi] = True
+    solo.ep_seen_state[gi * 4 + d] = True
     reward = (
         np.where(ate, p.dot_value[c1], 0.0)
         + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
         + p.lambda_weight * ep_dots / ep_visits
     )
-    s.wait = np.zeros_like(s.wait)  # every asked move was made
-    s.steps_done[:] = t
-    ended = dots_left == 0
-    if p.max_episode_steps:
-        ended |= t - s.ep_start[:, 0] >= p.max_episode_steps
-    if ended.any():
+    s.wait = solo.no_wait  # every asked move was made (s.wait is only ever rebound)
+    s.steps_done.fill(t)
+    ended = not solo.dots_left.all()
+    if p.max_episode_steps and not ended:
+        ended = solo.ep_start.min() <= t - p.max_episode_steps
+    if ended:
         rec.episodes(t, _end_episodes(s, p))
     # --- learn (qlearning.learn): every robot made the move it chose ---------------------
     hb = a if strategy.use_heading else 0
@@ -137,12 +176,12 @@ def step(
     q1[idx] = q_sa + alpha * (target - q_sa)
     n1[idx] = n_after
     # --- measures (Measures.observe) -------------------------------------------------------
-    prev = m.last.reshape(-1)[gi]
-    m.last.reshape(-1)[gi] = t
+    prev = solo.m_last[gi]
+    solo.m_last[gi] = t
     m.last_sum += t - prev
-    m.visits.reshape(-1)[gi] += 1
+    solo.visits[gi] += 1
     if t > m.warmup:
-        m.window_visits.reshape(-1)[gi] += 1
+        solo.window_visits[gi] += 1
         seen = prev > 0
         gap = np.where(seen, t - prev, 0)
         m.gap_sum += gap
