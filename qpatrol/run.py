@@ -195,22 +195,26 @@ def _compiled_loop(
     checkpoint: Checkpointer | None,
 ) -> None:
     """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
-    results as the numpy loop; checkpoints are taken between blocks)."""
+    results as the numpy loop). With a checkpointer the blocks are one team step long,
+    so that it may save or stop after any step, as in the numpy loop."""
     from qpatrol.engines import numba_core
 
     block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (state.n_runs * p.n_agents))
     if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
         block = max(1, (COMPILED_BLOCK // 8) // (state.n_runs * p.n_agents))
+    if checkpoint is not None:
+        block = 1  # a checkpointer may save (or stop) after any team step
+    loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total))
+    every = max(1, total // 200)
     i = first
     while i < total and state.active.any():
         n = min(block, total - i)
-        taken, ends, up_int, up_float = numba_core.advance(
-            state, p, strategy, watch, tail, rec, streams.take(n)
-        )
+        u = streams.take(n)
+        taken, ends, up_int, up_float = loop.run(u)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken
-        if progress is not None:
+        if progress is not None and (block > 1 or i % every == 0):
             progress(i, total)
         if checkpoint is not None:
             checkpoint.tick(i, (state, strategy, watch, streams, rec, tail))

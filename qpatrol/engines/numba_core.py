@@ -720,125 +720,136 @@ def run_block(
     return t_end, n_ep, n_up
 
 
-def advance(
-    state: State,
-    p: Params,
-    strategy,
-    measures,
-    tail,
-    rec,
-    u: np.ndarray,
-) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-    """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float ``[R, T, K, 2]``).
+class Loop:
+    """The compiled loop over one batch: its constant arguments and its buffers, so a
+    call costs little even for one team step (when a checkpointer wants every step).
 
-    Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
-    [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as ``rec`` wants them); the
-    loop stops early when every run has met its episode quota.
+    Args:
+        state, p, strategy, measures, tail, rec: the objects the numpy loop uses too
+            (their arrays are updated in place).
+        max_steps: most team steps one :meth:`run` will be given.
     """
-    s, m = state, measures
-    n_runs, n_steps, k = u.shape[:3]
-    n_dots = int(p.has_dot.sum())
-    shortest = -(-n_dots // k)
-    if p.max_episode_steps:
-        shortest = min(shortest, p.max_episode_steps)
-    cap = n_runs * p.n_groups * (n_steps // max(1, shortest) + 1)
-    ep_buf = np.empty((cap, EP_COLS), dtype=np.int64)
-    tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
-    watched = np.zeros(p.n_cells, dtype=bool)
-    watched[rec.watch[(rec.watch >= 0) & (rec.watch < p.n_cells)]] = True
-    rows = n_runs * k * n_steps if rec.wants_updates else 1
-    up_int = np.empty((rows, UP_INT), dtype=np.int64)
-    up_float = np.empty((rows, UP_FLOAT), dtype=np.float64)
-    t0 = s.t
-    t_end, n_ep, n_up = run_block(
-        t0,
-        u,
-        p.neighbors,
-        p.wall_legal,
-        p.dot_value,
-        p.has_dot,
-        p.incremental_value,
-        p.idle_horizon,
-        p.lambda_weight,
-        p.communication,
-        p.avoid_collisions,
-        p.diameter,
-        p.max_episode_steps,
-        p.episodes,
-        strategy.use_heading,
-        strategy.gamma,
-        strategy.epsilon,
-        s.pos,
-        s.head,
-        s.occ,
-        s.dots,
-        s.last,
-        s.dots_left,
-        s.ep_dots,
-        s.ep_visits,
-        s.ep_start,
-        s.ep_count,
-        s.ep_seen,
-        s.ep_seen_state,
-        s.wait,
-        s.token,
-        s.token_held,
-        s.active,
-        s.steps_done,
-        strategy.q,
-        strategy.n,
-        m.last,
-        m.last_sum,
-        m.visits,
-        m.window_visits,
-        m.idle_total,
-        m.worst,
-        m.measured,
-        m.gap_sum,
-        m.gap_count,
-        m.gap_max,
-        m.max_wait,
-        m.wait_total,
-        m.warmup,
-        tail_pos,
-        tail.n,
-        ep_buf,
-        p.battery,
-        p.homes,
-        p.home_dist,
-        p.home_dir,
-        p.nearest_home_dist,
-        p.depart_len,
-        p.pocket_of,
-        p.pocket_depth,
-        p.pocket_entry,
-        p.capacity,
-        p.margin,
-        p.charge_steps,
-        s.charge,
-        s.mode,
-        s.rest,
-        s.goal,
-        s.queued_since,
-        s.depart_left,
-        s.reserved,
-        m.min_charge,
-        rec.transitions,
-        watched,
-        up_int,
-        up_float,
-    )
-    s.t = int(t_end)
-    # a run that stopped before the batch did sat out its last steps: no wait, no token,
-    # and a robot leaving a station released it
-    out = s.steps_done < s.t
-    if out.any():
-        s.wait[out] = 0
-        if p.avoid_collisions and p.n_agents > 1:
-            s.token[out] = -1
-            s.token_held[out] = 0
-        rows, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
-        s.reserved[rows, s.goal[rows, ks]] = -1
-        s.goal[rows, ks] = -1
-        s.depart_left[rows, ks] = 0
-    return int(t_end) - t0, ep_buf[:n_ep], up_int[:n_up], up_float[:n_up]
+
+    def __init__(self, state: State, p: Params, strategy, measures, tail, rec, max_steps: int):
+        s, m = state, measures
+        self.state, self.p = s, p
+        n_runs, k = s.pos.shape
+        n_dots = int(p.has_dot.sum())
+        shortest = -(-n_dots // k)
+        if p.max_episode_steps:
+            shortest = min(shortest, p.max_episode_steps)
+        cap = n_runs * p.n_groups * (max_steps // max(1, shortest) + 1)
+        self.ep_buf = np.empty((cap, EP_COLS), dtype=np.int64)
+        tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
+        watched = np.zeros(p.n_cells, dtype=bool)
+        watched[rec.watch[(rec.watch >= 0) & (rec.watch < p.n_cells)]] = True
+        rows = n_runs * k * max_steps if rec.wants_updates else 1
+        self.up_int = np.empty((rows, UP_INT), dtype=np.int64)
+        self.up_float = np.empty((rows, UP_FLOAT), dtype=np.float64)
+        self.args = (
+            p.neighbors,
+            p.wall_legal,
+            p.dot_value,
+            p.has_dot,
+            p.incremental_value,
+            p.idle_horizon,
+            p.lambda_weight,
+            p.communication,
+            p.avoid_collisions,
+            p.diameter,
+            p.max_episode_steps,
+            p.episodes,
+            strategy.use_heading,
+            strategy.gamma,
+            strategy.epsilon,
+            s.pos,
+            s.head,
+            s.occ,
+            s.dots,
+            s.last,
+            s.dots_left,
+            s.ep_dots,
+            s.ep_visits,
+            s.ep_start,
+            s.ep_count,
+            s.ep_seen,
+            s.ep_seen_state,
+            s.wait,
+            s.token,
+            s.token_held,
+            s.active,
+            s.steps_done,
+            strategy.q,
+            strategy.n,
+            m.last,
+            m.last_sum,
+            m.visits,
+            m.window_visits,
+            m.idle_total,
+            m.worst,
+            m.measured,
+            m.gap_sum,
+            m.gap_count,
+            m.gap_max,
+            m.max_wait,
+            m.wait_total,
+            m.warmup,
+            tail_pos,
+            tail.n,
+            self.ep_buf,
+            p.battery,
+            p.homes,
+            p.home_dist,
+            p.home_dir,
+            p.nearest_home_dist,
+            p.depart_len,
+            p.pocket_of,
+            p.pocket_depth,
+            p.pocket_entry,
+            p.capacity,
+            p.margin,
+            p.charge_steps,
+            s.charge,
+            s.mode,
+            s.rest,
+            s.goal,
+            s.queued_since,
+            s.depart_left,
+            s.reserved,
+            m.min_charge,
+            rec.transitions,
+            watched,
+            self.up_int,
+            self.up_float,
+        )
+
+    def run(self, u: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
+        ``[R, T, K, 2]``).
+
+        Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
+        [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
+        the loop stops early when every run has met its episode quota.
+        """
+        s, p = self.state, self.p
+        t0 = s.t
+        t_end, n_ep, n_up = run_block(t0, np.ascontiguousarray(u), *self.args)
+        s.t = int(t_end)
+        # a run that stopped before the batch did sat out its last steps: no wait, no
+        # token, and a robot leaving a station released it
+        out = s.steps_done < s.t
+        if out.any():
+            s.wait[out] = 0
+            if p.avoid_collisions and p.n_agents > 1:
+                s.token[out] = -1
+                s.token_held[out] = 0
+            rows, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
+            s.reserved[rows, s.goal[rows, ks]] = -1
+            s.goal[rows, ks] = -1
+            s.depart_left[rows, ks] = 0
+        return (
+            int(t_end) - t0,
+            self.ep_buf[:n_ep].copy(),
+            self.up_int[:n_up].copy(),
+            self.up_float[:n_up].copy(),
+        )
