@@ -16,8 +16,9 @@ from typing import Any
 
 import numpy as np
 
-from qpatrol import reference
+from qpatrol import reference, world
 from qpatrol.config import Config, from_flat
+from qpatrol.maps import DIRECTIONS
 from qpatrol.rng import Streams, run_seeds
 from qpatrol.run import RunResult, prepare, simulate
 
@@ -71,23 +72,17 @@ def time_core(cfg: Config) -> tuple[float, RunResult]:
 
 def time_reference(cfg: Config) -> tuple[float, int]:
     """``(seconds, agent-steps)`` of the plain-Python loop on run 0 of ``cfg``."""
-    _, p = prepare(cfg)
-    m, _ = prepare(cfg)
+    m, p = prepare(cfg)
     k = cfg["agents"]
     steps = max(1, min(cfg["steps"], REFERENCE_BUDGET // k))
     streams = Streams(run_seeds(cfg["seed"], 1), k)
-    from qpatrol import world
-
     starts = world.place_agents(p, m, streams.generators[0]).tolist()
     u = streams.take(steps)[0]
-    q_init = [cfg[f"learning.q_init.{d}"] * cfg["learning.multiplier"] for d in _DIRS]
+    q_init = [cfg[f"learning.q_init.{d}"] * cfg["learning.multiplier"] for d in DIRECTIONS]
     use_heading = cfg["learning.state_space"] == "cell_heading"
     t = time.perf_counter()
     reference.run(p, starts, u, q_init, cfg["learning.gamma"], cfg["learning.epsilon"], use_heading)
     return time.perf_counter() - t, steps * k
-
-
-_DIRS = ("north", "east", "south", "west")
 
 
 def bench(cfg: Config) -> dict[str, Any]:
