@@ -646,7 +646,7 @@ def bench(
     ] = 1,
     steps: Annotated[
         int, typer.Option("--steps", "-T", metavar="T", help="Team steps per run.")
-    ] = 20000,
+    ] = 50000,
     engine: Annotated[
         str, typer.Option("--engine", "-e", metavar="E", help="auto, numpy or numba.")
     ] = "auto",

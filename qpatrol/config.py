@@ -240,7 +240,8 @@ SCHEMA: tuple[Field, ...] = (
         "choice",
         "auto",
         "how runs are computed: numpy (the reference), numba (compiled, `qpatrol[fast]`), or "
-        "auto (numba when installed); every engine gives the same files to the bit",
+        "auto (numba when installed, for batches of at least 50,000 runs x agents x steps); "
+        "every engine gives the same files to the bit",
         choices=("auto", "numpy", "numba"),
     ),
 )

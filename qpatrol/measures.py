@@ -153,7 +153,11 @@ def summarize(
     # episodes per batch row, without a DataFrame filter per run (O(runs x episodes))
     order = np.argsort(ids, kind="stable")
     ep_run = episodes["run"].to_numpy()
-    row = order[np.searchsorted(ids, ep_run, sorter=order)] if ep_run.size else ep_run
+    row = (
+        order[np.searchsorted(ids, ep_run, sorter=order)]
+        if ep_run.size
+        else np.zeros(0, dtype=np.int64)
+    )
     complete = episodes["complete"].to_numpy() == 1
     counted = complete & (episodes["start_step"].to_numpy() > m.warmup)
     n_complete = np.bincount(row[complete], minlength=n)

@@ -146,9 +146,12 @@ def test_recorders(rooms_map, tmp_path, record, battery):
 
 
 def test_engine_choice(monkeypatch):
-    cfg = from_flat({"battery.enabled": False, "engine": "numpy"})
+    cfg = from_flat({"battery.enabled": False, "engine": "numpy", "runs": 16})
     assert engines.choose(cfg) == ("numpy", "")
     assert engines.choose(cfg.replace(engine="auto")) == ("numba", "")
+    small = cfg.replace(engine="auto", runs=1, steps=1000)
+    assert engines.choose(small)[0] == "numpy" and "small batch" in engines.choose(small)[1]
+    assert engines.choose(small.replace(engine="numba")) == ("numba", "")
     monkeypatch.setattr(engines, "numba_installed", lambda: False)
     assert engines.choose(cfg.replace(engine="auto")) == ("numpy", "numba not installed")
     with pytest.raises(ConfigError, match="engine: numba is not installed"):

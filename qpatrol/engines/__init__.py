@@ -6,7 +6,8 @@
   ``qpatrol[fast]``), for the configs :func:`compiled_gap` accepts; any other config
   runs on the numpy engine and says so (:func:`choose` returns the reason).
 
-Config key ``engine``: ``auto`` (numba when installed), ``numpy`` or ``numba``. Every
+Config key ``engine``: ``auto`` (numba when installed, for batches of at least
+:data:`AUTO_MIN_AGENT_STEPS` agent-steps), ``numpy`` or ``numba``. Every
 engine writes the same files to the bit; ``meta.json`` records which one ran.
 """
 
@@ -29,6 +30,12 @@ def compiled_gap(cfg: Config) -> str | None:
     return None
 
 
+#: ``engine: auto`` takes numba for batches of at least this many agent-steps (runs x
+#: agents x steps); smaller ones run on numpy, where they take seconds at most. (It also
+#: keeps the progress of a small sweep point observable: tests/test_progress.py.)
+AUTO_MIN_AGENT_STEPS = 50_000
+
+
 def choose(cfg: Config) -> tuple[str, str]:
     """``(engine, note)``: the engine that runs ``cfg``, and why when it is not the one
     asked for (empty note otherwise). Raises ConfigError for ``engine: numba`` without
@@ -36,6 +43,9 @@ def choose(cfg: Config) -> tuple[str, str]:
     asked = cfg["engine"]
     if asked == "numpy":
         return "numpy", ""
+    size = cfg["runs"] * cfg["agents"] * cfg["steps"]
+    if asked == "auto" and size < AUTO_MIN_AGENT_STEPS:
+        return "numpy", f"auto: a small batch ({size:,} < {AUTO_MIN_AGENT_STEPS:,} agent-steps)"
     if not numba_installed():
         if asked == "numba":
             raise ConfigError(
