@@ -628,6 +628,52 @@ def _print_summary(rows: list[dict]) -> None:
             typer.echo(f"{k:24s} {'-':>12s}")
 
 
+# --------------------------------------------------------------------------- bench
+
+
+@app.command(
+    **command(
+        examples=(
+            "qpatrol bench                                (1 run, 1 agent, map_a)",
+            "qpatrol bench --runs 2048 --engine numpy --json",
+            "qpatrol bench --runs 256 --agents 4 --steps 2000",
+        )
+    )
+)
+def bench(
+    runs: Annotated[int, typer.Option("--runs", "-B", metavar="B", help="Runs in the batch.")] = 1,
+    agents: Annotated[
+        int, typer.Option("--agents", "-K", metavar="K", help="Robots per team.")
+    ] = 1,
+    steps: Annotated[
+        int, typer.Option("--steps", "-T", metavar="T", help="Team steps per run.")
+    ] = 50000,
+    engine: Annotated[
+        str, typer.Option("--engine", "-e", metavar="E", help="auto, numpy or numba.")
+    ] = "auto",
+    map_: Annotated[str, typer.Option("--map", "-m", metavar="M", help="Map name or file.")] = (
+        "map_a"
+    ),
+    set_: SetOpt = None,
+    as_json: Annotated[
+        bool, typer.Option("--json", metavar="", help="One JSON object instead of text.")
+    ] = False,
+) -> None:
+    """Measure agent-steps per second of a Q-learning workload (battery off) and of a
+    plain-Python reference loop (qpatrol/reference.py) in the same process, with their
+    ratio, bytes per run and peak memory. Says which engine ran, and why if it fell back.
+    """
+    from qpatrol import bench as bench_mod
+
+    try:
+        extra = dict(config_mod.parse_assignment(a) for a in set_ or [])
+        cfg = bench_mod.workload(runs, agents, steps, engine, map_, extra)
+        result = bench_mod.bench(cfg)
+    except (ConfigError, MapError) as e:
+        fail(str(e))
+    typer.echo(json.dumps(result) if as_json else bench_mod.report(result))
+
+
 # --------------------------------------------------------------------------- maps
 
 

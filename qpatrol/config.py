@@ -242,7 +242,19 @@ SCHEMA: tuple[Field, ...] = (
         "write timeline.csv: average and worst idleness in windows of N team steps (0: off)",
         low=0,
     ),
+    F(
+        "engine",
+        "choice",
+        "auto",
+        "how runs are computed: numpy (the reference), numba (compiled, `qpatrol[fast]`), or "
+        "auto (numba when installed, for batches of at least 50,000 runs x agents x steps); "
+        "every engine gives the same files to the bit",
+        choices=("auto", "numpy", "numba"),
+    ),
 )
+#: Keys that choose how a result is computed, never what it is: left out of
+#: ``config.yaml`` and of :meth:`Config.digest` (the engine that ran is in ``meta.json``).
+EXECUTION_KEYS: tuple[str, ...] = ("engine",)
 FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
 KEYS: tuple[str, ...] = tuple(FIELDS)
 
@@ -387,7 +399,7 @@ class Config:
 
     def tree(self) -> dict[str, Any]:
         """The nested mapping, as written to ``config.yaml``."""
-        return _unflatten(self.values)
+        return _unflatten({k: v for k, v in self.values.items() if k not in EXECUTION_KEYS})
 
     def to_yaml(self) -> str:
         """The fully resolved config as YAML text (keys in schema order)."""
@@ -395,7 +407,8 @@ class Config:
 
     def digest(self) -> str:
         """A short hash of the resolved values, used to name run folders."""
-        blob = json.dumps(dict(self.values), sort_keys=True, default=str).encode()
+        values = {k: v for k, v in self.values.items() if k not in EXECUTION_KEYS}
+        blob = json.dumps(values, sort_keys=True, default=str).encode()
         return hashlib.sha256(blob).hexdigest()[:10]
 
 

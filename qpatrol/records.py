@@ -111,6 +111,31 @@ class Recorder:
             ]
         )
 
+    def update_rows(self, ints: np.ndarray, floats: np.ndarray) -> None:
+        """Keep Q-updates given as rows (the compiled engine's buffers,
+        :mod:`qpatrol.engines.numba_core`): ints ``[U, 9]`` batch row, step, agent, cell,
+        heading, action, next cell, next heading, dot; floats ``[U, 9]`` reward, alpha,
+        q_before, q_after, bootstrap and the Q row after the update (N, E, S, W)."""
+        if ints.shape[0] == 0:
+            return
+        i = [ints[:, j].copy() for j in range(9)]
+        f = [floats[:, j].copy() for j in range(9)]
+        self._updates.append(
+            [self.run_ids[i[0]], i[1], i[2], i[3], i[4], i[5], f[0], i[6], i[7]]
+            + [f[1], f[2], f[3], f[4], f[5], f[6], f[7], f[8], i[8]]
+        )
+
+    def episode_rows(self, rows: np.ndarray) -> None:
+        """Keep episode ends given as rows int ``[E, 9]``: batch row, group, episode,
+        start, dots, distinct cells, distinct states, complete, step ended (the compiled
+        engine's buffer, :mod:`qpatrol.engines.numba_core`)."""
+        if rows.shape[0] == 0:
+            return
+        r, g, ep, start, dots, cells, states, complete, t = (rows[:, i] for i in range(9))
+        self._episodes.append(
+            [self.run_ids[r], ep, start + 1, t - start, dots, cells, complete, states, g]
+        )
+
     def _table(
         self, parts: list[list[np.ndarray]], columns: list[str], order: list[str]
     ) -> pd.DataFrame:

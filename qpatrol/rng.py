@@ -43,3 +43,17 @@ class Streams:
         u = self._buf[:, self._i]
         self._i += 1
         return u
+
+    def take(self, n: int) -> np.ndarray:
+        """float ``[R, n, K, 2]``: the uniforms of the next ``n`` steps at once.
+
+        The same numbers :meth:`next` would give over those steps (what is left of the
+        current block first, then fresh draws), so the two may be mixed freely.
+        """
+        left = self._buf[:, self._i : self._i + n]
+        self._i += left.shape[1]
+        more = n - left.shape[1]
+        if more == 0:
+            return left
+        fresh = np.stack([g.random((more, self.agents, 2)) for g in self.generators], axis=0)
+        return np.concatenate([left, fresh], axis=1) if left.shape[1] else fresh

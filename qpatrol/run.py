@@ -22,9 +22,10 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic, limits, measures, provenance, strategies, world
+from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
+from qpatrol.engines import numpy_solo
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
@@ -68,6 +69,8 @@ class RunResult:
     trajectory: pd.DataFrame | None
     timeline: pd.DataFrame | None
     summary: list[dict[str, Any]]
+    engine: str = "numpy"
+    engine_note: str = ""
 
 
 #: Most Q-update rows ``record.transitions`` may keep in memory for one batch.
@@ -104,8 +107,12 @@ def simulate(
     whole mutable state (simulator state, random streams, recorders, step index) is
     saved as it decides (:mod:`qpatrol.checkpoint`), and a checkpoint it loaded is
     continued from instead of starting afresh: the result is the same to the bit.
+
+    The time loop runs on the engine of config key ``engine`` (:mod:`qpatrol.engines`);
+    the result does not depend on it. ``result.engine`` is the one that ran.
     """
     m, p = prepared or prepare(cfg)
+    engine, note = engines.choose(cfg)
     idx = runs if runs is not None else range(cfg["runs"])
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
@@ -124,18 +131,43 @@ def simulate(
         (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload
         first = resumed.position
     total = cfg["steps"]
-    every = max(1, total // 200)
-    for i in range(first, total):
-        if not state.active.any():
-            break
-        out = advance(state, p, strategy, streams.next(), rec)
-        watch.observe(out, state.wait, state.charge if p.battery else None)
-        tail.observe(state)
-        timeline.observe(out)
-        if progress is not None and (i + 1) % every == 0:
-            progress(i + 1, total)
-        if checkpoint is not None:
-            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+    if engine == "numba":
+        _compiled_loop(
+            state,
+            p,
+            strategy,
+            watch,
+            streams,
+            rec,
+            tail,
+            timeline,
+            first,
+            total,
+            progress,
+            checkpoint,
+        )
+    else:
+        every = max(1, total // 200)
+        solo = None
+        if numpy_solo.covers(p, strategy) and not rec.wants_updates and not timeline.window:
+            solo = numpy_solo.prepare(p, state, strategy, watch)
+        for i in range(first, total):
+            if not state.active.any():
+                break
+            u = streams.next()
+            if (
+                solo is None
+                or not state.active.all()
+                or not numpy_solo.step(solo, state, p, strategy, u, watch, rec, tail)
+            ):
+                out = advance(state, p, strategy, u, rec)
+                watch.observe(out, state.wait, state.charge if p.battery else None)
+                tail.observe(state)
+                timeline.observe(out)
+            if progress is not None and (i + 1) % every == 0:
+                progress(i + 1, total)
+            if checkpoint is not None:
+                checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -154,7 +186,59 @@ def simulate(
         trajectory=tail.table(state, rec.run_ids, m.coords),
         timeline=timeline.table(rec.run_ids, state.steps_done),
         summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
+        engine=engine,
+        engine_note=note,
     )
+
+
+#: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
+#: and Ctrl-C are served within a fraction of a second, long enough to hide the call;
+#: and at least COMPILED_MIN_STEPS team steps, so each run's tables stay in cache for a
+#: while and the per-run draws of uniforms come in long blocks.
+COMPILED_BLOCK = 1 << 20
+COMPILED_MIN_STEPS = 512
+
+
+def _compiled_loop(
+    state: world.State,
+    p: world.Params,
+    strategy: Strategy,
+    watch: measures.Measures,
+    streams: Streams,
+    rec: Recorder,
+    tail: Tail,
+    timeline: Timeline,
+    first: int,
+    total: int,
+    progress: Progress | None,
+    checkpoint: Checkpointer | None,
+) -> None:
+    """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
+    results as the numpy loop). With a checkpointer the blocks are one team step long,
+    so that it may save or stop after any step, as in the numpy loop."""
+    from qpatrol.engines import numba_core
+
+    block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (state.n_runs * p.n_agents))
+    if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
+        block = max(1, (COMPILED_BLOCK // 8) // (state.n_runs * p.n_agents))
+    if checkpoint is not None:
+        block = 1  # a checkpointer may save (or stop) after any team step
+    loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
+    every = max(1, total // 200)
+    i = first
+    while i < total and state.active.any():
+        n = min(block, total - i)
+        u = streams.take(n)
+        taken, ends, up_int, up_float = loop.run(u)
+        rec.episode_rows(ends)
+        rec.update_rows(up_int, up_float)
+        i += taken
+        if progress is not None and (block > 1 or i % every == 0):
+            progress(i, total)
+        if checkpoint is not None:
+            checkpoint.tick(i, (state, strategy, watch, streams, rec, tail, timeline))
+        if taken < n:
+            break
 
 
 def advance(
@@ -206,6 +290,9 @@ def write_run(
     check_finite(result)
     info = dict(meta) if meta is not None else provenance.collect()
     info["map"] = provenance.map_entry(result.map.text, result.map.name)
+    info["loop_engine"] = result.engine
+    if result.engine_note:
+        info["loop_engine_note"] = result.engine_note
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
         (tmp / "config.yaml").write_text(result.config.to_yaml())

@@ -89,6 +89,13 @@ class Timeline:
         self.worst[rows] = 0
         self.steps[rows] = 0
 
+    def add_rows(self, rows: np.ndarray) -> None:
+        """Windows closed by the compiled engine: int ``[W, 6]`` (run row, window, first,
+        last, idleness sum, worst), the average taken here as :meth:`_close` takes it."""
+        for r, index, first, last, idle, worst in rows.tolist():
+            avg = float(np.int64(idle) / (self.n_cells * (last - first + 1)))
+            self.rows.append((r, index, first, last, avg, worst))
+
     def table(self, run_ids: np.ndarray, steps_done: np.ndarray) -> pd.DataFrame | None:
         """``timeline.csv``: one row per run and window (a last, shorter window included).
 

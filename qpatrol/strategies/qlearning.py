@@ -32,7 +32,11 @@ if TYPE_CHECKING:
 
 
 class Strategy(base.Strategy):
-    """Tabular Q-learning; ``q`` and ``n`` are ``[R, K, C, 4 heading, 4 action]``."""
+    """Tabular Q-learning; ``q`` (float64) and ``n`` are ``[R, K, C, 4 heading, 4 action]``.
+
+    ``n`` is kept as int32 (a count never exceeds the steps of a run, at most 10**9) and
+    written as int64 (:meth:`tables`); ``1.0 / (n + 1)`` is the same float either way.
+    """
 
     name = "qlearning"
     learns = True
@@ -46,7 +50,7 @@ class Strategy(base.Strategy):
         self.use_heading = cfg["learning.state_space"] == "cell_heading"
         shape = (self.n_runs, self.n_agents, p.n_cells, 4, 4)
         self.q = np.broadcast_to(self.q_init, shape).copy()
-        self.n = np.zeros(shape, dtype=np.int64)
+        self.n = np.zeros(shape, dtype=np.int32)
 
     def _heading(self, head: np.ndarray) -> np.ndarray:
         return head if self.use_heading else np.zeros_like(head)
@@ -106,4 +110,4 @@ class Strategy(base.Strategy):
             )
 
     def tables(self) -> dict[str, np.ndarray]:
-        return {"q": self.q, "n": self.n}
+        return {"q": self.q, "n": self.n.astype(np.int64)}

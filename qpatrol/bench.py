@@ -1,0 +1,129 @@
+"""``qpatrol bench``: agent-steps per second of a workload, next to a plain-Python loop.
+
+Both run in the same process, one after the other, so the ratio is meaningful on a
+noisy machine even when the absolute numbers are not. The workload is ``runs`` runs of
+``policy: qlearning`` teams of ``agents`` robots for ``steps`` team steps on ``map``
+(battery off unless ``--set battery.enabled=on``); the reference is
+:func:`qpatrol.reference.run` on one run of the same map and team.
+"""
+
+from __future__ import annotations
+
+import resource
+import sys
+import time
+from typing import Any
+
+import numpy as np
+
+from qpatrol import reference, world
+from qpatrol.config import Config, from_flat
+from qpatrol.maps import DIRECTIONS
+from qpatrol.rng import Streams, run_seeds
+from qpatrol.run import RunResult, prepare, simulate
+
+#: Most agent-steps the reference loop is timed over (it does ~0.3 M per second).
+REFERENCE_BUDGET = 300_000
+
+
+def workload(
+    runs: int,
+    agents: int,
+    steps: int,
+    engine: str = "auto",
+    map_name: str = "map_a",
+    extra: dict[str, Any] | None = None,
+) -> Config:
+    """The config a bench runs (qlearning, battery off, no episode limit)."""
+    flat = {
+        "map": map_name,
+        "agents": agents,
+        "runs": runs,
+        "steps": steps,
+        "policy": "qlearning",
+        "battery.enabled": False,
+        "engine": engine,
+        "seed": 0,
+    }
+    flat.update(extra or {})
+    return from_flat(flat)
+
+
+def bytes_per_run(result: RunResult) -> int:
+    """Bytes of the per-run arrays (world state, learner tables, measures) per run."""
+    total = 0
+    for obj in (result.state, result.strategy, result.measures):
+        for v in vars(obj).values():
+            if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == result.state.n_runs:
+                total += v.nbytes
+    return total // result.state.n_runs
+
+
+def time_core(cfg: Config) -> tuple[float, RunResult]:
+    """``(seconds, result)`` of one :func:`qpatrol.run.simulate` of ``cfg`` (the map is
+    loaded and the compiled engine warmed up beforehand, outside the timing)."""
+    prepared = prepare(cfg)
+    warm = cfg.replace(runs=1, steps=min(cfg["steps"], 50))
+    simulate(warm, prepared=prepare(warm))
+    t = time.perf_counter()
+    result = simulate(cfg, prepared=prepared)
+    return time.perf_counter() - t, result
+
+
+def time_reference(cfg: Config) -> tuple[float, int]:
+    """``(seconds, agent-steps)`` of the plain-Python loop on run 0 of ``cfg``."""
+    m, p = prepare(cfg)
+    k = cfg["agents"]
+    steps = max(1, min(cfg["steps"], REFERENCE_BUDGET // k))
+    streams = Streams(run_seeds(cfg["seed"], 1), k)
+    starts = world.place_agents(p, m, streams.generators[0]).tolist()
+    u = streams.take(steps)[0]
+    q_init = [cfg[f"learning.q_init.{d}"] * cfg["learning.multiplier"] for d in DIRECTIONS]
+    use_heading = cfg["learning.state_space"] == "cell_heading"
+    t = time.perf_counter()
+    reference.run(p, starts, u, q_init, cfg["learning.gamma"], cfg["learning.epsilon"], use_heading)
+    return time.perf_counter() - t, steps * k
+
+
+def bench(cfg: Config) -> dict[str, Any]:
+    """Time ``cfg`` and the reference loop; the numbers ``qpatrol bench`` prints."""
+    seconds, result = time_core(cfg)
+    agent_steps = int(result.state.steps_done.sum()) * cfg["agents"]
+    ref_seconds, ref_steps = time_reference(cfg)
+    rate = agent_steps / seconds
+    ref_rate = ref_steps / ref_seconds
+    peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
+    peak_bytes = peak if sys.platform == "darwin" else peak * 1024
+    return {
+        "runs": cfg["runs"],
+        "agents": cfg["agents"],
+        "steps": cfg["steps"],
+        "map": result.map.name,
+        "engine": result.engine,
+        "engine_note": result.engine_note,
+        "seconds": seconds,
+        "agent_steps": agent_steps,
+        "agent_steps_per_s": rate,
+        "reference_agent_steps_per_s": ref_rate,
+        "ratio": rate / ref_rate,
+        "bytes_per_run": bytes_per_run(result),
+        "peak_rss_bytes": peak_bytes,
+    }
+
+
+def report(b: dict[str, Any]) -> str:
+    """The human-readable lines of a :func:`bench` result."""
+    path = b["engine"] + (f" ({b['engine_note']})" if b["engine_note"] else "")
+    return "\n".join(
+        [
+            f"workload   {b['runs']} runs x {b['agents']} agents x {b['steps']} steps on "
+            f"{b['map']}, engine {path}",
+            f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
+            f"({b['seconds']:.2f} s)",
+            f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
+            "(plain Python, qpatrol/reference.py)",
+            f"ratio      {b['ratio']:10.2f} x",
+            f"memory     {b['bytes_per_run']:,} bytes per run; peak RSS "
+            f"{b['peak_rss_bytes'] / 2**20:,.0f} MiB",
+        ]
+    )

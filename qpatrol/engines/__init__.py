@@ -1,0 +1,59 @@
+"""Engines: how the time loop of a batch is computed (never what it computes).
+
+* ``numpy``: the reference, :func:`qpatrol.run.advance` step by step (every strategy,
+  every setting, every recorder, checkpoints at any step).
+* ``numba``: the compiled loop of :mod:`qpatrol.engines.numba_core` (optional extra
+  ``qpatrol[fast]``), for the configs :func:`compiled_gap` accepts; any other config
+  runs on the numpy engine and says so (:func:`choose` returns the reason).
+
+Config key ``engine``: ``auto`` (numba when installed, for batches of at least
+:data:`AUTO_MIN_AGENT_STEPS` agent-steps), ``numpy`` or ``numba``. Every
+engine writes the same files to the bit; ``meta.json`` records which one ran.
+"""
+
+from __future__ import annotations
+
+import importlib.util
+
+from qpatrol.config import Config, ConfigError
+
+
+def numba_installed() -> bool:
+    """True when the optional numba package can be imported."""
+    return importlib.util.find_spec("numba") is not None
+
+
+def compiled_gap(cfg: Config) -> str | None:
+    """Why the compiled engine cannot run ``cfg`` (None: it can)."""
+    if cfg["policy"] != "qlearning":
+        return f"policy {cfg['policy']} (compiled: qlearning only)"
+    return None
+
+
+#: ``engine: auto`` takes numba for batches of at least this many agent-steps (runs x
+#: agents x steps); smaller ones run on numpy, where they take seconds at most. (It also
+#: keeps the progress of a small sweep point observable: tests/test_progress.py.)
+AUTO_MIN_AGENT_STEPS = 50_000
+
+
+def choose(cfg: Config) -> tuple[str, str]:
+    """``(engine, note)``: the engine that runs ``cfg``, and why when it is not the one
+    asked for (empty note otherwise). Raises ConfigError for ``engine: numba`` without
+    numba installed."""
+    asked = cfg["engine"]
+    if asked == "numpy":
+        return "numpy", ""
+    size = cfg["runs"] * cfg["agents"] * cfg["steps"]
+    if asked == "auto" and size < AUTO_MIN_AGENT_STEPS:
+        return "numpy", f"auto: a small batch ({size:,} < {AUTO_MIN_AGENT_STEPS:,} agent-steps)"
+    if not numba_installed():
+        if asked == "numba":
+            raise ConfigError(
+                "engine: numba is not installed; allowed: engine=numpy or auto, or install "
+                "the extra: pip install 'qpatrol[fast]'"
+            )
+        return "numpy", "numba not installed"
+    gap = compiled_gap(cfg)
+    if gap is not None:
+        return "numpy", f"fallback from numba: {gap}"
+    return "numba", ""

@@ -1,0 +1,919 @@
+"""The compiled engine: the whole time loop of Q-learning teams, scalar, in numba.
+
+One call advances every run of a batch by a block of team steps, in place, on the same
+arrays the numpy engine uses (:class:`qpatrol.world.State`, the learner's ``q``/``n``,
+:class:`qpatrol.measures.Measures`, the trajectory ring), so everything after the loop
+(summaries, files, checkpoints) is shared. Each step of a run reads like §3 of the
+paper: every robot chooses greedily over its open moves (ties and epsilon from the
+run's uniforms), the team moves under the traffic rules of :mod:`qpatrol.traffic`,
+each robot that entered a cell is paid, and each that made the move it chose updates
+``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max Q(s', .) - Q(s, a))``. The arithmetic is
+the numpy engine's, operation for operation, so results are equal to the bit.
+
+Covered: ``policy: qlearning``, any team size, with or without battery, communication
+and collision avoidance (right of way, pushes, station pockets and queues), episode
+quotas, and every recorder (``record.trajectory``, ``record.transitions``,
+``record.watch``, ``record.timeline``). The other strategies run on the numpy engine
+(see :func:`qpatrol.engines.compiled_gap`).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.world import Params, State
+
+#: Columns of the episode buffer: run, group, episode, start, dots, cells, states,
+#: complete, t.
+EP_COLS = 9
+#: Columns of the Q-update buffers: ints run, step, agent, cell, heading, action,
+#: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
+#: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
+UP_INT, UP_FLOAT = 9, 9
+
+
+PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
+
+
+@njit(cache=True, nogil=True)
+def _priority(wait, mode, depart_left, k, n_agents, t):
+    """:func:`qpatrol.traffic.priority` of robot k: class, then wait, then turn."""
+    if depart_left > 0:
+        cls = 3
+    elif mode == HOMING:
+        cls = 2
+    elif mode == PATROL:
+        cls = 1
+    else:
+        cls = 0
+    turn = (n_agents - 1) - (k - t) % n_agents
+    return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
+
+
+@njit(cache=True, nogil=True)
+def _kept_out(c, pocket_of, reserved_r):
+    """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    h = pocket_of[c]
+    return h >= 0 and reserved_r[h] >= 0
+
+
+@njit(cache=True, nogil=True)
+def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
+    """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
+    if station < 0:
+        return -1
+    h = station
+    if pocket_of[c] == h:
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb >= 0 and (pocket_of[nb] != h or pocket_depth[nb] < pocket_depth[c]):
+                return d
+        return -1
+    if c != pocket_entry[h]:
+        return -1
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h and occ_r[nb] < 0:
+            return d
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h:
+            return d
+    return -1
+
+
+@njit(cache=True, nogil=True)
+def _push_path(
+    nbrs, occ_r, own, start, parent, seen, queue, path, battery, mode_r, pocket_of, reserved_r
+):
+    """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
+    charging robots, nor (battery on) cells of held pockets.
+
+    Fills ``path[:m]`` with ``[start, ..., empty]`` and returns m (0: none). ``parent``
+    and ``seen`` are scratch arrays ``[C]`` left clean on return.
+    """
+    if battery and mode_r[occ_r[start]] == CHARGING:
+        return 0
+    n_seen = 0
+    seen[n_seen] = start
+    n_seen += 1
+    parent[start] = -1
+    head = 0
+    tail = 0
+    queue[tail] = start
+    tail += 1
+    m = 0
+    while head < tail and m == 0:
+        c = queue[head]
+        head += 1
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb < 0 or nb == own or parent[nb] != -2:
+                continue
+            if battery:
+                if _kept_out(nb, pocket_of, reserved_r):
+                    continue
+                j = occ_r[nb]
+                if j >= 0 and mode_r[j] == CHARGING:
+                    continue
+            parent[nb] = c
+            seen[n_seen] = nb
+            n_seen += 1
+            if occ_r[nb] < 0:
+                x = nb
+                while x != start:
+                    path[m] = x
+                    m += 1
+                    x = parent[x]
+                path[m] = start
+                m += 1
+                break
+            queue[tail] = nb
+            tail += 1
+    for i in range(n_seen):
+        parent[seen[i]] = -2
+    # reverse to start -> empty
+    for i in range(m // 2):
+        path[i], path[m - 1 - i] = path[m - 1 - i], path[i]
+    return m
+
+
+@njit(cache=True, nogil=True)
+def run_block(
+    t0,
+    u,
+    nbrs,
+    wall_legal,
+    dot_value,
+    has_dot,
+    inc,
+    horizon,
+    lam,
+    communication,
+    avoid,
+    diameter,
+    max_ep,
+    quota,
+    use_heading,
+    gamma,
+    epsilon,
+    pos,
+    head,
+    occ,
+    dots,
+    last,
+    dots_left,
+    ep_dots,
+    ep_visits,
+    ep_start,
+    ep_count,
+    ep_seen,
+    ep_seen_state,
+    wait,
+    token,
+    token_held,
+    active,
+    steps_done,
+    q,
+    n,
+    m_last,
+    m_last_sum,
+    visits,
+    window_visits,
+    idle_total,
+    worst,
+    measured,
+    gap_sum,
+    gap_count,
+    gap_max,
+    max_wait,
+    wait_total,
+    warmup,
+    tail_pos,
+    tail_n,
+    ep_buf,
+    battery,
+    homes,
+    home_dist,
+    home_dir,
+    nearest,
+    depart_len,
+    pocket_of,
+    pocket_depth,
+    pocket_entry,
+    capacity,
+    margin,
+    charge_steps,
+    charge,
+    mode,
+    rest,
+    goal,
+    queued_since,
+    depart_left,
+    reserved,
+    min_charge,
+    record_all,
+    watched,
+    up_int,
+    up_float,
+    tl_window,
+    tl_last,
+    tl_last_sum,
+    tl_idle_sum,
+    tl_worst,
+    tl_steps,
+    tl_buf,
+):
+    """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
+
+    ``u``: float ``[R, T, K, 2]``. Arrays are the engine's state (see module doc),
+    modified in place. Ended episodes are written to ``ep_buf`` ``[E, EP_COLS]``.
+    Q-updates of every robot (``record_all``) or of the ``watched`` cells (bool ``[C]``)
+    go to ``up_int`` ``[U, UP_INT]`` and ``up_float`` ``[U, UP_FLOAT]``.
+    With ``tl_window`` > 0 the idleness timeline (:class:`qpatrol.timeline.Timeline`,
+    its arrays ``tl_*``) is kept too, each closed window a row of ``tl_buf`` ``[W, 6]``
+    (run row, window, first step, last step, idleness sum, worst).
+    Returns ``(last team step taken by any run, episode rows, update rows written,
+    timeline rows written)``.
+    """
+    n_runs, n_steps, n_agents = u.shape[0], u.shape[1], u.shape[2]
+    n_cells = nbrs.shape[0]
+    n_groups = dots.shape[1]
+    n_dots = 0
+    for c in range(n_cells):
+        if has_dot[c]:
+            n_dots += 1
+    want = np.empty(n_agents, np.int64)
+    ask = np.empty(n_agents, np.int64)
+    prev_pos = np.empty(n_agents, np.int64)
+    prev_head = np.empty(n_agents, np.int64)
+    moved = np.empty(n_agents, np.bool_)
+    as_asked = np.empty(n_agents, np.bool_)
+    reward = np.empty(n_agents, np.float64)
+    blocked_by = np.empty(n_agents, np.int64)
+    order = np.empty(n_agents, np.int64)
+    key = np.empty(n_agents, np.int64)
+    choosing = np.empty(n_agents, np.bool_)
+    eaten = np.empty(n_agents, np.bool_)
+    n_up = 0
+    yielding = np.empty(n_agents, np.bool_)
+    held_back = np.empty(n_agents, np.bool_)
+    n_homes = homes.shape[0]
+    mask = np.empty(4, np.bool_)
+    cand = np.empty(4, np.int64)
+    parent = np.full(n_cells, -2, np.int64)
+    seen = np.empty(n_cells, np.int64)
+    queue = np.empty(n_cells, np.int64)
+    path = np.empty(n_cells, np.int64)
+    t_end = t0
+    n_ep = 0
+    n_tl = 0
+    for r in range(n_runs):
+        for i in range(n_steps):
+            if not active[r]:
+                break
+            t = t0 + i + 1
+            tok = token[r]
+            if battery:
+                # battery.begin: charging countdown, robots that need a station, the queue
+                for k in range(n_agents):
+                    if mode[r, k] == CHARGING:
+                        rest[r, k] -= 1
+                        if rest[r, k] < 0:
+                            rest[r, k] = 0
+                            mode[r, k] = PATROL
+                            charge[r, k] = capacity
+                            depart_left[r, k] = 2 * depart_len[goal[r, k]]
+                any_queued = False
+                for k in range(n_agents):
+                    if (
+                        mode[r, k] == PATROL
+                        and depart_left[r, k] == 0
+                        and charge[r, k] <= nearest[pos[r, k]] + margin + 1
+                    ):
+                        mode[r, k] = QUEUED
+                        queued_since[r, k] = t
+                    if mode[r, k] == QUEUED:
+                        any_queued = True
+                if any_queued:
+                    # _assign_stations: first come first served (ties: lower index)
+                    for k in range(n_agents):
+                        order[k] = k
+                        if mode[r, k] == QUEUED:
+                            key[k] = queued_since[r, k] * n_agents + k
+                        else:
+                            key[k] = (1 << 50) * n_agents + k
+                    for a in range(1, n_agents):
+                        x = order[a]
+                        b = a - 1
+                        while b >= 0 and key[order[b]] > key[x]:
+                            order[b + 1] = order[b]
+                            b -= 1
+                        order[b + 1] = x
+                    for a in range(n_agents):
+                        k = order[a]
+                        if mode[r, k] != QUEUED:
+                            break
+                        best_h = -1
+                        best_d = np.iinfo(np.int64).max
+                        for h in range(n_homes):
+                            dist = home_dist[h, pos[r, k]]
+                            if reserved[r, h] < 0 and dist <= charge[r, k] and dist < best_d:
+                                best_d = dist
+                                best_h = h
+                        if best_h >= 0:
+                            reserved[r, best_h] = k
+                            goal[r, k] = best_h
+                            mode[r, k] = HOMING
+            # --- choose (qlearning.act): greedy over open moves, ties by u[..., 1] ----
+            for k in range(n_agents):
+                c = pos[r, k]
+                h = head[r, k] if use_heading else 0
+                choosing[k] = mode[r, k] == PATROL
+                held_back[k] = False
+                yielding[k] = False
+                any_open = False
+                for d in range(4):
+                    nb = nbrs[c, d]
+                    ok = nb >= 0
+                    if ok and battery:  # battery.closed_cells: deeper into a held pocket
+                        hp = pocket_of[nb]
+                        if hp >= 0:
+                            holder = reserved[r, hp]
+                            if holder >= 0 and holder != k:
+                                if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
+                                    ok = False
+                    if ok and avoid and k != tok and occ[r, nb] >= 0:
+                        ok = False
+                    mask[d] = ok
+                    any_open = any_open or ok
+                if not any_open:
+                    for d in range(4):
+                        mask[d] = nbrs[c, d] >= 0
+                best = -np.inf
+                for d in range(4):
+                    if mask[d] and q[r, k, c, h, d] > best:
+                        best = q[r, k, c, h, d]
+                explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
+                count = 0
+                for d in range(4):
+                    if mask[d] and (explore or q[r, k, c, h, d] == best):
+                        cand[count] = d
+                        count += 1
+                if count == 0 or not choosing[k]:
+                    ask[k] = -1
+                else:
+                    j = min(np.int64(u[r, i, k, 1] * count), count - 1)
+                    ask[k] = cand[j]
+                prev_pos[k] = c
+                prev_head[k] = head[r, k]
+                moved[k] = False
+                as_asked[k] = False
+            if battery:
+                for k in range(n_agents):
+                    c = pos[r, k]
+                    if mode[r, k] == HOMING:  # battery.homing_ask
+                        gk = max(goal[r, k], 0)
+                        direction = home_dir[gk, c]
+                        entry = pocket_entry[gk]
+                        if entry >= 0:
+                            depth_others = -1
+                            for j2 in range(n_agents):
+                                if j2 != k and pocket_of[pos[r, j2]] == gk:
+                                    depth_others = max(depth_others, pocket_depth[pos[r, j2]])
+                            occupied = depth_others >= 0
+                            my_depth = pocket_depth[c] if pocket_of[c] == gk else 0
+                            at_entry = c == entry
+                            nxt = nbrs[c, max(direction, 0)]
+                            entering = (
+                                direction >= 0 and my_depth == 0 and not at_entry and nxt == entry
+                            )
+                            held = occupied and entering
+                            yld = occupied and (
+                                at_entry or (depth_others > my_depth and my_depth > 0)
+                            )
+                            out = _way_out(
+                                nbrs, pocket_of, pocket_depth, pocket_entry, occ[r], c, gk
+                            )
+                            if held:
+                                direction = -1
+                            elif yld:
+                                direction = out
+                            held_back[k] = held
+                            yielding[k] = yld and out >= 0
+                        ask[k] = direction
+                    elif mode[r, k] == QUEUED:  # battery.queued_ask
+                        station = -1
+                        hp = pocket_of[c]
+                        if hp >= 0:
+                            holder = reserved[r, hp]
+                            if holder >= 0 and holder != k:
+                                station = hp
+                        for hh in range(n_homes):
+                            if c == pocket_entry[hh] and reserved[r, hh] >= 0:
+                                if reserved[r, hh] != k:
+                                    station = hh
+                                    break
+                        ask[k] = _way_out(
+                            nbrs, pocket_of, pocket_depth, pocket_entry, occ[r], c, station
+                        )
+                        if ask[k] >= 0:
+                            yielding[k] = True
+            for k in range(n_agents):
+                want[k] = nbrs[pos[r, k], ask[k]] if ask[k] >= 0 else -1
+            # --- move (traffic.resolve) ---------------------------------------------
+            push_failed = False
+            if not avoid:
+                for k in range(n_agents):
+                    if want[k] >= 0:
+                        pos[r, k] = want[k]
+                        moved[k] = True
+                        as_asked[k] = True
+            else:
+                if tok >= 0 and want[tok] >= 0:
+                    # 1. the holder takes its cell, pushing robots aside, or steps aside
+                    own = pos[r, tok]
+                    dest = -1
+                    m = 0
+                    for ci in range(5):
+                        if ci == 0:
+                            cell = want[tok]
+                        else:
+                            cell = nbrs[own, ci - 1]
+                            if cell < 0 or cell == want[tok]:
+                                continue
+                            if battery and _kept_out(cell, pocket_of, reserved[r]):
+                                continue
+                        if occ[r, cell] < 0:
+                            dest = cell
+                            m = 0
+                            break
+                        m = _push_path(
+                            nbrs,
+                            occ[r],
+                            own,
+                            cell,
+                            parent,
+                            seen,
+                            queue,
+                            path,
+                            battery,
+                            mode[r],
+                            pocket_of,
+                            reserved[r],
+                        )
+                        if m > 0:
+                            dest = cell
+                            break
+                    if dest < 0:
+                        push_failed = True
+                    else:
+                        for x in range(m - 2, -1, -1):
+                            jr = occ[r, path[x]]
+                            occ[r, pos[r, jr]] = -1
+                            occ[r, path[x + 1]] = jr
+                            pos[r, jr] = path[x + 1]
+                            moved[jr] = True
+                            as_asked[jr] = want[jr] == path[x + 1]
+                        occ[r, pos[r, tok]] = -1
+                        occ[r, dest] = tok
+                        pos[r, tok] = dest
+                        moved[tok] = True
+                        as_asked[tok] = dest == want[tok]
+                        push_failed = not as_asked[tok]
+                # 2. everyone else, in priority order, into cells empty at that moment
+                if n_agents == 1:  # alone: the priority order is trivial
+                    w = want[0]
+                    if w >= 0 and not moved[0] and occ[r, w] < 0:
+                        occ[r, pos[r, 0]] = -1
+                        occ[r, w] = 0
+                        pos[r, 0] = w
+                        moved[0] = True
+                        as_asked[0] = True
+                for k in range(n_agents if n_agents > 1 else 0):
+                    key[k] = _priority(wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t)
+                    order[k] = k
+                for a in range(1, n_agents):  # insertion sort, largest key first
+                    x = order[a]
+                    b = a - 1
+                    while b >= 0 and key[order[b]] < key[x]:
+                        order[b + 1] = order[b]
+                        b -= 1
+                    order[b + 1] = x
+                progress = n_agents > 1
+                while progress:
+                    progress = False
+                    for a in range(n_agents):
+                        k = order[a]
+                        w = want[k]
+                        if w >= 0 and not moved[k] and occ[r, w] < 0:
+                            occ[r, pos[r, k]] = -1
+                            occ[r, w] = k
+                            pos[r, k] = w
+                            moved[k] = True
+                            as_asked[k] = True
+                            progress = True
+            # --- entering a cell: dots, visits, reward, heading -------------------------
+            for k in range(n_agents):
+                reward[k] = 0.0
+                eaten[k] = False
+                if not moved[k]:
+                    continue
+                g = 0 if communication else k
+                c0 = prev_pos[k]
+                c1 = pos[r, k]
+                a = 0
+                for d in range(4):
+                    if nbrs[c0, d] == c1:
+                        a = d
+                        break
+                ate = dots[r, g, c1]
+                eaten[k] = ate
+                dots[r, g, c1] = False
+                if ate:
+                    dots_left[r, g] -= 1
+                    ep_dots[r, g] += 1
+                ep_visits[r, g] += 1
+                idle = t - last[r, g, c1]
+                last[r, g, c1] = t
+                ep_seen[r, g, c1] = True
+                ep_seen_state[r, g, c1, a] = True
+                reward[k] = (
+                    (dot_value[c1] if ate else 0.0)
+                    + inc * min(1.0, idle / horizon)
+                    + lam * ep_dots[r, g] / ep_visits[r, g]
+                )
+                head[r, k] = a
+            if battery:
+                # a move costs one unit; yielding (pushed aside, or out of a pocket) is free
+                for k in range(n_agents):
+                    if not moved[k]:
+                        continue
+                    if as_asked[k] and not yielding[k]:
+                        charge[r, k] -= 1
+                    elif mode[r, k] == HOMING or mode[r, k] == QUEUED:  # credit_detour
+                        gk = max(goal[r, k], 0)
+                        if mode[r, k] == HOMING:
+                            d_before = home_dist[gk, prev_pos[k]]
+                            d_after = home_dist[gk, pos[r, k]]
+                        else:
+                            d_before = nearest[prev_pos[k]]
+                            d_after = nearest[pos[r, k]]
+                        credit = max(d_after - d_before, 0)
+                        charge[r, k] = min(charge[r, k] + credit, capacity)
+                # battery.end: departed robots release stations, arrivals start charging
+                for k in range(n_agents):
+                    if depart_left[r, k] > 0:
+                        depart_left[r, k] -= 1
+                        if depart_left[r, k] == 0 or ask[k] < 0:
+                            reserved[r, goal[r, k]] = -1
+                            goal[r, k] = -1
+                            depart_left[r, k] = 0
+                for k in range(n_agents):
+                    if mode[r, k] == HOMING and pos[r, k] == homes[max(goal[r, k], 0)]:
+                        if charge_steps > 0:
+                            mode[r, k] = CHARGING
+                            rest[r, k] = charge_steps
+                        else:
+                            mode[r, k] = PATROL
+                            charge[r, k] = capacity
+                            depart_left[r, k] = 2 * depart_len[goal[r, k]]
+            # --- waits, who blocked whom, the right of way -----------------------------
+            for k in range(n_agents):
+                failed = ask[k] >= 0 and not as_asked[k]
+                blocked_by[k] = occ[r, want[k]] if failed else -1
+                if battery and (mode[r, k] == QUEUED or held_back[k]):
+                    failed = True
+                wait[r, k] = wait[r, k] + 1 if failed else 0
+            if avoid and n_agents > 1:
+                best_k = -1
+                best_key = -1
+                for k in range(n_agents):
+                    kk = -1
+                    if want[k] >= 0 and not as_asked[k]:
+                        kk = _priority(
+                            wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t + 1
+                        )
+                    if tok >= 0 and push_failed and k == tok:
+                        kk = -1
+                    if kk > best_key:
+                        best_key = kk
+                        best_k = k
+                new = best_k
+                if tok >= 0:
+                    blocker = blocked_by[tok]
+                    blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
+                    if as_asked[tok] and token_held[r] < diameter:
+                        new = tok
+                    elif push_failed and blocker_waits:
+                        new = blocker
+                token_held[r] = token_held[r] + 1 if (new == tok and new >= 0) else 0
+                token[r] = new
+            steps_done[r] = t
+            # --- episodes: all dots eaten, or too long ---------------------------------
+            ended_any = False
+            for g in range(n_groups):
+                complete = dots_left[r, g] == 0
+                if not (complete or (max_ep > 0 and t - ep_start[r, g] >= max_ep)):
+                    continue
+                ended_any = True
+                cells = 0
+                states = 0
+                for c in range(n_cells):
+                    if ep_seen[r, g, c]:
+                        cells += 1
+                    for d in range(4):
+                        if ep_seen_state[r, g, c, d]:
+                            states += 1
+                        ep_seen_state[r, g, c, d] = False
+                    ep_seen[r, g, c] = False
+                    dots[r, g, c] = has_dot[c]
+                row = ep_buf[n_ep]
+                row[0] = r
+                row[1] = g
+                row[2] = ep_count[r, g]
+                row[3] = ep_start[r, g]
+                row[4] = ep_dots[r, g]
+                row[5] = cells
+                row[6] = states
+                row[7] = 1 if complete else 0
+                row[8] = t
+                n_ep += 1
+                dots_left[r, g] = n_dots
+                ep_dots[r, g] = 0
+                ep_visits[r, g] = 0
+                ep_start[r, g] = t
+                ep_count[r, g] += 1
+            if ended_any and quota > 0:
+                low = ep_count[r, 0]
+                for g in range(1, n_groups):
+                    low = min(low, ep_count[r, g])
+                active[r] = low < quota
+            # --- learn (qlearning.learn): robots that made the move they chose ----------
+            for k in range(n_agents):
+                if not as_asked[k] or not choosing[k]:
+                    continue
+                ca = prev_pos[k]
+                ha = prev_head[k] if use_heading else 0
+                aa = ask[k]
+                cb = nbrs[ca, aa]
+                hb = aa if use_heading else 0
+                top = -np.inf
+                for d in range(4):
+                    if wall_legal[cb, d] and q[r, k, cb, hb, d] > top:
+                        top = q[r, k, cb, hb, d]
+                target = reward[k] + gamma * top
+                q_sa = q[r, k, ca, ha, aa]
+                n_after = n[r, k, ca, ha, aa] + 1
+                alpha = 1.0 / n_after
+                q[r, k, ca, ha, aa] = q_sa + alpha * (target - q_sa)
+                n[r, k, ca, ha, aa] = n_after
+                if record_all or watched[ca]:  # Recorder.updates
+                    ri = up_int[n_up]
+                    ri[0] = r
+                    ri[1] = t
+                    ri[2] = k
+                    ri[3] = ca
+                    ri[4] = ha
+                    ri[5] = aa
+                    ri[6] = cb
+                    ri[7] = hb
+                    ri[8] = 1 if eaten[k] else 0
+                    rf = up_float[n_up]
+                    rf[0] = reward[k]
+                    rf[1] = alpha
+                    rf[2] = q_sa
+                    rf[3] = q[r, k, ca, ha, aa]
+                    rf[4] = gamma * top
+                    for d in range(4):
+                        rf[5 + d] = q[r, k, ca, ha, d]
+                    n_up += 1
+            # --- measures (Measures.observe) and the trajectory ring -------------------
+            in_window = t > warmup
+            for k in range(n_agents):
+                if not moved[k]:
+                    continue
+                c = pos[r, k]
+                prev = m_last[r, c]
+                m_last[r, c] = t
+                m_last_sum[r] += t - prev
+                visits[r, k, c] += 1
+                if in_window:
+                    window_visits[r, k, c] += 1
+                    gap = t - prev if prev > 0 else 0
+                    gap_sum[r] += gap
+                    if prev > 0:
+                        gap_count[r] += 1
+                    gap_max[r] = max(gap_max[r], gap)
+                    if t - 1 > warmup:
+                        worst[r] = max(worst[r], t - 1 - prev)
+            if tl_window > 0:
+                # Timeline.observe: its own last visits, peaks inside t's window
+                start = ((t - 1) // tl_window) * tl_window + 1
+                for k in range(n_agents):
+                    if not moved[k]:
+                        continue
+                    c = pos[r, k]
+                    prev = tl_last[r, c]
+                    tl_last[r, c] = t
+                    tl_last_sum[r] += t - prev
+                    if t - 1 >= start:
+                        tl_worst[r] = max(tl_worst[r], t - 1 - prev)
+                tl_idle_sum[r] += n_cells * t - tl_last_sum[r]
+                tl_steps[r] += 1
+                if t % tl_window == 0:  # Timeline._close
+                    low = tl_last[r, 0]
+                    for c in range(1, n_cells):
+                        low = min(low, tl_last[r, c])
+                    row = tl_buf[n_tl]
+                    row[0] = r
+                    row[1] = (t - 1) // tl_window
+                    row[2] = t - tl_steps[r] + 1
+                    row[3] = t
+                    row[4] = tl_idle_sum[r]
+                    row[5] = max(tl_worst[r], t - low)
+                    n_tl += 1
+                    tl_idle_sum[r] = 0
+                    tl_worst[r] = 0
+                    tl_steps[r] = 0
+            if battery:
+                low = charge[r, 0]
+                for k in range(1, n_agents):
+                    low = min(low, charge[r, k])
+                min_charge[r] = min(min_charge[r], low)
+            if in_window:
+                idle_total[r] += n_cells * t - m_last_sum[r]
+                measured[r] += 1
+                top_wait = wait[r, 0]
+                waiting = 0
+                for k in range(n_agents):
+                    top_wait = max(top_wait, wait[r, k])
+                    if wait[r, k] > 0:
+                        waiting += 1
+                max_wait[r] = max(max_wait[r], top_wait)
+                wait_total[r] += waiting
+            if tail_n > 0:
+                for k in range(n_agents):
+                    tail_pos[r, (t - 1) % tail_n, k] = pos[r, k]
+            if t > t_end:
+                t_end = t
+    return t_end, n_ep, n_up, n_tl
+
+
+class Loop:
+    """The compiled loop over one batch: its constant arguments and its buffers, so a
+    call costs little even for one team step (when a checkpointer wants every step).
+
+    Args:
+        state, p, strategy, measures, tail, rec: the objects the numpy loop uses too
+            (their arrays are updated in place).
+        max_steps: most team steps one :meth:`run` will be given.
+    """
+
+    def __init__(
+        self, state: State, p: Params, strategy, measures, tail, rec, max_steps: int, timeline=None
+    ):
+        s, m = state, measures
+        self.state, self.p = s, p
+        n_runs, k = s.pos.shape
+        n_dots = int(p.has_dot.sum())
+        shortest = -(-n_dots // k)
+        if p.max_episode_steps:
+            shortest = min(shortest, p.max_episode_steps)
+        cap = n_runs * p.n_groups * (max_steps // max(1, shortest) + 1)
+        self.ep_buf = np.empty((cap, EP_COLS), dtype=np.int64)
+        tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
+        watched = np.zeros(p.n_cells, dtype=bool)
+        watched[rec.watch[(rec.watch >= 0) & (rec.watch < p.n_cells)]] = True
+        rows = n_runs * k * max_steps if rec.wants_updates else 1
+        self.up_int = np.empty((rows, UP_INT), dtype=np.int64)
+        self.up_float = np.empty((rows, UP_FLOAT), dtype=np.float64)
+        self.args = (
+            p.neighbors,
+            p.wall_legal,
+            p.dot_value,
+            p.has_dot,
+            p.incremental_value,
+            p.idle_horizon,
+            p.lambda_weight,
+            p.communication,
+            p.avoid_collisions,
+            p.diameter,
+            p.max_episode_steps,
+            p.episodes,
+            strategy.use_heading,
+            strategy.gamma,
+            strategy.epsilon,
+            s.pos,
+            s.head,
+            s.occ,
+            s.dots,
+            s.last,
+            s.dots_left,
+            s.ep_dots,
+            s.ep_visits,
+            s.ep_start,
+            s.ep_count,
+            s.ep_seen,
+            s.ep_seen_state,
+            s.wait,
+            s.token,
+            s.token_held,
+            s.active,
+            s.steps_done,
+            strategy.q,
+            strategy.n,
+            m.last,
+            m.last_sum,
+            m.visits,
+            m.window_visits,
+            m.idle_total,
+            m.worst,
+            m.measured,
+            m.gap_sum,
+            m.gap_count,
+            m.gap_max,
+            m.max_wait,
+            m.wait_total,
+            m.warmup,
+            tail_pos,
+            tail.n,
+            self.ep_buf,
+            p.battery,
+            p.homes,
+            p.home_dist,
+            p.home_dir,
+            p.nearest_home_dist,
+            p.depart_len,
+            p.pocket_of,
+            p.pocket_depth,
+            p.pocket_entry,
+            p.capacity,
+            p.margin,
+            p.charge_steps,
+            s.charge,
+            s.mode,
+            s.rest,
+            s.goal,
+            s.queued_since,
+            s.depart_left,
+            s.reserved,
+            m.min_charge,
+            rec.transitions,
+            watched,
+            self.up_int,
+            self.up_float,
+            *self._timeline_args(timeline, n_runs, p.n_cells, max_steps),
+        )
+        self.timeline = timeline if timeline is not None and timeline.window else None
+
+    def _timeline_args(self, tl, n_runs: int, n_cells: int, max_steps: int) -> tuple:
+        """The timeline's arrays (tiny dummies when it is off) and its row buffer."""
+        if tl is None or not tl.window:
+            one, row = np.zeros(1, dtype=np.int64), np.zeros((1, 1), dtype=np.int64)
+            self.tl_buf = np.zeros((1, 6), dtype=np.int64)
+            return (0, row, one, one, one, one, self.tl_buf)
+        self.tl_buf = np.empty((n_runs * (max_steps // tl.window + 2), 6), dtype=np.int64)
+        return (
+            tl.window,
+            tl.last,
+            tl.last_sum,
+            tl.idle_sum,
+            tl.worst,
+            tl.steps,
+            self.tl_buf,
+        )
+
+    def run(self, u: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+        """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
+        ``[R, T, K, 2]``).
+
+        Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
+        [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
+        the loop stops early when every run has met its episode quota.
+        """
+        s, p = self.state, self.p
+        t0 = s.t
+        t_end, n_ep, n_up, n_tl = run_block(t0, np.ascontiguousarray(u), *self.args)
+        s.t = int(t_end)
+        if self.timeline is not None:
+            self.timeline.add_rows(self.tl_buf[:n_tl])
+        # a run that stopped before the batch did sat out its last steps: no wait, no
+        # token, and a robot leaving a station released it
+        out = s.steps_done < s.t
+        if out.any():
+            s.wait[out] = 0
+            if p.avoid_collisions and p.n_agents > 1:
+                s.token[out] = -1
+                s.token_held[out] = 0
+            rows, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
+            s.reserved[rows, s.goal[rows, ks]] = -1
+            s.goal[rows, ks] = -1
+            s.depart_left[rows, ks] = 0
+        return (
+            int(t_end) - t0,
+            self.ep_buf[:n_ep].copy(),
+            self.up_int[:n_up].copy(),
+            self.up_float[:n_up].copy(),
+        )

@@ -1,0 +1,74 @@
+"""The plain-Python reference loop learns the core's Q-table from the same uniforms,
+and ``qpatrol bench`` reports both."""
+
+from __future__ import annotations
+
+import json
+
+import numpy as np
+import pytest
+from typer.testing import CliRunner
+
+from qpatrol import reference, world
+from qpatrol.cli import app
+from qpatrol.config import from_flat
+from qpatrol.maps import DIRECTIONS
+from qpatrol.rng import Streams, run_seeds
+from qpatrol.run import simulate
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"agents": 1},
+        {"agents": 1, "learning.epsilon": 0.2, "learning.gamma": 0.7},
+        {"agents": 3, "team.avoid_collisions": False, "team.communication": False},
+        {"agents": 2, "team.avoid_collisions": False, "learning.state_space": "cell"},
+    ],
+)
+def test_reference_loop_gives_the_cores_q_table(rooms_map, extra):
+    flat = {
+        "map": str(rooms_map),
+        "steps": 700,
+        "seed": 2,
+        "battery.enabled": False,
+        "max_episode_steps": 90,
+        "engine": "numpy",
+        **extra,
+    }
+    cfg = from_flat(flat)
+    core = simulate(cfg)
+    k = cfg["agents"]
+    streams = Streams(run_seeds(cfg["seed"], 1), k)
+    starts = world.place_agents(core.params, core.map, streams.generators[0]).tolist()
+    q_init = [cfg[f"learning.q_init.{d}"] * cfg["learning.multiplier"] for d in DIRECTIONS]
+    ref = reference.run(
+        core.params,
+        starts,
+        streams.take(cfg["steps"])[0],
+        q_init,
+        cfg["learning.gamma"],
+        cfg["learning.epsilon"],
+        cfg["learning.state_space"] == "cell_heading",
+    )
+    q, n = ref.arrays(core.params.n_cells, k, q_init)
+    assert n.sum() > 0
+    np.testing.assert_array_equal(n, core.strategy.n[0])
+    assert np.array_equal(q, core.strategy.q[0])  # to the bit
+    assert ref.pos == core.state.pos[0].tolist()
+
+
+def test_bench_command_json():
+    res = CliRunner().invoke(app, ["bench", "--runs", "2", "--steps", "300", "--json"])
+    assert res.exit_code == 0, res.output
+    b = json.loads(res.stdout)
+    for key in ("agent_steps_per_s", "reference_agent_steps_per_s", "ratio", "engine"):
+        assert key in b
+    assert b["agent_steps"] == 600 and b["bytes_per_run"] > 0 and b["ratio"] > 0
+
+
+def test_bench_command_text_and_errors():
+    res = CliRunner().invoke(app, ["bench", "--steps", "200", "--engine", "numpy"])
+    assert res.exit_code == 0 and "ratio" in res.stdout and "engine numpy" in res.stdout
+    res = CliRunner().invoke(app, ["bench", "--engine", "fast"])
+    assert res.exit_code == 2 and "engine: got 'fast'" in res.stderr
