@@ -415,4 +415,7 @@ def test_policies_and_learning_sweeps():
     assert full[0]["steps"] - full[0]["record.warmup"] == sw.POLICY_WINDOW
     learning = [p.overrides for p in NAMED_SWEEPS["learning"].points()]
     assert {o["policy"] for o in learning} == set(NAMES) - {"random"}
-    assert all((o["steps"] == sw.LEARNING_STEPS) == learns(o["policy"]) for o in learning)
+    for o in learning:
+        assert o["steps"] == sw.learning_steps(o["policy"])
+        assert (o["steps"] > sw.LEARNING_OTHERS_STEPS) == learns(o["policy"])
+    assert sw.learning_steps("qlearning") == 200_000 and sw.policy_warmup("qlearning") == 100_000
