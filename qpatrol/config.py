@@ -303,7 +303,7 @@ SCHEMA: tuple[Field, ...] = (
         "cell_heading_idle",
         "qlearning-idleness state: (cell, heading, direction of the most idle neighbour), "
         "or without the idleness feature (`cell_heading`) or the heading (`cell_idle`)",
-        choices=("cell_heading_idle", "cell_heading_target", "cell_heading", "cell_idle"),
+        choices=("cell_heading_idle", "cell_heading", "cell_idle"),
         used_by=QI,
     ),
     F(

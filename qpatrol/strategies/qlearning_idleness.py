@@ -1,37 +1,44 @@
-"""``qlearning-idleness``: Q-learning rewarded with idleness (beyond the paper).
+"""``qlearning-idleness``: Q-learning paid the idleness of the cell entered (beyond the paper).
 
 In the spirit of Santana, Ramalho, Corruble and Ratitch (AAMAS 2004): tabular
-Q-learning patrol agents paid the idleness of the cell they enter, with idleness
-information in their state. Not the paper's model (that is ``qlearning``, untouched).
+Q-learning patrol agents rewarded with the idleness of the cell they reach, with
+idleness information in their state. Not the paper's model (that is ``qlearning``,
+untouched); every key is ``qidle.*``.
 
 State ``(cell, heading, idlest)``: ``heading`` is the direction of the move that
 brought the robot to its cell (as in ``qlearning``), ``idlest`` the direction of the
-robot's non-wall neighbour of greatest idleness on its last-visit map (the team's
+robot's non-wall neighbour visited longest ago on its last-visit map (the team's
 shared map with communication on, its own otherwise), first in N, E, S, W order on a
-tie. ``qidle.state`` drops parts of it (ablations): ``cell_heading`` (no idleness
-feature), ``cell_idle`` (no heading).
+tie. ``qidle.state`` drops a part (ablations): ``cell_heading``, ``cell_idle``.
 
-Reward on entering ``s'`` at team step ``t`` (``qidle.reward``):
+Reward of entering ``s'`` at team step ``t`` (``qidle.reward``):
 
-* ``idleness``: ``min(cap, idle(s') / scale)`` with ``idle(s') = t - last visit of s'``
-  on the robot's last-visit map before this visit (the world's ``state.last``; a cell
-  never visited counts as visited at step 0) and ``scale = cells / robots``, the
-  revisit interval of an ideal even patrol; ``cap = qidle.reward_cap``;
-* ``dot``: the world's reward (the paper's dot + incrementalDot + lambda), an ablation.
+* ``idleness``: ``min(cap, idle(s') / scale)``, ``idle(s') = t - last visit of s'`` on
+  the robot's last-visit map before this visit (a cell never entered counts as visited
+  at step 0), ``scale = cells / robots`` (the revisit interval of an ideal even patrol),
+  ``cap = qidle.reward_cap``;
+* ``dot``: the dot value of ``s'`` if its dot is still there (ablation).
 
-Update, for every robot that chose a move and made it, ``s -a-> s'``, in robot order::
+Known reward (``qidle.known_reward``, default on). The reward of each move is on the
+maps before the move is made, so the robot chooses ``argmax_a r(s, a) + Q(s, a)`` and
+``Q`` learns the value *after* the move (an afterstate value). For every robot that
+chose a move and made it, ``s -a-> s'``, in robot order (a shared entry sees every
+update)::
 
     N(s,a) <- N(s,a) + 1;  alpha = qidle.alpha, or 1 / N(s,a) when qidle.alpha = 0
-    Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a' not into a wall} Q(s',a') - Q(s,a))
+    Q(s,a) <- Q(s,a) + alpha * (gamma * max_{a'} [r(s', a') + Q(s', a')] - Q(s,a))
 
-with ``gamma = qidle.gamma``. ``s'`` is the state the robot will choose in next: its
-idlest neighbour is read on the last-visit map after the whole team's step.
+with ``a'`` over the non-wall moves of ``s'`` and ``r(s', a')`` read on the maps after
+the whole team's step (what the robot sees when it next chooses). With
+``qidle.known_reward: off`` it is plain Q-learning: the choice is ``argmax_a Q(s, a)``
+and ``Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a'} Q(s', a') - Q(s,a))`` with the
+reward ``r`` the robot was paid.
 
-Choice: greedy over the open moves (as ``qlearning``), ties broken by the run's stream;
-with probability ``epsilon(t) = qidle.epsilon x max(0, 1 - t / qidle.explore_steps)`` a
+Choice among the open moves (as ``qlearning``), ties broken by the run's stream; with
+probability ``epsilon(t) = qidle.epsilon x max(0, 1 - t / qidle.explore_steps)`` a
 uniformly random open move. With ``qidle.share`` and communication on the team keeps
 one table (every robot learns into and acts on it), otherwise each robot has its own.
-The initial table is ``qidle.q_init`` everywhere.
+The table starts at ``qidle.q_init`` everywhere.
 """
 
 from __future__ import annotations
@@ -51,10 +58,9 @@ if TYPE_CHECKING:
 
 #: ``qidle.state`` -> (uses heading, uses the idlest-neighbour feature)
 STATES = {
-    "cell_heading_idle": (True, "neighbour"),
-    "cell_heading_target": (True, "target"),
-    "cell_heading": (True, None),
-    "cell_idle": (False, "neighbour"),
+    "cell_heading_idle": (True, True),
+    "cell_heading": (True, False),
+    "cell_idle": (False, True),
 }
 
 
@@ -75,26 +81,14 @@ def idlest(last: np.ndarray, cells: np.ndarray, neighbors: np.ndarray) -> np.nda
     return seen.argmin(axis=-1)
 
 
-def toward_idlest(
-    last: np.ndarray, cells: np.ndarray, dist: np.ndarray, neighbors: np.ndarray
-) -> np.ndarray:
-    """int ``[R, K]``: first direction of a shortest path from each robot's cell to the
-    cell visited longest ago among those no other robot is nearer to (first in N, E, S,
-    W order; 0 if the robot stands on it)."""
-    d = dist[cells]  # [R, K, C]
-    mine = d <= d.min(axis=1, keepdims=True)
-    score = np.where(mine, last, np.iinfo(np.int64).max)
-    target = score.argmin(axis=-1)  # [R, K]
-    nb = neighbors[cells]  # [R, K, 4]
-    here = np.take_along_axis(d, target[..., None], axis=-1)[..., 0]
-    dn = dist[np.maximum(nb, 0), target[..., None]]
-    ok = (nb >= 0) & (dn == here[..., None] - 1)
-    return ok.argmax(axis=-1)
-
-
 def td_step(
-    q_sa: float, n_sa: int, reward: float, q_next: np.ndarray, legal_next: np.ndarray,
-    gamma: float, alpha: float,
+    q_sa: float,
+    n_sa: int,
+    reward: float,
+    q_next: np.ndarray,
+    legal_next: np.ndarray,
+    gamma: float,
+    alpha: float,
 ) -> tuple[float, int]:
     """One update of ``Q(s,a)`` (scalar form, used by the tests as the reference).
 
@@ -141,8 +135,6 @@ class Strategy(base.Strategy):
         self.last = np.zeros((self.n_runs, g, p.n_cells), dtype=np.int64)
         self.dots = np.broadcast_to(p.has_dot, (self.n_runs, g, p.n_cells)).copy()
         self.feat = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
-        if self.use_idle == "target":
-            self.dist = m.distances()
 
     # --- state encoding ------------------------------------------------------------------
 
@@ -160,8 +152,6 @@ class Strategy(base.Strategy):
         if not self.use_idle:
             return np.zeros_like(cells)
         maps = self.last[:, self.group()]  # [R, K, C]
-        if self.use_idle == "target":
-            return toward_idlest(maps, cells, self.dist, self.params.neighbors)
         return idlest(maps, cells, self.params.neighbors)
 
     def heading_slot(self, head: np.ndarray) -> np.ndarray:
