@@ -255,3 +255,16 @@ def test_same_seed_same_tables_and_moves():
     r2 = run.simulate(cfg)
     np.testing.assert_array_equal(r1.strategy.q, r2.strategy.q)
     assert r1.summary == r2.summary
+
+
+def test_with_gamma_zero_it_moves_as_shared_conscientious():
+    """No discount, nothing learned (Q stays 0): the choice is the idlest open neighbour
+    on the team's map, as ``shared-conscientious``, move for move (the cap lifted, so
+    that no two old neighbours tie at it)."""
+    m = get_map("map_b")
+    flat = {"agents": 2, "runs": 2, "seed": 3, "battery.enabled": False}
+    ours = from_flat({**flat, "policy": POLICY, "qidle.gamma": 0.0, "qidle.reward_cap": 1e6})
+    theirs = from_flat({**flat, "policy": "shared-conscientious"})
+    a = [s.pos.copy() for _, s, _, _, _ in run_steps(ours, m, 300)]
+    b = [s.pos.copy() for _, s, _, _, _ in run_steps(theirs, m, 300)]
+    assert all(np.array_equal(x, y) for x, y in zip(a, b, strict=True))
