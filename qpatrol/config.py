@@ -76,6 +76,7 @@ F = Field
 #: Every patrol strategy, by its ``policy`` name (one module each in qpatrol/strategies/).
 POLICIES = STRATEGY_NAMES
 QL = ("qlearning",)
+QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
     F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
     F("agents", "int", 4, "robots in the team", low=1, high=64),
@@ -223,6 +224,94 @@ SCHEMA: tuple[Field, ...] = (
         low_open=True,
         high=1.0,
         used_by=("evap",),
+    ),
+    F(
+        "qidle.gamma",
+        "float",
+        0.9,
+        "discount factor of qlearning-idleness (beyond the paper)",
+        low=0.0,
+        high=1.0,
+        used_by=QI,
+    ),
+    F(
+        "qidle.alpha",
+        "float",
+        0.1,
+        "learning rate of qlearning-idleness; 0: 1/N(s,a), the paper's rule",
+        low=0.0,
+        high=1.0,
+        used_by=QI,
+    ),
+    F(
+        "qidle.epsilon",
+        "float",
+        0.0,
+        "qlearning-idleness: probability of a random open move at step 0, decaying "
+        "linearly to 0 at qidle.explore_steps",
+        low=0.0,
+        high=1.0,
+        used_by=QI,
+    ),
+    F(
+        "qidle.explore_steps",
+        "int",
+        5000,
+        "qlearning-idleness: team steps over which exploration decays to 0 (0: none)",
+        low=0,
+        used_by=QI,
+    ),
+    F(
+        "qidle.q_init",
+        "float",
+        0.0,
+        "qlearning-idleness: initial Q-value of every (state, action)",
+        low=-1e6,
+        high=1e6,
+        used_by=QI,
+    ),
+    F(
+        "qidle.reward",
+        "choice",
+        "idleness",
+        "qlearning-idleness reward: idleness of the cell entered / (cells / robots), or "
+        "`dot`: the paper's reward (ablation)",
+        choices=("idleness", "dot"),
+        used_by=QI,
+    ),
+    F(
+        "qidle.known_reward",
+        "bool",
+        True,
+        "qlearning-idleness: add the reward each move would earn (read on the maps before "
+        "choosing) to the learned Q, which then learns the value after the move",
+        used_by=QI,
+    ),
+    F(
+        "qidle.reward_cap",
+        "float",
+        3.0,
+        "qlearning-idleness: largest idleness reward (in units of cells / robots)",
+        low=0.0,
+        low_open=True,
+        high=1e6,
+        used_by=QI,
+    ),
+    F(
+        "qidle.state",
+        "choice",
+        "cell_heading_idle",
+        "qlearning-idleness state: (cell, heading, direction of the most idle neighbour), "
+        "or without the idleness feature (`cell_heading`) or the heading (`cell_idle`)",
+        choices=("cell_heading_idle", "cell_heading", "cell_idle"),
+        used_by=QI,
+    ),
+    F(
+        "qidle.share",
+        "bool",
+        True,
+        "qlearning-idleness: with communication on, the team learns into one shared Q-table",
+        used_by=QI,
     ),
     F("record.transitions", "bool", False, "write transitions.csv, one row per Q-update"),
     F("record.watch", "cells", [], "states whose Q-updates are traced to watch.csv"),

@@ -40,6 +40,8 @@ def estimate_memory(cfg: Config, m: Map) -> Estimate:
         "qlearning": 2 * k * c * 16 * 8,  # q and n
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
+        # q and n (one table, or one per robot), its own last-visit and dot maps
+        "qlearning-idleness": 2 * k * c * 64 * 8 + g * c * 9,
     }.get(policy, 0)
     per_run = (
         strategy

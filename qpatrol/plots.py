@@ -774,6 +774,7 @@ STRATEGY_STYLE = {
     "cyclic": ("tab:green", "^"),
     "partition": ("tab:olive", "v"),
     "evap": ("tab:purple", "P"),
+    "qlearning-idleness": ("tab:orange", "*"),
 }
 
 

@@ -24,6 +24,7 @@ NAMES: tuple[str, ...] = (
     "cyclic",
     "partition",
     "evap",
+    "qlearning-idleness",
 )
 
 
