@@ -464,3 +464,10 @@ def test_base_choose_min_maps_u_to_the_nth_tied_direction():
     assert base.choose_min(score, mask, np.array([[0.49]]))[0, 0] == EAST
     assert base.choose_min(score, mask, np.array([[0.5]]))[0, 0] == WEST
     assert base.choose_min(score, ~mask & False, np.array([[0.5]]))[0, 0] == -1
+
+
+def test_learners_are_the_q_learning_strategies():
+    """The policies study gives learners a longer warm-up: exactly the Q-learners."""
+    from qpatrol.strategies import NAMES, learns
+
+    assert [n for n in NAMES if learns(n)] == ["qlearning", "qlearning-idleness"]

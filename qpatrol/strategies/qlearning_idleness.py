@@ -106,6 +106,7 @@ class Strategy(base.Strategy):
     ``H`` 4 headings (1 without), ``F`` 4 idlest directions (1 without)."""
 
     name = "qlearning-idleness"
+    learns = True
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)
