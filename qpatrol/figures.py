@@ -490,7 +490,7 @@ def strategies_data(
     return df
 
 
-POLICY_MEASURES = ("avg_idleness", "worst_idleness", "mean_interval", "max_wait")
+POLICY_MEASURES = ("avg_idleness", "worst_idleness", "mean_interval", "max_wait", "coverage")
 
 
 def policies_data(

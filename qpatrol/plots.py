@@ -945,6 +945,15 @@ def policies(csv: str | Path, out: str | Path) -> Path:
     return _save(fig, out)
 
 
+def _step_label(x: float, _pos: object = None) -> str:
+    """A tick in thousands of steps: 0, 50k, 100k."""
+    return f"{x / 1000:,.0f}k" if x else "0"
+
+
+def _fmt_steps(x: float, _pos: object = None) -> str:
+    return f"{x:,.0f}"
+
+
 def learning(csv: str | Path, out: str | Path) -> Path:
     """Average and worst idleness in windows along the run: learners as curves with a
     95% band over runs, the strategies that do not learn as flat lines at their mean
@@ -968,9 +977,9 @@ def learning(csv: str | Path, out: str | Path) -> Path:
                 level = d[d["window"] >= 1][f"{m}_mean"].mean()
                 ax.plot([0, end], [level, level], color=colour, lw=1, ls="--", label=name)
     for ax, label in zip(axes, ("average idleness", "worst idleness"), strict=True):
-        _log_y(ax, f"{label} in the window (team steps)", subs=(1.0, 1.5, 2.0, 3.0, 5.0, 7.0))
+        _log_y(ax, f"{label} in the window (team steps)", subs=(1.0, 1.5, 2.0, 2.5, 3.0, 5.0, 7.0))
         ax.set_xlabel("team step (end of each window)")
-        ax.xaxis.set_major_formatter(FuncFormatter(lambda x, _: f"{x:,.0f}"))
+        ax.xaxis.set_major_formatter(FuncFormatter(_step_label if end >= 20_000 else _fmt_steps))
         ax.set_xlim(0, end * 1.01)
         ax.grid(alpha=0.3, lw=0.4, which="both")
     axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))

@@ -444,11 +444,14 @@ def policies(fig: pd.DataFrame) -> Section:
     goal = []
     if goal_rows:
         met = [r for r in goal_rows if r.count("| yes") == 2]
+        worst_ok = sum(r.split("|")[6].strip() == "yes" for r in goal_rows)
+        avg_ok = sum(r.split("|")[9].strip() == "yes" for r in goal_rows)
         goal = [
             f"Goal for a learned patrol beyond the paper: worst idleness within "
             f"{GOAL_WORST_FACTOR}x the cyclic strategy's and average idleness below "
             f"conscientious reactive's, on every map and team size. Met in {len(met)} of "
-            f"{len(goal_rows)} cells.",
+            f"{len(goal_rows)} cells: the worst idleness is within {GOAL_WORST_FACTOR}x in "
+            f"{worst_ok}, the average below conscientious reactive's in {avg_ok}.",
             "\n".join(
                 [
                     "| learner | map | K | worst | 1.5 x cyclic worst | within | average "
@@ -462,8 +465,21 @@ def policies(fig: pd.DataFrame) -> Section:
     frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
     missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
     warm = fig[~fig["learns"]]["warmup"]
-    lwarm = fig[fig["learns"]]["warmup"]
+    lwarm = ", ".join(f"{int(fig[fig['policy'] == n]['warmup'].max()):,} for {n}" for n in learners)
     window = int(fig["window"].min())
+    uncovered = ""
+    if "coverage_mean" in fig.columns:
+        low = fig[fig["coverage_mean"] < 1]
+        if len(low):
+            uncovered = (
+                " Points where some cell was never entered in the window (mean coverage "
+                "below 1; their worst idleness is capped by the run's length): "
+                + ", ".join(
+                    f"{r.policy} on {r.map}, K = {int(r.agents)} ({_fmt(r.coverage_mean)})"
+                    for r in low.itertuples()
+                )
+                + "."
+            )
     return Section(
         "Beyond the paper: does learning patrol well? Every map and team size",
         ["figures/policies.png"],
@@ -473,11 +489,11 @@ def policies(fig: pd.DataFrame) -> Section:
             f"{runs} runs per point; battery off, collisions avoided, communication on. Every "
             f"point measures {window:,} team steps after its warm-up: "
             f"{int(warm.max()) if len(warm) else 0:,} steps for the strategies that do not "
-            f"learn, {int(lwarm.max()) if len(lwarm) else 0:,} for the learners (see the "
-            "learning-over-time section for why). L/K: K robots evenly spaced on the closed "
-            "walk of length L through every cell.",
+            f"learn, {lwarm} (see docs/model.md and the learning-over-time section for "
+            "why). L/K: K robots evenly spaced on the closed walk of length L through every "
+            "cell.",
             f"Runs that went wrong: {frozen} frozen (a wait longer than a crossing of the map), "
-            f"{missing} without an idleness value.",
+            f"{missing} without an idleness value.{uncovered}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
             "(not learning) on that map and team size. Full table with 95% t-intervals: "
             "`figures/policies.csv`.",
@@ -521,9 +537,12 @@ def learning(fig: pd.DataFrame) -> Section:
                     f"{_fmt(last.avg_idleness_mean / flat[best])} times the best ({best}, "
                     f"{_fmt(flat[best])})."
                 )
-        half = d[d["avg_idleness_mean"] <= (first.avg_idleness_mean + last.avg_idleness_mean) / 2]
-        if len(half):
+        gain = first.avg_idleness_mean - last.avg_idleness_mean
+        half = d[d["avg_idleness_mean"] <= first.avg_idleness_mean - gain / 2]
+        if gain > 0.05 * first.avg_idleness_mean and len(half):
             text += f" Half of its improvement is made by step {int(half.iloc[0].last_step):,}."
+        else:
+            text += " It does not improve by more than 5% from its first window to its last."
         lines.append(text)
     levels = ", ".join(f"{n} {_fmt(v)}" for n, v in sorted(flat.items(), key=lambda x: x[1]))
     m = fig["map"].iloc[0]
@@ -561,8 +580,20 @@ def _communication_effect(fig: pd.DataFrame) -> list[str]:
     return out
 
 
+def _seconds(v: float | None) -> str:
+    if v is None:
+        return (
+            "resumed: computed by an earlier run (its folders under runs/ hold meta.json "
+            "with start and end)"
+        )
+    return "< 1" if v < 1 else f"{v:.0f}"
+
+
 def build(
-    results: Path, mode: str, seconds: dict[str, float] | None = None, total: float | None = None
+    results: Path,
+    mode: str,
+    seconds: dict[str, float | None] | None = None,
+    total: float | None = None,
 ) -> str:
     """REPORT.md text from ``results/figures`` and ``results/data``."""
     figs, data = results / "figures", results / "data"
@@ -628,26 +659,24 @@ def build(
             "",
             "| experiment | seconds |",
             "|---|---|",
-            *[
-                f"| {k} | {v:.1f} |"
-                if v >= 1.0
-                else f"| {k} | resumed: computed by an "
-                "earlier run (its folders under runs/ hold meta.json with start and end) |"
-                for k, v in sorted(seconds.items())
-            ],
+            *[f"| {k} | {_seconds(v)} |" for k, v in sorted(seconds.items())],
             "",
         ]
         if total is not None:
+            resumed = any(v is None for v in seconds.values())
             lines += [
                 f"This invocation, figures included: {total:.0f} s"
-                + (" (resumed experiments not counted)." if min(seconds.values()) < 1.0 else "."),
+                + (" (resumed experiments not counted)." if resumed else "."),
                 "",
             ]
     return "\n".join(lines).rstrip() + "\n"
 
 
 def write(
-    results: Path, mode: str, seconds: dict[str, float] | None = None, total: float | None = None
+    results: Path,
+    mode: str,
+    seconds: dict[str, float | None] | None = None,
+    total: float | None = None,
 ) -> Path:
     """Write ``results/REPORT.md`` atomically."""
     path = Path(results) / "REPORT.md"

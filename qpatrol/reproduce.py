@@ -143,10 +143,10 @@ def run_all(
     jobs: int = 2,
     log: Callable[[str], None] = print,
     progress: Callable[[float, float], None] | None = None,
-) -> dict[str, float]:
+) -> dict[str, float | None]:
     """Run every experiment's points in one pool of ``jobs`` workers, the costliest
-    first; returns each experiment's summed point run time in seconds (0.0 for an
-    experiment resumed whole).
+    first; returns each experiment's summed point run time in seconds (None for an
+    experiment resumed whole; point times are whole seconds).
 
     ``progress(runs_done, runs_total)`` is called about twice a second, counting the runs
     of every experiment (those of running points by their share of steps done).
@@ -183,15 +183,17 @@ def run_all(
     if progress is not None:
         progress(total, total)
     failed: list[str] = []
-    seconds: dict[str, float] = {}
+    seconds: dict[str, float | None] = {}
     for i, (exp, res) in enumerate(zip(EXPERIMENTS, results, strict=True), start=1):
         failed += [f"{exp.name}/{p}" for p in res.failed]
-        seconds[exp.name] = point_seconds(res.out) if res.done else 0.0
+        secs = point_seconds(res.out) if res.done else None
+        seconds[exp.name] = secs
         ran = f"{len(res.done)} points run" + (
             f", {len(res.skipped)} resumed" if res.skipped else ""
         )
         log(
-            f"[{i}/{len(EXPERIMENTS)}] {exp.name}: {ran}, {seconds[exp.name]:.1f} s"
+            f"[{i}/{len(EXPERIMENTS)}] {exp.name}: {ran}"
+            + (f", {secs:.0f} s" if secs is not None else "")
             + (f", FAILED {res.failed}" if res.failed else "")
         )
     if failed:

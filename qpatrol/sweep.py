@@ -195,7 +195,7 @@ class NamedSweep(NamedTuple):
 POLICY_MAPS = ("map_a", "map_b", "pacman", "facility")
 POLICY_TEAMS = (1, 2, 4, 8)
 #: Team steps every point of the policies study measures, after its warm-up.
-POLICY_WINDOW = 4_000
+POLICY_WINDOW = 3_000
 #: Warm-up of a strategy that does not learn: the cyclic robots gather on their slots,
 #: the conscientious ones spread out; their idleness is flat after that.
 POLICY_WARMUP = 1_000
@@ -207,8 +207,8 @@ POLICY_LEARNER_WARMUP = 5_000
 #: Team steps of each run in the learning-over-time experiment: the paper's learner,
 #: other learners, and the strategies that do not learn.
 LEARNING_STEPS = {"qlearning": 200_000}
-LEARNING_LEARNER_STEPS = 50_000
-LEARNING_OTHERS_STEPS = 20_000
+LEARNING_LEARNER_STEPS = 25_000
+LEARNING_OTHERS_STEPS = 10_000
 
 
 def policy_warmup(name: str) -> int:
