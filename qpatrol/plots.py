@@ -783,22 +783,8 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
     df = _read(csv, ["policy", "agents", "avg_idleness_mean", "worst_idleness_mean"])
     fig, axes = plt.subplots(1, 2, figsize=(12, 4.6))
     ks = sorted(df["agents"].unique())
-    names = [n for n in STRATEGY_STYLE if n in set(df["policy"])]
-    for i, name in enumerate(names):
-        d = df[df["policy"] == name].sort_values("agents")
-        colour, marker = STRATEGY_STYLE[name]
-        x = d["agents"] * 2 ** (0.03 * (i - len(names) / 2))
-        for ax, m in zip(axes, ("avg_idleness", "worst_idleness"), strict=True):
-            _errorbar(
-                ax,
-                x,
-                d[f"{m}_mean"],
-                d[f"{m}_lo"],
-                d[f"{m}_hi"],
-                color=colour,
-                marker=marker,
-                label=name,
-            )
+    names = _policy_order(set(df["policy"]))
+    _strategy_errorbars(axes, df, ("avg_idleness", "worst_idleness"), names, spread=0.03)
     if "bound_per_robot" in df.columns and df["bound_per_robot"].notna().any():
         b = df.drop_duplicates("agents").sort_values("agents")
         axes[0].plot(
@@ -848,6 +834,36 @@ def _style(name: str, i: int) -> tuple[str, str]:
     return extra[i % len(extra)], "*"
 
 
+def _strategy_errorbars(
+    axes,
+    df: pd.DataFrame,
+    measures: tuple[str, ...],
+    names: list[str],
+    spread: float,
+    emphasise: bool = False,
+) -> None:
+    """Mean and 95% interval of each measure against team size, one line per strategy,
+    shifted a little sideways so that the intervals do not overlap (``emphasise``: the
+    learners thicker, smaller markers)."""
+    for i, name in enumerate(names):
+        d = df[df["policy"] == name].sort_values("agents")
+        colour, marker = _style(name, i)
+        x = d["agents"] * 2 ** (spread * (i - len(names) / 2))
+        style = {"ms": 4, "lw": 1.4 if name.startswith("qlearning") else 0.9} if emphasise else {}
+        for ax, m in zip(axes, measures, strict=True):
+            _errorbar(
+                ax,
+                x,
+                d[f"{m}_mean"],
+                d[f"{m}_lo"],
+                d[f"{m}_hi"],
+                color=colour,
+                marker=marker,
+                label=name,
+                **style,
+            )
+
+
 def _policy_order(names: set[str]) -> list[str]:
     from qpatrol.strategies import NAMES
 
@@ -877,23 +893,8 @@ def policies(csv: str | Path, out: str | Path) -> Path:
     fig, axes = plt.subplots(len(maps), 3, figsize=(13.5, 3.3 * len(maps)), squeeze=False)
     for r, mname in enumerate(maps):
         dm = df[df["map"] == mname]
-        for i, name in enumerate(names):
-            d = dm[dm["policy"] == name].sort_values("agents")
-            colour, marker = _style(name, i)
-            x = d["agents"] * 2 ** (0.025 * (i - len(names) / 2))
-            for ax, (m, _, _) in zip(axes[r], POLICY_PANELS, strict=True):
-                _errorbar(
-                    ax,
-                    x,
-                    d[f"{m}_mean"],
-                    d[f"{m}_lo"],
-                    d[f"{m}_hi"],
-                    color=colour,
-                    marker=marker,
-                    ms=4,
-                    lw=1.4 if name.startswith("qlearning") else 0.9,
-                    label=name,
-                )
+        panels = tuple(m for m, *_ in POLICY_PANELS)
+        _strategy_errorbars(axes[r], dm, panels, names, spread=0.025, emphasise=True)
         b = dm.drop_duplicates("agents").sort_values("agents")
         has_bound = "bound_per_robot" in dm.columns and b["bound_per_robot"].notna().any()
         for c, (ax, (_m, label, div)) in enumerate(zip(axes[r], POLICY_PANELS, strict=True)):

@@ -471,14 +471,17 @@ def policies(fig: pd.DataFrame) -> Section:
     if "coverage_mean" in fig.columns:
         low = fig[fig["coverage_mean"] < 1]
         if len(low):
-            uncovered = (
-                " Points where some cell was never entered in the window (mean coverage "
-                "below 1; their worst idleness is capped by the run's length): "
-                + ", ".join(
-                    f"{r.policy} on {r.map}, K = {int(r.agents)} ({_fmt(r.coverage_mean)})"
-                    for r in low.itertuples()
+            parts = []
+            for name, g in low.groupby("policy", sort=False):
+                worst = g.sort_values("coverage_mean").iloc[0]
+                parts.append(
+                    f"{name} on {len(g)} (lowest {_fmt(worst.coverage_mean)}: {worst.map}, "
+                    f"K = {int(worst.agents)})"
                 )
-                + "."
+            uncovered = (
+                " Points where some run left a cell unentered for the whole window (mean "
+                "coverage below 1; the worst idleness of such a run is capped by the run's "
+                "length): " + "; ".join(parts) + "."
             )
     return Section(
         "Beyond the paper: does learning patrol well? Every map and team size",
@@ -580,20 +583,17 @@ def _communication_effect(fig: pd.DataFrame) -> list[str]:
     return out
 
 
-def _seconds(v: float | None) -> str:
-    if v is None:
-        return (
-            "resumed: computed by an earlier run (its folders under runs/ hold meta.json "
-            "with start and end)"
-        )
-    return "< 1" if v < 1 else f"{v:.0f}"
+def _seconds(v: float, resumed: bool) -> str:
+    text = "< 1" if v < 1 else f"{v:.0f}"
+    return f"{text} (an earlier run)" if resumed else text
 
 
 def build(
     results: Path,
     mode: str,
-    seconds: dict[str, float | None] | None = None,
+    seconds: dict[str, float] | None = None,
     total: float | None = None,
+    resumed: list[str] | None = None,
 ) -> str:
     """REPORT.md text from ``results/figures`` and ``results/data``."""
     figs, data = results / "figures", results / "data"
@@ -659,14 +659,18 @@ def build(
             "",
             "| experiment | seconds |",
             "|---|---|",
-            *[f"| {k} | {_seconds(v)} |" for k, v in sorted(seconds.items())],
+            *[f"| {k} | {_seconds(v, k in (resumed or []))} |" for k, v in sorted(seconds.items())],
             "",
         ]
         if total is not None:
-            resumed = any(v is None for v in seconds.values())
             lines += [
                 f"This invocation, figures included: {total:.0f} s"
-                + (" (resumed experiments not counted)." if resumed else "."),
+                + (
+                    f" ({len(resumed)} experiments resumed from earlier runs, whose point "
+                    "folders under runs/ hold meta.json with start and end)."
+                    if resumed
+                    else "."
+                ),
                 "",
             ]
     return "\n".join(lines).rstrip() + "\n"
@@ -675,10 +679,11 @@ def build(
 def write(
     results: Path,
     mode: str,
-    seconds: dict[str, float | None] | None = None,
+    seconds: dict[str, float] | None = None,
     total: float | None = None,
+    resumed: list[str] | None = None,
 ) -> Path:
     """Write ``results/REPORT.md`` atomically."""
     path = Path(results) / "REPORT.md"
-    atomic.write_text(path, build(Path(results), mode, seconds, total))
+    atomic.write_text(path, build(Path(results), mode, seconds, total, resumed))
     return path

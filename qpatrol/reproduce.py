@@ -143,10 +143,11 @@ def run_all(
     jobs: int = 2,
     log: Callable[[str], None] = print,
     progress: Callable[[float, float], None] | None = None,
-) -> dict[str, float | None]:
+) -> tuple[dict[str, float], list[str]]:
     """Run every experiment's points in one pool of ``jobs`` workers, the costliest
-    first; returns each experiment's summed point run time in seconds (None for an
-    experiment resumed whole; point times are whole seconds).
+    first; returns each experiment's summed point run time in seconds (point times are
+    whole seconds, from each point's ``meta.json``), and the names of the experiments
+    resumed whole (computed by an earlier run).
 
     ``progress(runs_done, runs_total)`` is called about twice a second, counting the runs
     of every experiment (those of running points by their share of steps done).
@@ -183,22 +184,25 @@ def run_all(
     if progress is not None:
         progress(total, total)
     failed: list[str] = []
-    seconds: dict[str, float | None] = {}
+    seconds: dict[str, float] = {}
+    resumed: list[str] = []
     for i, (exp, res) in enumerate(zip(EXPERIMENTS, results, strict=True), start=1):
         failed += [f"{exp.name}/{p}" for p in res.failed]
-        secs = point_seconds(res.out) if res.done else None
+        secs = point_seconds(res.out)
         seconds[exp.name] = secs
+        if not res.done:
+            resumed.append(exp.name)
         ran = f"{len(res.done)} points run" + (
             f", {len(res.skipped)} resumed" if res.skipped else ""
         )
         log(
             f"[{i}/{len(EXPERIMENTS)}] {exp.name}: {ran}"
-            + (f", {secs:.0f} s" if secs is not None else "")
+            + (f", {secs:.0f} s" if res.done else "")
             + (f", FAILED {res.failed}" if res.failed else "")
         )
     if failed:
         raise RuntimeError(f"experiment points failed: {', '.join(failed)}")
-    return seconds
+    return seconds, resumed
 
 
 def write_csv(df: pd.DataFrame, path: Path) -> Path:
@@ -425,7 +429,7 @@ def reproduce(
         raise ValueError("update_references applies to the quick mode")
     started = provenance.now()
     start = time.monotonic()
-    seconds = run_all(out, quick, jobs, log, progress)
+    seconds, resumed = run_all(out, quick, jobs, log, progress)
     home = out
     figs, data = home / "figures", home / "data"
     for exp in EXPERIMENTS:
@@ -449,7 +453,9 @@ def reproduce(
         return home
     from qpatrol import report
 
-    path = report.write(home, "quick" if quick else "full", seconds, time.monotonic() - start)
+    path = report.write(
+        home, "quick" if quick else "full", seconds, time.monotonic() - start, resumed
+    )
     log(f"wrote {path}")
     return path
 
