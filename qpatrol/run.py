@@ -312,9 +312,12 @@ def _compiled_loop(
     loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
     every = max(1, total // 200)
     i = first
+    buf = None
     while i < total and state.active.any():
         n = min(block, total - i)
-        u = streams.take(n)
+        if buf is None or buf.shape[1] != n:  # one buffer of uniforms, refilled per block
+            buf = np.empty((state.n_runs, n, p.n_agents, 2))
+        u = streams.take(n, out=buf)
         taken, ends, up_int, up_float = loop.run(u)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
