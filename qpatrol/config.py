@@ -344,9 +344,9 @@ SCHEMA: tuple[Field, ...] = (
         "memory.limit_gib",
         "float",
         2.0,
-        "memory (GiB) a batch of runs may take: the runs of a config or sweep point are "
-        "computed in consecutive batches whose estimated size stays under it (same files "
-        "as one batch)",
+        "memory (GiB) a batch of runs may take: a sweep point's runs are computed in "
+        "consecutive batches whose estimated size stays under it, with the files of one "
+        "batch (`train`, with its checkpoints, keeps one batch)",
         low=0.0,
         low_open=True,
         high=1e6,
