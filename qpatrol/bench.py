@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from qpatrol import reference, world
+from qpatrol import limits, reference, world
 from qpatrol.config import Config, from_flat
 from qpatrol.maps import DIRECTIONS
 from qpatrol.rng import Streams, run_seeds
@@ -49,8 +49,9 @@ def workload(
     return from_flat(flat)
 
 
-def bytes_per_run(result: RunResult) -> int:
-    """Bytes of the per-run arrays (world state, learner tables, measures) per run."""
+def array_bytes_per_run(result: RunResult) -> int:
+    """Bytes of the per-run arrays (world state, learner tables, measures) per run, as
+    allocated (the part of :func:`qpatrol.limits.bytes_per_run` that is measurable)."""
     total = 0
     for obj in (result.state, result.strategy, result.measures):
         for v in vars(obj).values():
@@ -106,7 +107,10 @@ def bench(cfg: Config) -> dict[str, Any]:
         "agent_steps_per_s": rate,
         "reference_agent_steps_per_s": ref_rate,
         "ratio": rate / ref_rate,
-        "bytes_per_run": bytes_per_run(result),
+        "bytes_per_run": limits.bytes_per_run(cfg, result.map),
+        "array_bytes_per_run": array_bytes_per_run(result),
+        "batch_runs": min(cfg["runs"], limits.batch_runs(cfg, result.map)),
+        "memory_limit_gib": cfg["memory.limit_gib"],
         "peak_rss_bytes": peak_bytes,
     }
 
@@ -123,7 +127,8 @@ def report(b: dict[str, Any]) -> str:
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             "(plain Python, qpatrol/reference.py)",
             f"ratio      {b['ratio']:10.2f} x",
-            f"memory     {b['bytes_per_run']:,} bytes per run; peak RSS "
-            f"{b['peak_rss_bytes'] / 2**20:,.0f} MiB",
+            f"memory     {b['bytes_per_run']:,} bytes per run (estimate; arrays "
+            f"{b['array_bytes_per_run']:,}), batches of {b['batch_runs']:,} runs under "
+            f"{b['memory_limit_gib']:g} GiB; peak RSS {b['peak_rss_bytes'] / 2**20:,.0f} MiB",
         ]
     )

@@ -351,7 +351,7 @@ def sweep(
     ] = False,
     quiet: QuietOpt = False,
 ) -> None:
-    """Run a config at many parameter values, each point's runs as one batch, in parallel.
+    """Run a config at many parameter values, each point's runs in batches, in parallel.
 
     Resumable: rerunning the same command skips finished points. Writes
     OUT/points/<id>/ (the files `train` writes), OUT/results.csv and OUT/meta.json.

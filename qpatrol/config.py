@@ -340,10 +340,21 @@ SCHEMA: tuple[Field, ...] = (
         "every engine gives the same files to the bit",
         choices=("auto", "numpy", "numba"),
     ),
+    F(
+        "memory.limit_gib",
+        "float",
+        2.0,
+        "memory (GiB) a batch of runs may take: a sweep point's runs are computed in "
+        "consecutive batches whose estimated size stays under it, with the files of one "
+        "batch (`train`, with its checkpoints, keeps one batch)",
+        low=0.0,
+        low_open=True,
+        high=1e6,
+    ),
 )
 #: Keys that choose how a result is computed, never what it is: left out of
 #: ``config.yaml`` and of :meth:`Config.digest` (the engine that ran is in ``meta.json``).
-EXECUTION_KEYS: tuple[str, ...] = ("engine",)
+EXECUTION_KEYS: tuple[str, ...] = ("engine", "memory.limit_gib")
 FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
 KEYS: tuple[str, ...] = tuple(FIELDS)
 

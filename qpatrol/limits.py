@@ -1,12 +1,15 @@
 """Checks of a config against its map and the machine, before any work starts.
 
 * ``record.watch`` must name states of the map.
-* The memory a batch needs is estimated from the world's and the strategy's arrays
-  (for Q-learning runs x agents x cells x 16 Q-values and visit counts; dot maps, visit
-  counts, the trajectory buffer, the Q-update log and the all-pairs distances of the
-  map); a config needing more than the machine has available is
-  refused with one line naming runs, steps and map, instead of failing with a
-  traceback (or swapping) later.
+* The memory a run needs is estimated from the world's and the strategy's arrays
+  (:func:`bytes_per_run`: for Q-learning agents x cells x 16 Q-values and visit counts;
+  dot maps, visit counts, the trajectory buffer, the Q-update log), plus what a batch
+  needs whatever its runs (:func:`batch_bytes`: the all-pairs distances of the map).
+  :func:`qpatrol.run.simulate` computes the runs in consecutive batches of at most
+  :func:`batch_runs` runs, so that a batch stays under ``memory.limit_gib``; a config
+  whose batch still needs more than the machine has available is refused with one
+  line naming runs, steps and map, instead of failing with a traceback (or swapping)
+  later.
 """
 
 from __future__ import annotations
@@ -31,30 +34,83 @@ class Estimate:
     distances: int
 
 
-def estimate_memory(cfg: Config, m: Map) -> Estimate:
-    """Estimated peak memory (bytes) of simulating ``cfg`` as one batch on ``m``."""
-    r, k, c = cfg["runs"], cfg["agents"], m.n_cells
+def bytes_per_run(cfg: Config, m: Map) -> int:
+    """Estimated bytes one run adds to a batch of ``cfg`` on ``m``: the world state, the
+    strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, cells, 4,
+    4]``), the measures and the recorders (trajectory ring, timeline, Q-update rows)."""
+    k, c = cfg["agents"], m.n_cells
     g = 1 if cfg["team.communication"] else k
     policy = cfg["policy"]
     strategy = {
-        "qlearning": 2 * k * c * 16 * 8,  # q and n
+        "qlearning": k * c * 16 * (8 + 4),  # q float64 and n int32
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
         # q and n (one table, or one per robot), its own last-visit and dot maps
         "qlearning-idleness": 2 * k * c * 64 * 8 + g * c * 9,
     }.get(policy, 0)
-    per_run = (
+    rows = cfg["steps"] * k if cfg["record.transitions"] else 0
+    timeline = 0
+    if cfg["record.timeline"]:  # one row per window, and the window's accumulators
+        timeline = (cfg["steps"] // cfg["record.timeline"] + 1) * 6 * 8 + c * 8
+    return (
         strategy
         + g * c * (1 + 8 + 1 + 4)  # dots, last visit, cells and states seen this episode
         + 2 * c * 8  # cell occupancy, measures' last visits
         + 2 * k * c * 8  # visits, window visits
+        + (12 * k + 24) * 8  # positions, headings, battery, episode and measure counters
         + 512 * k * 2 * 8  # block of uniforms
         + cfg["record.trajectory"] * k * 8
+        + timeline
+        + rows * ROW_BYTES
     )
-    rows = cfg["steps"] * r * k if cfg["record.transitions"] else 0
-    dist = 2 * c * c * 8  # all-pairs distances (diameter, walks, placement)
-    homes = 2 * len(m.homes) * c * 8
-    return Estimate(BASE_BYTES + r * per_run + rows * ROW_BYTES + dist + homes, dist)
+
+
+def batch_bytes(cfg: Config, m: Map) -> int:
+    """Estimated bytes of a batch that do not grow with its runs: the all-pairs distances
+    and homes of the map, and the compiled engine's block of uniforms (up to 16 MiB)."""
+    return 2 * m.n_cells * m.n_cells * 8 + 2 * len(m.homes) * m.n_cells * 8 + 16 * 2**20
+
+
+def batch_runs(cfg: Config, m: Map) -> int:
+    """Most runs of ``cfg`` per batch whose estimate (:func:`batch_bytes` + runs x
+    :func:`bytes_per_run`) stays under ``memory.limit_gib`` (at least 1)."""
+    limit = cfg["memory.limit_gib"] * 2**30
+    return max(1, int((limit - batch_bytes(cfg, m)) // bytes_per_run(cfg, m)))
+
+
+def kept_bytes_per_run(cfg: Config, m: Map) -> int:
+    """Estimated bytes of one run's results kept until its folder is written, whatever
+    the batches: the learner's tables (``n`` also as the int64 written to
+    ``q_table.npz``), visit counts, recorded rows and the summary."""
+    k, c = cfg["agents"], m.n_cells
+    tables = {
+        "qlearning": k * c * 16 * (8 + 4 + 8),
+        "qlearning-idleness": 2 * k * c * 64 * 8,
+    }.get(cfg["policy"], 0)
+    rows = cfg["steps"] * k if cfg["record.transitions"] else 0
+    windows = cfg["steps"] // cfg["record.timeline"] + 1 if cfg["record.timeline"] else 0
+    return (
+        tables
+        + k * c * 8  # visits
+        + cfg["record.trajectory"] * k * 6 * 8
+        + windows * 6 * 8
+        + rows * ROW_BYTES
+        + 4096  # summary
+    )
+
+
+def estimate_memory(cfg: Config, m: Map) -> Estimate:
+    """Estimated peak memory (bytes) of simulating ``cfg`` on ``m`` in batches of at most
+    :func:`batch_runs` runs: one batch's arrays and the results of all runs."""
+    r = min(cfg["runs"], batch_runs(cfg, m))
+    dist = 2 * m.n_cells * m.n_cells * 8  # all-pairs distances (diameter, walks, placement)
+    total = (
+        BASE_BYTES
+        + batch_bytes(cfg, m)
+        + r * bytes_per_run(cfg, m)
+        + cfg["runs"] * kept_bytes_per_run(cfg, m)
+    )
+    return Estimate(total, dist)
 
 
 def available_memory() -> int | None:

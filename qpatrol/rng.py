@@ -44,16 +44,23 @@ class Streams:
         self._i += 1
         return u
 
-    def take(self, n: int) -> np.ndarray:
+    def take(self, n: int, out: np.ndarray | None = None) -> np.ndarray:
         """float ``[R, n, K, 2]``: the uniforms of the next ``n`` steps at once.
 
         The same numbers :meth:`next` would give over those steps (what is left of the
-        current block first, then fresh draws), so the two may be mixed freely.
+        current block first, then fresh draws), so the two may be mixed freely. With
+        ``out`` (float64 ``[R, n, K, 2]``, C-contiguous) they are drawn into it, without
+        new allocations or copies (the compiled engine reuses one buffer per block).
         """
         left = self._buf[:, self._i : self._i + n]
         self._i += left.shape[1]
         more = n - left.shape[1]
-        if more == 0:
-            return left
-        fresh = np.stack([g.random((more, self.agents, 2)) for g in self.generators], axis=0)
-        return np.concatenate([left, fresh], axis=1) if left.shape[1] else fresh
+        if out is None:
+            if more == 0:
+                return left
+            out = np.empty((len(self.generators), n, self.agents, 2))
+        out[:, : left.shape[1]] = left
+        if more:
+            for r, g in enumerate(self.generators):
+                g.random(out=out[r, left.shape[1] :])
+        return out

@@ -13,6 +13,7 @@ The Python API behind ``qpatrol train``::
 
 from __future__ import annotations
 
+import copy
 import json
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -110,10 +111,47 @@ def simulate(
 
     The time loop runs on the engine of config key ``engine`` (:mod:`qpatrol.engines`);
     the result does not depend on it. ``result.engine`` is the one that ran.
+
+    Without a checkpointer the runs are computed in consecutive batches of at most
+    :func:`qpatrol.limits.batch_runs` runs (config key ``memory.limit_gib``) and joined
+    (:func:`join`): the same result, to the bit, as one batch.
     """
     m, p = prepared or prepare(cfg)
-    engine, note = engines.choose(cfg)
     idx = runs if runs is not None else range(cfg["runs"])
+    size = limits.batch_runs(cfg, m)
+    if checkpoint is not None or len(idx) <= size:
+        return _simulate_batch(cfg, point, idx, progress, (m, p), checkpoint)
+    parts = [idx[i : i + size] for i in range(0, len(idx), size)]
+    results = []
+    for b, part in enumerate(parts):
+        tick = None if progress is None else _BatchProgress(progress, b, len(parts))
+        results.append(_simulate_batch(cfg, point, part, tick, (m, p), None))
+    return join(results)
+
+
+@dataclass
+class _BatchProgress:
+    """``progress(done, total)`` of batch ``b`` of ``n``, as a share of all of them."""
+
+    progress: Progress
+    b: int
+    n: int
+
+    def __call__(self, done: int, total: int) -> None:
+        self.progress((self.b * total + done) // self.n, total)
+
+
+def _simulate_batch(
+    cfg: Config,
+    point: int,
+    idx: range,
+    progress: Progress | None,
+    prepared: tuple[Map, world.Params],
+    checkpoint: Checkpointer | None,
+) -> RunResult:
+    """The runs ``idx`` of ``cfg`` as one batch (see :func:`simulate`)."""
+    m, p = prepared
+    engine, note = engines.choose(cfg)
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
         streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
@@ -191,6 +229,54 @@ def simulate(
     )
 
 
+def _joined(objs: list[Any], rows: list[int]) -> Any:
+    """A shallow copy of ``objs[0]`` whose per-run arrays (first axis: the batch's runs)
+    are those of all ``objs``, concatenated in order."""
+    out = copy.copy(objs[0])
+    for name, v in vars(objs[0]).items():
+        if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == rows[0]:
+            parts = [vars(o)[name] for o in objs]
+            if all(x.shape[0] == n for x, n in zip(parts, rows, strict=True)):
+                setattr(out, name, np.concatenate(parts))
+    return out
+
+
+def _table(parts: list[pd.DataFrame | None]) -> pd.DataFrame | None:
+    """Consecutive batches' tables as one (each table is ordered by run first)."""
+    if parts[0] is None:
+        return None
+    return pd.concat(parts, ignore_index=True)
+
+
+def join(results: list[RunResult]) -> RunResult:
+    """One result of consecutive batches of the same config and point: their tables,
+    summaries and per-run arrays (world state, strategy tables, measures) concatenated in
+    batch order. Written with :func:`write_run`, it gives the same files as one batch."""
+    if len(results) == 1:
+        return results[0]
+    first = results[0]
+    rows = [r.state.n_runs for r in results]
+    state = _joined([r.state for r in results], rows)
+    state.t = max(r.state.t for r in results)
+    return RunResult(
+        config=first.config,
+        map=first.map,
+        params=first.params,
+        state=state,
+        strategy=_joined([r.strategy for r in results], rows),
+        measures=_joined([r.measures for r in results], rows),
+        run_ids=np.concatenate([r.run_ids for r in results]),
+        episodes=_table([r.episodes for r in results]),
+        transitions=_table([r.transitions for r in results]),
+        watch=_table([r.watch for r in results]),
+        trajectory=_table([r.trajectory for r in results]),
+        timeline=_table([r.timeline for r in results]),
+        summary=[s for r in results for s in r.summary],
+        engine=first.engine,
+        engine_note=first.engine_note,
+    )
+
+
 #: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
 #: and Ctrl-C are served within a fraction of a second, long enough to hide the call;
 #: and at least COMPILED_MIN_STEPS team steps, so each run's tables stay in cache for a
@@ -226,9 +312,12 @@ def _compiled_loop(
     loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
     every = max(1, total // 200)
     i = first
+    buf = None
     while i < total and state.active.any():
         n = min(block, total - i)
-        u = streams.take(n)
+        if buf is None or buf.shape[1] != n:  # one buffer of uniforms, refilled per block
+            buf = np.empty((state.n_runs, n, p.n_agents, 2))
+        u = streams.take(n, out=buf)
         taken, ends, up_int, up_float = loop.run(u)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)

@@ -389,6 +389,11 @@ def run_sweep(
         return sw.close(meta)
 
 
+def point_cost(cfg: Config) -> float:
+    """Rough relative cost of a point: steps x runs x (1 + agents)."""
+    return float(cfg["steps"]) * cfg["runs"] * (1 + cfg["agents"])
+
+
 def run_sweeps(
     sweeps: Sequence[tuple[Config, list[Point], str | Path]],
     jobs: int = 1,
@@ -398,13 +403,13 @@ def run_sweeps(
     """Run several sweeps' points in one pool of ``jobs`` workers (joblib).
 
     As :func:`run_sweep` for each ``(base, points, out)``, but the points of all of them
-    share the workers, the costliest first (``cost(config)``, default steps x (1 +
-    agents)), so that a large sweep never runs on one core while the others idle. Each
+    share the workers, the costliest first (``cost(config)``, default
+    :func:`point_cost`), so that a large sweep never runs on one core while the others idle. Each
     sweep folder is the same as :func:`run_sweep` would write, and resumes the same way.
     """
     limits.check_jobs(jobs)
     meta = dict(meta) if meta is not None else provenance.collect()
-    cost = cost or (lambda c: float(c["steps"]) * (1 + c["agents"]))
+    cost = cost or point_cost
     with contextlib.ExitStack() as stack:
         opened = [_open(stack, base, points, out, False, meta) for base, points, out in sweeps]
         tasks: list[tuple[float, int, Point, Config, Any]] = []
@@ -815,6 +820,9 @@ def _execute(
         for point, cfg, m in tasks:
             yield _run_point(point, cfg, m, pdir, meta)
         return
+    # the costliest points first (longest-processing-time order), so that no worker is
+    # left with a long point at the end while the others idle
+    tasks.sort(key=lambda x: -point_cost(x[1]))
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
     yield from parallel(delayed(_run_point)(point, cfg, m, pdir, meta) for point, cfg, m in tasks)
 
