@@ -475,7 +475,8 @@ def policies(fig: pd.DataFrame) -> Section:
             for name, g in low.groupby("policy", sort=False):
                 worst = g.sort_values("coverage_mean").iloc[0]
                 parts.append(
-                    f"{name} on {len(g)} (lowest {_fmt(worst.coverage_mean)}: {worst.map}, "
+                    f"{name} at {len(g)} point{'s' * (len(g) != 1)} (lowest "
+                    f"{_fmt(worst.coverage_mean)}: {worst['map']}, "
                     f"K = {int(worst.agents)})"
                 )
             uncovered = (

@@ -49,7 +49,7 @@ def test_policies_section_by_hand():
     assert "| m | 2 | 10 | 5 (conscientious) | 10 (cyclic) | 4 (0.8x) | 30 (3x) |" in text
     assert "beats the best classic strategy's average idleness on 1 of 2" in text
     assert "0.8 times the best at its closest (m, K = 2) and 3 times at its farthest" in text
-    assert "100 steps for the strategies that do not learn, 5,000 for the learners" in text
+    assert "100 steps for the strategies that do not learn, 5,000 for qlearning" in text
 
 
 def test_learning_section_by_hand():
@@ -71,3 +71,22 @@ def test_learning_section_by_hand():
     assert "cyclic 35" in text
     assert "first reaches cyclic's level (35) in the window ending at step 40" in text
     assert "Half of its improvement is made by step 20" in text
+
+
+def test_policies_goal_of_a_learner_beyond_the_paper():
+    """Worst within 1.5 x cyclic's (31 > 1.5 x 20 = 30: no), average below conscientious
+    reactive's (9 < 10: yes); a point with coverage below 1 is named."""
+    fig = study_table(
+        [
+            ("m", 1, "qlearning", True, 30.0, 200),
+            ("m", 1, "qlearning-idleness", True, 9.0, 31),
+            ("m", 1, "conscientious", False, 10.0, 40),
+            ("m", 1, "cyclic", False, 12.0, 20),
+        ]
+    )
+    fig["coverage_mean"] = [0.5, 1.0, 1.0, 1.0]
+    text = "\n".join(report.policies(fig).findings)
+    assert "| qlearning-idleness | m | 1 | 31 | 30 | no | 9 | 10 | yes |" in text
+    assert "Met in 0 of 1 cells: the worst idleness is within 1.5x in 0, the average" in text
+    assert "qlearning at 1 point (lowest 0.5: m, K = 1)" in text
+    assert "5,000 for qlearning, 5,000 for qlearning-idleness" in text
