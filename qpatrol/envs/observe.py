@@ -20,6 +20,7 @@ the same maps the world's reward uses.
 from __future__ import annotations
 
 import numpy as np
+from gymnasium import spaces
 
 from qpatrol import world
 from qpatrol.envs.sim import Sim
@@ -41,6 +42,12 @@ FEATURES: tuple[str, ...] = (
     "idle_w",
 )
 N_BASE = len(FEATURES)
+
+
+def space(sim: Sim, idleness_map: bool) -> spaces.Box:
+    """The observation space of one robot of ``sim`` (float32, :func:`bounds`)."""
+    low, high = bounds(sim.params, sim.map.free.shape, sim.max_steps, idleness_map)
+    return spaces.Box(low, high, dtype=np.float32)
 
 
 def bounds(p: world.Params, shape: tuple[int, int], max_steps: int, idleness_map: bool):

@@ -14,7 +14,7 @@ from qpatrol.config import Config
 from qpatrol.envs import observe, render
 from qpatrol.envs.sim import Sim, WorldView, make_config
 
-RENDER_MODES = ("rgb_array", "ansi")
+RENDER_MODES = render.RENDER_MODES
 
 
 class PatrolParallelEnv(WorldView, ParallelEnv):
@@ -83,23 +83,16 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
         idleness_map: bool = False,
         render_mode: str | None = None,
     ):
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(
-                f"render_mode: got {render_mode!r}; allowed: None, {', '.join(RENDER_MODES)}"
-            )
+        self.render_mode = render.check_mode(render_mode)
         self.config = make_config(config, overrides, map, agents)
         self.sim = Sim(self.config, max_steps)
-        self.render_mode = render_mode
         self.idleness_map = bool(idleness_map)
         k = self.sim.n_agents
         self.possible_agents = [f"agent_{i}" for i in range(k)]
         self.agents: list[str] = []
         self._index = {a: i for i, a in enumerate(self.possible_agents)}
-        low, high = observe.bounds(
-            self.sim.params, self.sim.map.free.shape, self.sim.max_steps, self.idleness_map
-        )
         self.observation_spaces = {
-            a: spaces.Box(low, high, dtype=np.float32) for a in self.possible_agents
+            a: observe.space(self.sim, self.idleness_map) for a in self.possible_agents
         }
         self.action_spaces = {a: spaces.Discrete(4) for a in self.possible_agents}
 
@@ -156,8 +149,7 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
         """The current picture in ``render_mode`` (None without one)."""
         if self.render_mode is None or not self.sim.started:
             return None
-        draw = render.rgb if self.render_mode == "rgb_array" else render.ansi
-        return draw(self.sim.map, self.sim.params, self.sim.state)
+        return render.picture(self.sim.map, self.sim.params, self.sim.state, self.render_mode)
 
     def close(self) -> None:
         """Nothing to release."""

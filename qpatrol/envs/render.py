@@ -12,6 +12,8 @@ import numpy as np
 from qpatrol import world
 from qpatrol.maps import BIG, Map
 
+#: The render modes of both environments.
+RENDER_MODES = ("rgb_array", "ansi")
 #: Pixels per grid cell in ``rgb_array`` images.
 CELL_PX = 8
 WALL_RGB = (33, 33, 180)
@@ -91,3 +93,15 @@ def ansi(m: Map, p: world.Params, s: world.State) -> str:
             f"{modes[int(s.mode[0, k])]}"
         )
     return "\n".join(lines) + "\n"
+
+
+def check_mode(mode: str | None) -> str | None:
+    """``mode`` if it is None or one of :data:`RENDER_MODES`; else a one-line ValueError."""
+    if mode is not None and mode not in RENDER_MODES:
+        raise ValueError(f"render_mode: got {mode!r}; allowed: None, {', '.join(RENDER_MODES)}")
+    return mode
+
+
+def picture(m: Map, p: world.Params, s: world.State, mode: str) -> np.ndarray | str:
+    """The run drawn in render mode ``mode``: :func:`rgb` or :func:`ansi`."""
+    return rgb(m, p, s) if mode == "rgb_array" else ansi(m, p, s)

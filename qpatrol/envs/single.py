@@ -53,10 +53,7 @@ class PatrolEnv(WorldView, gymnasium.Env):
         idleness_map: bool = False,
         render_mode: str | None = None,
     ):
-        if render_mode is not None and render_mode not in RENDER_MODES:
-            raise ValueError(
-                f"render_mode: got {render_mode!r}; allowed: None, {', '.join(RENDER_MODES)}"
-            )
+        self.render_mode = render.check_mode(render_mode)
         if teammates is None:
             if agents is not None and agents != 1:
                 raise ValueError(
@@ -79,12 +76,8 @@ class PatrolEnv(WorldView, gymnasium.Env):
         self.agent = int(agent)
         self.teammates = teammates
         self.team: strategies.base.Strategy | None = None
-        self.render_mode = render_mode
         self.idleness_map = bool(idleness_map)
-        low, high = observe.bounds(
-            self.sim.params, self.sim.map.free.shape, self.sim.max_steps, self.idleness_map
-        )
-        self.observation_space = spaces.Box(low, high, dtype=np.float32)
+        self.observation_space = observe.space(self.sim, self.idleness_map)
         self.action_space = spaces.Discrete(4)
 
     def reset(
@@ -126,5 +119,4 @@ class PatrolEnv(WorldView, gymnasium.Env):
         """The current picture in ``render_mode`` (None without one)."""
         if self.render_mode is None or not self.sim.started:
             return None
-        draw = render.rgb if self.render_mode == "rgb_array" else render.ansi
-        return draw(self.sim.map, self.sim.params, self.sim.state)
+        return render.picture(self.sim.map, self.sim.params, self.sim.state, self.render_mode)
