@@ -398,54 +398,73 @@ def run_sweeps(
     sweeps: Sequence[tuple[Config, list[Point], str | Path]],
     jobs: int = 1,
     meta: dict[str, Any] | None = None,
-    cost: Callable[[Config], float] | None = None,
 ) -> list[SweepResult]:
     """Run several sweeps' points in one pool of ``jobs`` workers (joblib).
 
     As :func:`run_sweep` for each ``(base, points, out)``, but the points of all of them
-    share the workers, the costliest first (``cost(config)``, default
-    :func:`point_cost`), so that a large sweep never runs on one core while the others idle. Each
-    sweep folder is the same as :func:`run_sweep` would write, and resumes the same way.
+    share the workers, the costliest first (:func:`point_cost`), so that a large sweep
+    never runs on one core while the others idle. Each sweep folder is the same as
+    :func:`run_sweep` would write, and resumes the same way.
     """
     limits.check_jobs(jobs)
     meta = dict(meta) if meta is not None else provenance.collect()
-    cost = cost or point_cost
     with contextlib.ExitStack() as stack:
         opened = [_open(stack, base, points, out, False, meta) for base, points, out in sweeps]
-        tasks: list[tuple[float, int, Point, Config, Any]] = []
+        tasks: list[tuple[Any, Point, Config, Any, Path]] = []
         for i, sw in enumerate(opened):
-            for point, cfg in sw.todo:
-                m = _load_map(cfg["map"], sw.maps)
-                if isinstance(m, BaseException):
-                    sw.record(point.id, _record_failure(sw.pdir, point, m))
-                else:
-                    tasks.append((cost(cfg), i, point, cfg, m))
-        tasks.sort(key=lambda x: -x[0])
-        if tasks:
-            from joblib import Parallel, delayed, effective_n_jobs
-
-            n = min(effective_n_jobs(jobs), len(tasks))
-            calls = (
-                delayed(_run_indexed)(i, point, cfg, m, opened[i].pdir, meta)
-                for _, i, point, cfg, m in tasks
-            )
-            if n == 1:
-                finished = (
-                    _run_indexed(i, p, c, m, opened[i].pdir, meta) for _, i, p, c, m in tasks
-                )
-            else:
-                finished = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")(
-                    calls
-                )
-            for i, (pid, error) in finished:
-                opened[i].record(pid, error)
+            ready, failed = _with_maps(sw.todo, sw.maps, sw.pdir)
+            for pid, error in failed:
+                sw.record(pid, error)
+            tasks += [(i, point, cfg, m, sw.pdir) for point, cfg, m in ready]
+        for i, (pid, error) in _pool(tasks, jobs, meta):
+            opened[i].record(pid, error)
         return [sw.close(meta) for sw in opened]
 
 
-def _run_indexed(
-    i: int, point: Point, cfg: Config, m: Any, pdir: Path, meta: dict[str, Any]
-) -> tuple[int, tuple[str, str | None]]:
-    return i, _run_point(point, cfg, m, pdir, meta)
+def _with_maps(
+    todo: list[tuple[Point, Config]], maps: dict[str, Any], pdir: Path
+) -> tuple[list[tuple[Point, Config, Any]], list[tuple[str, str]]]:
+    """The points whose map loads, with it, and ``(point id, error)`` of those whose map
+    does not (recorded as their failure). Maps are loaded here, where relative paths
+    mean what the user meant, and shipped to the workers with the task."""
+    ready: list[tuple[Point, Config, Any]] = []
+    failed: list[tuple[str, str]] = []
+    for point, cfg in todo:
+        m = _load_map(cfg["map"], maps)
+        if isinstance(m, BaseException):
+            failed.append((point.id, _record_failure(pdir, point, m)))
+        else:
+            ready.append((point, cfg, m))
+    return ready, failed
+
+
+def _pool(
+    tasks: list[tuple[Any, Point, Config, Any, Path]], jobs: int, meta: dict[str, Any]
+) -> Iterator[tuple[Any, tuple[str, str | None]]]:
+    """Run ``(tag, point, config, map, points folder)`` tasks on ``jobs`` joblib workers,
+    yielding ``(tag, (point id, None or one-line error))`` as each finishes. With more
+    than one worker the costliest points go first (longest-processing-time order), so
+    that no worker is left with a long point at the end while the others idle."""
+    if not tasks:
+        return
+    from joblib import Parallel, delayed, effective_n_jobs
+
+    n = min(effective_n_jobs(jobs), len(tasks))
+    if n == 1:
+        for tag, point, cfg, m, pdir in tasks:
+            yield tag, _run_point(point, cfg, m, pdir, meta)
+        return
+    ordered = sorted(tasks, key=lambda t: -point_cost(t[2]))
+    parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
+    yield from parallel(
+        delayed(_run_tagged)(tag, point, cfg, m, pdir, meta) for tag, point, cfg, m, pdir in ordered
+    )
+
+
+def _run_tagged(
+    tag: Any, point: Point, cfg: Config, m: Any, pdir: Path, meta: dict[str, Any]
+) -> tuple[Any, tuple[str, str | None]]:
+    return tag, _run_point(point, cfg, m, pdir, meta)
 
 
 @dataclass
@@ -797,34 +816,16 @@ def _execute(
     """Run the points, yielding ``(point id, None or one-line error)`` as each finishes."""
     if not todo:
         return
-    # Maps are loaded here, where relative paths mean what the user meant, and shipped
-    # to the workers with the task (they need not see the map files).
-    maps = {} if maps is None else maps
-    meta = meta or {}
-    tasks: list[tuple[Point, Config, Any]] = []
-    for point, cfg in todo:
-        m = _load_map(cfg["map"], maps)
-        if isinstance(m, BaseException):
-            yield point.id, _record_failure(pdir, point, m)
-        else:
-            tasks.append((point, cfg, m))
-    if not tasks:
+    ready, failed = _with_maps(todo, {} if maps is None else maps, pdir)
+    yield from failed
+    if not ready:
         return
     if backend == "dask":
-        yield from _execute_dask(tasks, pdir, jobs, scheduler, meta)
+        yield from _execute_dask(ready, pdir, jobs, scheduler, meta or {})
         return
-    from joblib import Parallel, delayed, effective_n_jobs
-
-    n = min(effective_n_jobs(jobs), len(tasks))
-    if n == 1:
-        for point, cfg, m in tasks:
-            yield _run_point(point, cfg, m, pdir, meta)
-        return
-    # the costliest points first (longest-processing-time order), so that no worker is
-    # left with a long point at the end while the others idle
-    tasks.sort(key=lambda x: -point_cost(x[1]))
-    parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
-    yield from parallel(delayed(_run_point)(point, cfg, m, pdir, meta) for point, cfg, m in tasks)
+    tasks = [(None, point, cfg, m, pdir) for point, cfg, m in ready]
+    for _, outcome in _pool(tasks, jobs, meta or {}):
+        yield outcome
 
 
 def _execute_dask(
