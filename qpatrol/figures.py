@@ -490,7 +490,14 @@ def strategies_data(
     return df
 
 
-POLICY_MEASURES = ("avg_idleness", "worst_idleness", "mean_interval", "max_wait", "coverage")
+POLICY_MEASURES = (
+    "avg_idleness",
+    "worst_idleness",
+    "mean_interval",
+    "max_wait",
+    "coverage",
+    "episodes_truncated",
+)
 
 
 def policies_data(

@@ -484,6 +484,21 @@ def policies(fig: pd.DataFrame) -> Section:
                 "coverage below 1; the worst idleness of such a run is capped by the run's "
                 "length): " + "; ".join(parts) + "."
             )
+    if "episodes_truncated_mean" in fig.columns:
+        cut = fig[fig["episodes_truncated_mean"] > 0]
+        if len(cut):
+            parts = []
+            for name, g in cut.groupby("policy", sort=False):
+                most = g.sort_values("episodes_truncated_mean").iloc[-1]
+                parts.append(
+                    f"{name} at {len(g)} point{'s' * (len(g) != 1)} (most: {most['map']}, "
+                    f"K = {int(most.agents)}, {_fmt(most.episodes_truncated_mean)} per run)"
+                )
+            uncovered += (
+                " Dot episodes cut at max_episode_steps (no idleness measure uses them): "
+                + "; ".join(parts)
+                + "."
+            )
     return Section(
         "Beyond the paper: does learning patrol well? Every map and team size",
         ["figures/policies.png"],

@@ -638,7 +638,9 @@ def write_results(out: str | Path, points: list[Point]) -> Path:
     """(Re)build ``results.csv`` from the ``summary.json`` of every complete point.
 
     Columns: ``point``, ``point_id``, one per swept key, ``run``, then the per-run
-    measures in the order the summary lists them. Rows sorted by point, then run.
+    measures in the order the summary lists them; a measure named like a swept key
+    (``steps``, the steps a run took, when ``steps`` is swept) is written as
+    ``<name>_run``. Rows sorted by point, then run.
     """
     out = Path(out)
     swept: list[str] = []
@@ -652,6 +654,7 @@ def write_results(out: str | Path, points: list[Point]) -> Path:
             continue
         runs = json.loads(summary_path.read_text(encoding="utf-8"))["runs"]
         for r in sorted(runs, key=lambda d: d["run"]):
+            r = {(f"{k}_run" if k in swept else k): v for k, v in r.items()}
             measures += [k for k in r if k != "run" and k not in measures]
             row = {"point": p.index, "point_id": p.id}
             row.update({k: _cell(p.overrides.get(k)) for k in swept})

@@ -85,8 +85,11 @@ def test_policies_goal_of_a_learner_beyond_the_paper():
         ]
     )
     fig["coverage_mean"] = [0.5, 1.0, 1.0, 1.0]
+    fig["episodes_truncated_mean"] = [2.5, 0.0, 0.0, 0.0]
     text = "\n".join(report.policies(fig).findings)
     assert "| qlearning-idleness | m | 1 | 31 | 30 | no | 9 | 10 | yes |" in text
     assert "Met in 0 of 1 cells: the worst idleness is within 1.5x in 0, the average" in text
     assert "qlearning at 1 point (lowest 0.5: m, K = 1)" in text
     assert "5,000 for qlearning, 5,000 for qlearning-idleness" in text
+    assert "max_episode_steps (no idleness measure uses them): qlearning at 1 point " in text
+    assert "(most: m, K = 1, 2.5 per run)" in text

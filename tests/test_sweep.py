@@ -419,3 +419,15 @@ def test_policies_and_learning_sweeps():
         assert o["steps"] == sw.learning_steps(o["policy"])
         assert (o["steps"] > sw.LEARNING_OTHERS_STEPS) == learns(o["policy"])
     assert sw.learning_steps("qlearning") == 200_000 and sw.policy_warmup("qlearning") == 100_000
+
+
+def test_a_swept_key_named_like_a_measure_keeps_its_value(base, tmp_path):
+    """Sweeping ``steps`` (as the policies study does): the swept column holds the
+    config's steps and the runs' own ``steps`` is written as ``steps_run``; an episode
+    quota makes them differ."""
+    pts = points_for("steps", [300, 400])
+    run_sweep(base.replace(episodes=1, max_episode_steps=100), pts, tmp_path / "s")
+    df = load_results(tmp_path / "s")
+    assert list(df.columns).count("steps") == 1 and "steps_run" in df.columns
+    assert sorted(set(df["steps"])) == [300, 400]
+    assert (df["steps_run"] < df["steps"]).all()
