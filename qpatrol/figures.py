@@ -476,18 +476,26 @@ def strategies_data(
     = L / K, the idleness interval of K robots evenly spaced on that walk.
     """
     df = grouped_data(sweep_dir, {"policy": str, "agents": int}, measures, level)
-    d = Path(sweep_dir)
-    walk = bound = None
-    for path, cfg in zip(*(read_sweep(d)[c] for c in ("path", "config")), strict=True):
-        summary = Path(path) / "summary.json"
-        if cfg["policy"] == "cyclic" and summary.is_file():
-            info = json.loads(summary.read_text()).get("strategy", {})
-            walk, bound = info.get("walk_length"), info.get("walk_lower_bound")
-            break
+    walks = _walks(read_sweep(Path(sweep_dir)))
+    walk, bound = next(iter(walks.values()), (None, None))
     df["walk_length"] = walk
     df["walk_lower_bound"] = bound
     df["bound_per_robot"] = [walk / k if walk else None for k in df["agents"]]
     return df
+
+
+def _walks(sw: pd.DataFrame, names: list[str] | None = None) -> dict[str, tuple[Any, Any]]:
+    """Map name -> (walk_length, walk_lower_bound) of the cyclic strategy's closed walk,
+    from the summary of the first cyclic point on each map of a sweep (``names``: the
+    map name of each point, if already known)."""
+    names = names or [folder_map(p, c).name for p, c in zip(sw["path"], sw["config"], strict=True)]
+    walks: dict[str, tuple[Any, Any]] = {}
+    for path, cfg, name in zip(sw["path"], sw["config"], names, strict=True):
+        summary = Path(path) / "summary.json"
+        if cfg["policy"] == "cyclic" and name not in walks and summary.is_file():
+            info = json.loads(summary.read_text()).get("strategy", {})
+            walks[name] = (info.get("walk_length"), info.get("walk_lower_bound"))
+    return walks
 
 
 POLICY_MEASURES = (
@@ -512,20 +520,16 @@ def policies_data(
     learns as it patrols).
     """
     df = grouped_data(sweep_dir, {"policy": str, "agents": int}, measures, level)
-    d = Path(sweep_dir)
-    sw = read_sweep(d)
-    walks: dict[str, tuple[Any, Any]] = {}
-    steps: dict[tuple[str, str, int], tuple[int, int]] = {}
-    for path, cfg in zip(sw["path"], sw["config"], strict=True):
-        name = folder_map(path, cfg).name
-        steps[(name, cfg["policy"], int(cfg["agents"]))] = (
+    sw = read_sweep(Path(sweep_dir))
+    names = [folder_map(p, c).name for p, c in zip(sw["path"], sw["config"], strict=True)]
+    walks = _walks(sw, names)
+    steps = {
+        (name, cfg["policy"], int(cfg["agents"])): (
             int(cfg["record.warmup"]),
             int(cfg["steps"]) - int(cfg["record.warmup"]),
         )
-        summary = Path(path) / "summary.json"
-        if cfg["policy"] == "cyclic" and name not in walks and summary.is_file():
-            info = json.loads(summary.read_text()).get("strategy", {})
-            walks[name] = (info.get("walk_length"), info.get("walk_lower_bound"))
+        for name, cfg in zip(names, sw["config"], strict=True)
+    }
     df["walk_length"] = [walks.get(m, (None, None))[0] for m in df["map"]]
     df["walk_lower_bound"] = [walks.get(m, (None, None))[1] for m in df["map"]]
     df["bound_per_robot"] = [
@@ -535,17 +539,12 @@ def policies_data(
     df["warmup"] = [steps[k][0] for k in key]
     df["window"] = [steps[k][1] for k in key]
     df["learns"] = [strategies.learns(p) for p in df["policy"]]
-    order = {m: i for i, m in enumerate(dict.fromkeys(_sweep_maps(sw)))}
+    order = {m: i for i, m in enumerate(dict.fromkeys(names))}
     df["_order"] = [order.get(m, len(order)) for m in df["map"]]
     names = {n: i for i, n in enumerate(strategies.NAMES)}
     df["_policy"] = [names.get(p, len(names)) for p in df["policy"]]
     df = df.sort_values(["_order", "agents", "_policy"], kind="stable")
     return df.drop(columns=["_order", "_policy"]).reset_index(drop=True)
-
-
-def _sweep_maps(sw: pd.DataFrame) -> list[str]:
-    """The maps of a sweep's points, in point order."""
-    return [folder_map(p, c).name for p, c in zip(sw["path"], sw["config"], strict=True)]
 
 
 def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
