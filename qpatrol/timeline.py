@@ -80,21 +80,23 @@ class Timeline:
             return
         open_gap = t - self.last[rows].min(axis=1)
         worst = np.maximum(self.worst[rows], open_gap)
-        index = (t - 1) // self.window
         for i, r in enumerate(rows.tolist()):
-            n = int(self.steps[r])
-            avg = float(self.idle_sum[r] / (self.n_cells * n))
-            self.rows.append((r, index, t - n + 1, t, avg, int(worst[i])))
+            self.rows.append(self._row(r, t, int(self.steps[r]), self.idle_sum[r], worst[i]))
         self.idle_sum[rows] = 0
         self.worst[rows] = 0
         self.steps[rows] = 0
 
+    def _row(self, r: int, t: int, n: int, idle: np.int64, worst: int) -> tuple:
+        """A finished window of run row ``r``: ``n`` steps ending at ``t``, summed
+        idleness ``idle`` (int64), worst idleness ``worst``."""
+        avg = float(np.int64(idle) / (self.n_cells * n))
+        return (r, (t - 1) // self.window, t - n + 1, t, avg, int(worst))
+
     def add_rows(self, rows: np.ndarray) -> None:
         """Windows closed by the compiled engine: int ``[W, 6]`` (run row, window, first,
-        last, idleness sum, worst), the average taken here as :meth:`_close` takes it."""
-        for r, index, first, last, idle, worst in rows.tolist():
-            avg = float(np.int64(idle) / (self.n_cells * (last - first + 1)))
-            self.rows.append((r, index, first, last, avg, worst))
+        last, idleness sum, worst), turned into rows as :meth:`_close` makes them."""
+        for r, _, first, last, idle, worst in rows.tolist():
+            self.rows.append(self._row(r, last, last - first + 1, idle, worst))
 
     def table(self, run_ids: np.ndarray, steps_done: np.ndarray) -> pd.DataFrame | None:
         """``timeline.csv``: one row per run and window (a last, shorter window included).
@@ -107,10 +109,8 @@ class Timeline:
         rows = list(self.rows)
         for r in np.flatnonzero(self.steps > 0).tolist():  # a window cut short by the end
             t = int(steps_done[r])
-            n = int(self.steps[r])
             worst = max(int(self.worst[r]), int(t - self.last[r].min()))
-            avg = float(self.idle_sum[r] / (self.n_cells * n))
-            rows.append((r, (t - 1) // self.window, t - n + 1, t, avg, worst))
+            rows.append(self._row(r, t, int(self.steps[r]), self.idle_sum[r], worst))
         df = pd.DataFrame(rows, columns=["row", *TIMELINE_COLUMNS[1:]])
         df.insert(0, "run", np.asarray(run_ids)[df["row"].to_numpy(dtype=np.int64)])
         df = df.drop(columns="row").sort_values(["run", "window"], kind="stable")
