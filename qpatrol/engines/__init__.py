@@ -23,10 +23,16 @@ def numba_installed() -> bool:
     return importlib.util.find_spec("numba") is not None
 
 
+#: The strategies the compiled engine covers (each a file of
+#: :mod:`qpatrol.engines.compiled`, listed in its ``MODULES``; kept here too so that
+#: choosing an engine does not import numba).
+COMPILED_POLICIES = ("qlearning",)
+
+
 def compiled_gap(cfg: Config) -> str | None:
     """Why the compiled engine cannot run ``cfg`` (None: it can)."""
-    if cfg["policy"] != "qlearning":
-        return f"policy {cfg['policy']} (compiled: qlearning only)"
+    if cfg["policy"] not in COMPILED_POLICIES:
+        return f"policy {cfg['policy']} (compiled: {', '.join(COMPILED_POLICIES)})"
     return None
 
 

@@ -1,20 +1,27 @@
-"""The compiled engine: the whole time loop of Q-learning teams, scalar, in numba.
+"""The compiled engine: the whole time loop of a batch, scalar, in numba.
 
 One call advances every run of a batch by a block of team steps, in place, on the same
-arrays the numpy engine uses (:class:`qpatrol.world.State`, the learner's ``q``/``n``,
+arrays the numpy engine uses (:class:`qpatrol.world.State`, the strategy's arrays,
 :class:`qpatrol.measures.Measures`, the trajectory ring), so everything after the loop
 (summaries, files, checkpoints) is shared. Each step of a run reads like §3 of the
-paper: every robot chooses greedily over its open moves (ties and epsilon from the
-run's uniforms), the team moves under the traffic rules of :mod:`qpatrol.traffic`,
-each robot that entered a cell is paid, and each that made the move it chose updates
-``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max Q(s', .) - Q(s, a))``. The arithmetic is
-the numpy engine's, operation for operation, so results are equal to the bit.
+paper: the world finds each robot's open moves, the strategy chooses (its compiled
+twin in :mod:`qpatrol.engines.compiled`, e.g. greedy over Q with ties and epsilon from
+the run's uniforms), the team moves under the traffic rules of :mod:`qpatrol.traffic`,
+each robot that entered a cell is paid, and the strategy learns (e.g. ``Q(s, a) <- Q(s,
+a) + (1/N) (r + gamma max Q(s', .) - Q(s, a))``). The arithmetic is the numpy
+engine's, operation for operation, so results are equal to the bit.
 
-Covered: ``policy: qlearning``, any team size, with or without battery, communication
-and collision avoidance (right of way, pushes, station pockets and queues), episode
-quotas, and every recorder (``record.trajectory``, ``record.transitions``,
-``record.watch``, ``record.timeline``). The other strategies run on the numpy engine
-(see :func:`qpatrol.engines.compiled_gap`).
+Covered: the strategies of :data:`qpatrol.engines.COMPILED_POLICIES`, any team size,
+with or without battery, communication and collision avoidance (right of way, pushes,
+station pockets and queues), episode quotas, and every recorder
+(``record.trajectory``, ``record.transitions``, ``record.watch``,
+``record.timeline``). Other strategies run on the numpy engine (see
+:func:`qpatrol.engines.compiled_gap`).
+
+The loop is compiled without numba's reference counting (``_nrt=False``): it
+allocates nothing (its working arrays come from :func:`scratch`), and every call of a
+strategy's ``act``/``learn`` would otherwise pay an atomic increment and decrement per
+array argument, which made the loop several times slower.
 """
 
 from __future__ import annotations
@@ -22,6 +29,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from qpatrol.engines import compiled
 from qpatrol.world import Params, State
 
 #: Columns of the episode buffer: run, group, episode, start, dots, cells, states,
@@ -36,7 +44,7 @@ UP_INT, UP_FLOAT = 9, 9
 PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _priority(wait, mode, depart_left, k, n_agents, t):
     """:func:`qpatrol.traffic.priority` of robot k: class, then wait, then turn."""
     if depart_left > 0:
@@ -51,14 +59,14 @@ def _priority(wait, mode, depart_left, k, n_agents, t):
     return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _kept_out(c, pocket_of, reserved_r):
     """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
     h = pocket_of[c]
     return h >= 0 and reserved_r[h] >= 0
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
     if station < 0:
@@ -83,7 +91,7 @@ def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     return -1
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def _push_path(
     nbrs, occ_r, own, start, parent, seen, queue, path, battery, mode_r, pocket_of, reserved_r
 ):
@@ -139,7 +147,7 @@ def _push_path(
     return m
 
 
-@njit(cache=True, nogil=True)
+@njit(cache=True, nogil=True, _nrt=False)
 def run_block(
     t0,
     u,
@@ -155,9 +163,8 @@ def run_block(
     diameter,
     max_ep,
     quota,
-    use_heading,
-    gamma,
-    epsilon,
+    code,
+    sp,
     pos,
     head,
     occ,
@@ -175,8 +182,6 @@ def run_block(
     token_held,
     active,
     steps_done,
-    q,
-    n,
     m_last,
     m_last_sum,
     visits,
@@ -224,6 +229,7 @@ def run_block(
     tl_worst,
     tl_steps,
     tl_buf,
+    scratch,
 ):
     """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
 
@@ -244,28 +250,32 @@ def run_block(
     for c in range(n_cells):
         if has_dot[c]:
             n_dots += 1
-    want = np.empty(n_agents, np.int64)
-    ask = np.empty(n_agents, np.int64)
-    prev_pos = np.empty(n_agents, np.int64)
-    prev_head = np.empty(n_agents, np.int64)
-    moved = np.empty(n_agents, np.bool_)
-    as_asked = np.empty(n_agents, np.bool_)
-    reward = np.empty(n_agents, np.float64)
-    blocked_by = np.empty(n_agents, np.int64)
-    order = np.empty(n_agents, np.int64)
-    key = np.empty(n_agents, np.int64)
-    choosing = np.empty(n_agents, np.bool_)
-    eaten = np.empty(n_agents, np.bool_)
+    (
+        want,
+        ask,
+        prev_pos,
+        prev_head,
+        moved,
+        as_asked,
+        reward,
+        blocked_by,
+        order,
+        key,
+        choosing,
+        eaten,
+        yielding,
+        held_back,
+        open_mask,
+        ended,
+        parent,
+        seen,
+        queue,
+        path,
+    ) = scratch
     n_up = 0
-    yielding = np.empty(n_agents, np.bool_)
-    held_back = np.empty(n_agents, np.bool_)
     n_homes = homes.shape[0]
-    mask = np.empty(4, np.bool_)
-    cand = np.empty(4, np.int64)
-    parent = np.full(n_cells, -2, np.int64)
-    seen = np.empty(n_cells, np.int64)
-    queue = np.empty(n_cells, np.int64)
-    path = np.empty(n_cells, np.int64)
+    for c in range(n_cells):
+        parent[c] = -2
     t_end = t0
     n_ep = 0
     n_tl = 0
@@ -326,10 +336,9 @@ def run_block(
                             reserved[r, best_h] = k
                             goal[r, k] = best_h
                             mode[r, k] = HOMING
-            # --- choose (qlearning.act): greedy over open moves, ties by u[..., 1] ----
+            # --- observe (world.begin_step): who chooses, the open moves ----------------
             for k in range(n_agents):
                 c = pos[r, k]
-                h = head[r, k] if use_heading else 0
                 choosing[k] = mode[r, k] == PATROL
                 held_back[k] = False
                 yielding[k] = False
@@ -346,30 +355,37 @@ def run_block(
                                     ok = False
                     if ok and avoid and k != tok and occ[r, nb] >= 0:
                         ok = False
-                    mask[d] = ok
+                    open_mask[k, d] = ok
                     any_open = any_open or ok
-                if not any_open:
+                if not any_open:  # base.prefer_open: every legal move where none is open
                     for d in range(4):
-                        mask[d] = nbrs[c, d] >= 0
-                best = -np.inf
-                for d in range(4):
-                    if mask[d] and q[r, k, c, h, d] > best:
-                        best = q[r, k, c, h, d]
-                explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
-                count = 0
-                for d in range(4):
-                    if mask[d] and (explore or q[r, k, c, h, d] == best):
-                        cand[count] = d
-                        count += 1
-                if count == 0 or not choosing[k]:
-                    ask[k] = -1
-                else:
-                    j = min(np.int64(u[r, i, k, 1] * count), count - 1)
-                    ask[k] = cand[j]
+                        open_mask[k, d] = nbrs[c, d] >= 0
                 prev_pos[k] = c
                 prev_head[k] = head[r, k]
                 moved[k] = False
                 as_asked[k] = False
+            # --- the strategy chooses (Strategy.act) ----------------------------------
+            compiled.act(
+                code,
+                r,
+                i,
+                t,
+                u,
+                nbrs,
+                wall_legal,
+                dot_value,
+                communication,
+                battery,
+                pocket_of,
+                pos,
+                head,
+                last,
+                reserved,
+                open_mask,
+                choosing,
+                ask,
+                sp,
+            )
             if battery:
                 for k in range(n_agents):
                     c = pos[r, k]
@@ -614,10 +630,12 @@ def run_block(
             # --- episodes: all dots eaten, or too long ---------------------------------
             ended_any = False
             for g in range(n_groups):
+                ended[g] = False
                 complete = dots_left[r, g] == 0
                 if not (complete or (max_ep > 0 and t - ep_start[r, g] >= max_ep)):
                     continue
                 ended_any = True
+                ended[g] = True
                 cells = 0
                 states = 0
                 for c in range(n_cells):
@@ -650,45 +668,34 @@ def run_block(
                 for g in range(1, n_groups):
                     low = min(low, ep_count[r, g])
                 active[r] = low < quota
-            # --- learn (qlearning.learn): robots that made the move they chose ----------
-            for k in range(n_agents):
-                if not as_asked[k] or not choosing[k]:
-                    continue
-                ca = prev_pos[k]
-                ha = prev_head[k] if use_heading else 0
-                aa = ask[k]
-                cb = nbrs[ca, aa]
-                hb = aa if use_heading else 0
-                top = -np.inf
-                for d in range(4):
-                    if wall_legal[cb, d] and q[r, k, cb, hb, d] > top:
-                        top = q[r, k, cb, hb, d]
-                target = reward[k] + gamma * top
-                q_sa = q[r, k, ca, ha, aa]
-                n_after = n[r, k, ca, ha, aa] + 1
-                alpha = 1.0 / n_after
-                q[r, k, ca, ha, aa] = q_sa + alpha * (target - q_sa)
-                n[r, k, ca, ha, aa] = n_after
-                if record_all or watched[ca]:  # Recorder.updates
-                    ri = up_int[n_up]
-                    ri[0] = r
-                    ri[1] = t
-                    ri[2] = k
-                    ri[3] = ca
-                    ri[4] = ha
-                    ri[5] = aa
-                    ri[6] = cb
-                    ri[7] = hb
-                    ri[8] = 1 if eaten[k] else 0
-                    rf = up_float[n_up]
-                    rf[0] = reward[k]
-                    rf[1] = alpha
-                    rf[2] = q_sa
-                    rf[3] = q[r, k, ca, ha, aa]
-                    rf[4] = gamma * top
-                    for d in range(4):
-                        rf[5 + d] = q[r, k, ca, ha, d]
-                    n_up += 1
+            # --- the strategy learns (Strategy.learn) ----------------------------------
+            n_up = compiled.learn(
+                code,
+                r,
+                t,
+                nbrs,
+                wall_legal,
+                dot_value,
+                has_dot,
+                communication,
+                pos,
+                prev_pos,
+                prev_head,
+                moved,
+                ask,
+                as_asked,
+                choosing,
+                reward,
+                eaten,
+                blocked_by,
+                ended,
+                sp,
+                record_all,
+                watched,
+                up_int,
+                up_float,
+                n_up,
+            )
             # --- measures (Measures.observe) and the trajectory ring -------------------
             in_window = t > warmup
             for k in range(n_agents):
@@ -761,6 +768,27 @@ def run_block(
     return t_end, n_ep, n_up, n_tl
 
 
+def scratch(n_agents: int, n_groups: int, n_cells: int) -> tuple[np.ndarray, ...]:
+    """The loop's working arrays, allocated once per batch (the loop itself allocates
+    nothing: it is compiled without numba's reference counting, which would otherwise
+    cost an atomic increment and decrement per array argument of every call): per robot
+    ``[K]`` want, ask, prev_pos, prev_head, moved, as_asked, reward, blocked_by, order,
+    key, choosing, eaten, yielding, held_back; open_mask ``[K, 4]``; ended ``[G]``; and
+    the push search's parent, seen, queue, path ``[C]``."""
+    i8, b1, k = np.int64, np.bool_, n_agents
+    return (
+        *(np.zeros(k, i8) for _ in range(4)),
+        np.zeros(k, b1),
+        np.zeros(k, b1),
+        np.zeros(k, np.float64),
+        *(np.zeros(k, i8) for _ in range(3)),
+        *(np.zeros(k, b1) for _ in range(4)),
+        np.zeros((k, 4), b1),
+        np.zeros(n_groups, b1),
+        *(np.zeros(n_cells, i8) for _ in range(4)),
+    )
+
+
 class Loop:
     """The compiled loop over one batch: its constant arguments and its buffers, so a
     call costs little even for one team step (when a checkpointer wants every step).
@@ -776,6 +804,8 @@ class Loop:
     ):
         s, m = state, measures
         self.state, self.p = s, p
+        self.strategy = strategy
+        self.code, self.pack = compiled.pack(strategy)
         n_runs, k = s.pos.shape
         n_dots = int(p.has_dot.sum())
         shortest = -(-n_dots // k)
@@ -802,9 +832,8 @@ class Loop:
             p.diameter,
             p.max_episode_steps,
             p.episodes,
-            strategy.use_heading,
-            strategy.gamma,
-            strategy.epsilon,
+            self.code,
+            self.pack,
             s.pos,
             s.head,
             s.occ,
@@ -822,8 +851,6 @@ class Loop:
             s.token_held,
             s.active,
             s.steps_done,
-            strategy.q,
-            strategy.n,
             m.last,
             m.last_sum,
             m.visits,
@@ -865,6 +892,7 @@ class Loop:
             self.up_int,
             self.up_float,
             *self._timeline_args(timeline, n_runs, p.n_cells, max_steps),
+            scratch(k, p.n_groups, p.n_cells),
         )
         self.timeline = timeline if timeline is not None and timeline.window else None
 
@@ -897,6 +925,7 @@ class Loop:
         t0 = s.t
         t_end, n_ep, n_up, n_tl = run_block(t0, np.ascontiguousarray(u), *self.args)
         s.t = int(t_end)
+        compiled.unpack(self.strategy, self.pack)
         if self.timeline is not None:
             self.timeline.add_rows(self.tl_buf[:n_tl])
         # a run that stopped before the batch did sat out its last steps: no wait, no
