@@ -64,3 +64,18 @@ class Streams:
             for r, g in enumerate(self.generators):
                 g.random(out=out[r, left.shape[1] :])
         return out
+
+    def pending(self) -> int:
+        """Steps of uniforms drawn into the current block and not yet taken."""
+        return self._buf.shape[1] - self._i
+
+    def draw(self, n: int, lo: int, hi: int, out: np.ndarray) -> np.ndarray:
+        """float ``[hi - lo, n, K, 2]``: the next ``n`` steps' uniforms of runs
+        ``lo..hi-1`` only, drawn into ``out``. Only when nothing is pending
+        (:meth:`pending`); after every run has drawn its ``n`` steps (each run once),
+        the streams stand where :meth:`take` of ``n`` would have left them."""
+        if self.pending():
+            raise RuntimeError("Streams.draw: uniforms of the current block are pending")
+        for r in range(lo, hi):
+            self.generators[r].random(out=out[r - lo])
+        return out

@@ -278,11 +278,17 @@ def join(results: list[RunResult]) -> RunResult:
 
 
 #: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
-#: and Ctrl-C are served within a fraction of a second, long enough to hide the call;
-#: and at least COMPILED_MIN_STEPS team steps, so each run's tables stay in cache for a
-#: while and the per-run draws of uniforms come in long blocks.
-COMPILED_BLOCK = 1 << 20
+#: and Ctrl-C are served within a fraction of a second and the uniforms of a call stay
+#: in cache, long enough to hide the call; and at least COMPILED_MIN_STEPS team steps,
+#: so each run's tables stay in cache for a while and the per-run draws of uniforms come
+#: in long blocks.
+COMPILED_BLOCK = 1 << 16
 COMPILED_MIN_STEPS = 512
+#: Large batches (more than COMPILED_BLOCK agent-steps in COMPILED_MIN_STEPS team steps)
+#: go through the compiled loop in groups of runs, each for COMPILED_GROUP_STEPS team
+#: steps at a time: a run's tables are then loaded into cache once per 4,096 steps, not
+#: once per 512, and its uniforms are drawn just before they are used.
+COMPILED_GROUP_STEPS = 4096
 
 
 def _compiled_loop(
@@ -304,21 +310,32 @@ def _compiled_loop(
     so that it may save or stop after any step, as in the numpy loop."""
     from qpatrol.engines import numba_core
 
-    block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (state.n_runs * p.n_agents))
+    R, K = state.n_runs, p.n_agents
+    block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (R * K))
+    group = R  # runs per call
+    if R * K * COMPILED_MIN_STEPS > COMPILED_BLOCK:
+        block = COMPILED_GROUP_STEPS
+        group = max(1, COMPILED_BLOCK // (K * block))
     if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
-        block = max(1, (COMPILED_BLOCK // 8) // (state.n_runs * p.n_agents))
+        block, group = max(1, (COMPILED_BLOCK // 8) // (R * K)), R
     if checkpoint is not None:
-        block = 1  # a checkpointer may save (or stop) after any team step
+        block, group = 1, R  # a checkpointer may save (or stop) after any team step
     loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
     every = max(1, total // 200)
     i = first
     buf = None
     while i < total and state.active.any():
         n = min(block, total - i)
-        if buf is None or buf.shape[1] != n:  # one buffer of uniforms, refilled per block
-            buf = np.empty((state.n_runs, n, p.n_agents, 2))
-        u = streams.take(n, out=buf)
-        taken, ends, up_int, up_float = loop.run(u)
+        if streams.pending():  # uniforms drawn for every run by the numpy engine first
+            n, width = min(n, streams.pending()), R
+        else:
+            width = min(group, R)
+        if buf is None or buf.shape[:2] != (width, n):  # one buffer, refilled per call
+            buf = np.empty((width, n, K, 2))
+        if width == R:
+            taken, ends, up_int, up_float = loop.run(streams.take(n, out=buf))
+        else:
+            taken, ends, up_int, up_float = loop.run(None, rows=_row_groups(streams, n, buf))
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken
@@ -328,6 +345,15 @@ def _compiled_loop(
             checkpoint.tick(i, (state, strategy, watch, streams, rec, tail, timeline))
         if taken < n:
             break
+
+
+def _row_groups(streams: Streams, n: int, buf: np.ndarray):
+    """``(lo, hi, u)`` for consecutive groups of ``buf.shape[0]`` runs: each group's
+    uniforms for the next ``n`` steps, drawn into ``buf`` when the group is reached."""
+    R, width = len(streams.generators), buf.shape[0]
+    for lo in range(0, R, width):
+        hi = min(lo + width, R)
+        yield lo, hi, streams.draw(n, lo, hi, buf[: hi - lo])
 
 
 def advance(

@@ -184,3 +184,37 @@ def test_compiled_timeline(rooms_map, tmp_path, agents, battery, window):
     assert both(flat, tmp_path) == ("numba", "")
     assert (tmp_path / "numba" / "timeline.csv").is_file()
     assert both({**flat, "episodes": 2}, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("battery", [True, False])
+@pytest.mark.parametrize("timeline", [0, 50])
+def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, timeline):
+    """Large batches go through the compiled loop a group of runs at a time (uniforms
+    drawn per group, output rows renumbered): shrunk limits force groups of 2 runs out
+    of 5 (the last group of 1) and blocks of 64 steps, with a short last block and runs
+    stopped early by an episode quota; every file equals the numpy engine's."""
+    from qpatrol import run
+
+    monkeypatch.setattr(run, "COMPILED_BLOCK", 256)
+    monkeypatch.setattr(run, "COMPILED_GROUP_STEPS", 64)
+    calls = []
+    draw = run.Streams.draw
+    monkeypatch.setattr(
+        run.Streams,
+        "draw",
+        lambda s, n, lo, hi, out: calls.append((lo, hi)) or draw(s, n, lo, hi, out),
+    )
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "runs": 5,
+        "agents": 2,
+        "steps": 300,
+        "episodes": 3,
+        "max_episode_steps": 40,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "record.timeline": timeline,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+    assert calls[:3] == [(0, 2), (2, 4), (4, 5)]

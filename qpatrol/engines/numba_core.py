@@ -895,6 +895,19 @@ class Loop:
             scratch(k, p.n_groups, p.n_cells),
         )
         self.timeline = timeline if timeline is not None and timeline.window else None
+        # the arguments with a leading runs axis, sliced for a call on some runs only
+        owners = [s, m, tail] + ([timeline] if self.timeline is not None else [])
+        ids = {
+            id(v)
+            for o in owners
+            for v in vars(o).values()
+            if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n_runs
+        }
+        if n_runs > 1:
+            ids |= {id(v) for v in self.pack if v.shape[0] == n_runs}
+        self.per_run = [j for j, a in enumerate(self.args) if id(a) in ids]
+        self.n_runs = n_runs
+        self.pack_at = next(j for j, a in enumerate(self.args) if a is self.pack)
 
     def _timeline_args(self, tl, n_runs: int, n_cells: int, max_steps: int) -> tuple:
         """The timeline's arrays (tiny dummies when it is off) and its row buffer."""
@@ -913,21 +926,52 @@ class Loop:
             self.tl_buf,
         )
 
-    def run(self, u: np.ndarray) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
+    def _call(self, u: np.ndarray, lo: int, hi: int) -> tuple[int, int, int, int]:
+        """``run_block`` on batch rows ``lo..hi-1`` (``u``: their uniforms ``[hi - lo, T,
+        K, 2]``), with the rows of its output buffers renumbered to batch rows."""
+        args = self.args
+        if (lo, hi) != (0, self.n_runs):
+            args = list(args)
+            for j in self.per_run:
+                args[j] = args[j][lo:hi]
+            pack = list(args[self.pack_at])
+            for f, v in enumerate(self.pack):
+                if self.n_runs > 1 and v.shape[0] == self.n_runs:
+                    pack[f] = v[lo:hi]
+            args[self.pack_at] = type(self.pack)(*pack)
+        t_end, n_ep, n_up, n_tl = run_block(self.t0, u, *args)
+        if lo:
+            self.ep_buf[:n_ep, 0] += lo
+            self.up_int[:n_up, 0] += lo
+            self.tl_buf[:n_tl, 0] += lo
+        return t_end, n_ep, n_up, n_tl
+
+    def run(
+        self, u: np.ndarray, rows: list[tuple[int, int, np.ndarray]] | None = None
+    ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
-        ``[R, T, K, 2]``).
+        ``[R, T, K, 2]``), or, given ``rows`` (``(lo, hi, u)`` with ``u`` float ``[hi -
+        lo, T, K, 2]``, covering every row in order), group of rows after group: the
+        same numbers, with each group's arrays (tables, maps, uniforms) kept in cache.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
         [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
         the loop stops early when every run has met its episode quota.
         """
         s, p = self.state, self.p
-        t0 = s.t
-        t_end, n_ep, n_up, n_tl = run_block(t0, np.ascontiguousarray(u), *self.args)
+        self.t0 = t0 = s.t
+        groups = rows if rows is not None else [(0, self.n_runs, u)]
+        t_end, eps, ups_i, ups_f = t0, [], [], []
+        for lo, hi, uu in groups:
+            t_g, n_ep, n_up, n_tl = self._call(np.ascontiguousarray(uu), lo, hi)
+            t_end = max(t_end, int(t_g))
+            eps.append(self.ep_buf[:n_ep].copy())
+            ups_i.append(self.up_int[:n_up].copy())
+            ups_f.append(self.up_float[:n_up].copy())
+            if self.timeline is not None:
+                self.timeline.add_rows(self.tl_buf[:n_tl])
         s.t = int(t_end)
         compiled.unpack(self.strategy, self.pack)
-        if self.timeline is not None:
-            self.timeline.add_rows(self.tl_buf[:n_tl])
         # a run that stopped before the batch did sat out its last steps: no wait, no
         # token, and a robot leaving a station released it
         out = s.steps_done < s.t
@@ -936,13 +980,14 @@ class Loop:
             if p.avoid_collisions and p.n_agents > 1:
                 s.token[out] = -1
                 s.token_held[out] = 0
-            rows, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
-            s.reserved[rows, s.goal[rows, ks]] = -1
-            s.goal[rows, ks] = -1
-            s.depart_left[rows, ks] = 0
+            rows_out, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
+            s.reserved[rows_out, s.goal[rows_out, ks]] = -1
+            s.goal[rows_out, ks] = -1
+            s.depart_left[rows_out, ks] = 0
+        one = len(eps) == 1
         return (
             int(t_end) - t0,
-            self.ep_buf[:n_ep].copy(),
-            self.up_int[:n_up].copy(),
-            self.up_float[:n_up].copy(),
+            eps[0] if one else np.concatenate(eps),
+            ups_i[0] if one else np.concatenate(ups_i),
+            ups_f[0] if one else np.concatenate(ups_f),
         )
