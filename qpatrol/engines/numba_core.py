@@ -44,9 +44,11 @@ UP_INT, UP_FLOAT = 9, 9
 PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
 
 
-@njit(cache=True, nogil=True, _nrt=False)
-def _priority(wait, mode, depart_left, k, n_agents, t):
-    """:func:`qpatrol.traffic.priority` of robot k: class, then wait, then turn."""
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _priority(wait, mode, depart_left, k, n_agents, t_mod):
+    """:func:`qpatrol.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
+    taken once per step: an integer division per robot cost more than the rest of
+    this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
     if depart_left > 0:
         cls = 3
     elif mode == HOMING:
@@ -55,18 +57,21 @@ def _priority(wait, mode, depart_left, k, n_agents, t):
         cls = 1
     else:
         cls = 0
-    turn = (n_agents - 1) - (k - t) % n_agents
+    back = k - t_mod  # (k - t) % n_agents, without a division
+    if back < 0:
+        back += n_agents
+    turn = (n_agents - 1) - back
     return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def _kept_out(c, pocket_of, reserved_r):
     """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
     h = pocket_of[c]
     return h >= 0 and reserved_r[h] >= 0
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
     if station < 0:
@@ -91,7 +96,7 @@ def _way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     return -1
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def _push_path(
     nbrs, occ_r, own, start, parent, seen, queue, path, battery, mode_r, pocket_of, reserved_r
 ):
@@ -147,7 +152,7 @@ def _push_path(
     return m
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def run_block(
     t0,
     u,
@@ -280,10 +285,13 @@ def run_block(
     n_ep = 0
     n_tl = 0
     for r in range(n_runs):
+        t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
         for i in range(n_steps):
             if not active[r]:
                 break
             t = t0 + i + 1
+            t_mod = t_next_mod
+            t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
             tok = token[r]
             if battery:
                 # battery.begin: charging countdown, robots that need a station, the queue
@@ -508,7 +516,9 @@ def run_block(
                         moved[0] = True
                         as_asked[0] = True
                 for k in range(n_agents if n_agents > 1 else 0):
-                    key[k] = _priority(wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t)
+                    key[k] = _priority(
+                        wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t_mod
+                    )
                     order[k] = k
                 for a in range(1, n_agents):  # insertion sort, largest key first
                     x = order[a]
@@ -609,7 +619,7 @@ def run_block(
                     kk = -1
                     if want[k] >= 0 and not as_asked[k]:
                         kk = _priority(
-                            wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t + 1
+                            wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t_next_mod
                         )
                     if tok >= 0 and push_failed and k == tok:
                         kk = -1
