@@ -771,8 +771,9 @@ def run_block(
                 max_wait[r] = max(max_wait[r], top_wait)
                 wait_total[r] += waiting
             if tail_n > 0:
+                slot = (t - 1) % tail_n
                 for k in range(n_agents):
-                    tail_pos[r, (t - 1) % tail_n, k] = pos[r, k]
+                    tail_pos[r, slot, k] = pos[r, k]
             if t > t_end:
                 t_end = t
     return t_end, n_ep, n_up, n_tl
