@@ -405,6 +405,36 @@ def make_figure(name: str, folder: Path, image: Path, draw: bool = True) -> list
     return [csv, *files]
 
 
+#: Figures that take longest to make, made first when figures are made in parallel
+#: (the animated GIF of Fig. 5, and the reference tour of the gamma figure).
+SLOW_FIGURES = ("figure-5", "gamma")
+
+
+def make_figures(
+    out: Path, quick: bool, figs: Path, draw: bool, jobs: int
+) -> list[tuple[str, list[Path]]]:
+    """Every figure of :data:`FIGURE_NAMES` from the experiments in ``out``, into
+    ``figs``: ``(name, files written)`` in that order. With ``jobs`` > 1 the figures
+    are made by that many worker processes, the slowest first (each writes its own
+    files, atomically)."""
+    tasks = []
+    for name in FIGURE_NAMES:
+        fig = figure(name)
+        folder = experiment_dir(out, fig.experiment, quick)
+        tasks.append((name, folder, figs / f"{name}{fig.ext}"))
+    from joblib import Parallel, delayed, effective_n_jobs
+
+    n = min(effective_n_jobs(jobs), len(tasks))
+    if n <= 1 or not draw:
+        return [(name, make_figure(name, folder, img, draw=draw)) for name, folder, img in tasks]
+    order = sorted(tasks, key=lambda t: t[0] not in SLOW_FIGURES)
+    made = Parallel(n_jobs=n, backend="loky")(
+        delayed(make_figure)(name, folder, img, draw) for name, folder, img in order
+    )
+    by_name = {t[0]: files for t, files in zip(order, made, strict=True)}
+    return [(name, by_name[name]) for name, _, _ in tasks]
+
+
 def reproduce(
     out: Path | None = None,
     quick: bool = False,
@@ -435,10 +465,7 @@ def reproduce(
     for exp in EXPERIMENTS:
         src = experiment_dir(out, exp.name, quick) / "results.csv"
         atomic.write_bytes(data / f"{exp.name}-results.csv", src.read_bytes())
-    for name in FIGURE_NAMES:
-        fig = figure(name)
-        folder = experiment_dir(out, fig.experiment, quick)
-        made = make_figure(name, folder, figs / f"{name}{fig.ext}", draw=draw)
+    for name, made in make_figures(out, quick, figs, draw, jobs):
         if draw:
             log(f"figure {name}: {', '.join(str(p) for p in made)}")
     if update_references:
