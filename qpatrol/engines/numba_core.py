@@ -689,6 +689,7 @@ def run_block(
                 eaten,
                 blocked_by,
                 ended,
+                active,
                 sp,
                 record_all,
                 watched,
