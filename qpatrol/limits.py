@@ -45,8 +45,9 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         "qlearning": k * c * 16 * (8 + 4),  # q float64 and n int32
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
-        # q and n (one table, or one per robot), its own last-visit and dot maps
-        "qlearning-idleness": 2 * k * c * 64 * 8 + g * c * 9,
+        # q float64 and n int32 (one table, or one per robot), its own last-visit and
+        # dot maps
+        "qlearning-idleness": k * c * 64 * (8 + 4) + g * c * 9,
     }.get(policy, 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
     timeline = 0
@@ -85,7 +86,7 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
     k, c = cfg["agents"], m.n_cells
     tables = {
         "qlearning": k * c * 16 * (8 + 4 + 8),
-        "qlearning-idleness": 2 * k * c * 64 * 8,
+        "qlearning-idleness": k * c * 64 * (8 + 4 + 8),
     }.get(cfg["policy"], 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
     windows = cfg["steps"] // cfg["record.timeline"] + 1 if cfg["record.timeline"] else 0

@@ -1,8 +1,7 @@
 """The compiled engine writes the numpy engine's files to the bit, on every config.
 
-Configs the compiled engine covers (qlearning, without transition/watch recorders) run
-through both loops;
-the rest must fall back to the numpy engine and say so. Every file of the run folder
+Configs the compiled engine covers (qlearning, qlearning-idleness) run through both
+loops; the rest must fall back to the numpy engine and say so. Every file of the run folder
 is compared byte for byte; in ``meta.json`` only ``loop_engine``/``loop_engine_note``
 (which loop ran) may differ.
 """
@@ -13,8 +12,10 @@ import json
 from pathlib import Path
 
 import mazes
+import numpy as np
 import pytest
 
+from qpatrol import checkpoint as ck
 from qpatrol import engines
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.run import simulate, write_run
@@ -26,14 +27,19 @@ META = {"started": "-", "ended": "-"}
 ENGINE_FIELDS = ("loop_engine", "loop_engine_note")
 
 
-def both(flat: dict, tmp_path: Path) -> tuple[str, str]:
-    """Run ``flat`` on both engines, compare every file; ``(engine, note)`` of numba's."""
+def both(flat: dict, tmp_path: Path, strategy: bool = False) -> tuple[str, str]:
+    """Run ``flat`` on both engines, compare every file (and with ``strategy`` every
+    array of the strategy object after the run); ``(engine, note)`` of numba's."""
     folders = {}
     ran = {}
+    objs = {}
     for engine in ("numpy", "numba"):
         result = simulate(from_flat({**flat, "engine": engine}))
         ran[engine] = (result.engine, result.engine_note)
+        objs[engine] = result.strategy
         folders[engine] = write_run(result, tmp_path / engine, replace=True, meta=META)
+    if strategy:
+        same_arrays(objs["numpy"], objs["numba"])
     a, b = folders["numpy"], folders["numba"]
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
@@ -47,6 +53,17 @@ def both(flat: dict, tmp_path: Path) -> tuple[str, str]:
             assert (a / name).read_bytes() == (b / name).read_bytes(), (flat, name)
     assert ran["numpy"] == ("numpy", "")
     return ran["numba"]
+
+
+def same_arrays(a: object, b: object) -> None:
+    """Every array attribute of ``a`` and ``b`` equal in dtype, shape and values."""
+    va, vb = vars(a), vars(b)
+    names = sorted(k for k, v in va.items() if isinstance(v, np.ndarray))
+    assert names == sorted(k for k, v in vb.items() if isinstance(v, np.ndarray))
+    for name in names:
+        x, y = va[name], vb[name]
+        assert (x.dtype, x.shape) == (y.dtype, y.shape), name
+        assert np.array_equal(x, y, equal_nan=x.dtype.kind == "f"), name
 
 
 BASE = {"runs": 2, "seed": 11, "steps": 160, "max_episode_steps": 60, "record.trajectory": 5}
@@ -117,7 +134,7 @@ def test_every_strategy_and_battery(rooms_map, tmp_path, policy, battery):
         "steps": 120,
     }
     engine, note = both(flat, tmp_path)
-    if policy == "qlearning":
+    if policy in engines.COMPILED_POLICIES:
         assert (engine, note) == ("numba", "")
     else:
         assert engine == "numpy" and note.startswith("fallback from numba")
@@ -218,3 +235,175 @@ def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, time
     }
     assert both(flat, tmp_path) == ("numba", "")
     assert calls[:3] == [(0, 2), (2, 4), (4, 5)]
+
+
+# --- qlearning-idleness ---------------------------------------------------------------
+
+#: (agents, communication, battery) x the strategy's settings: every pair of values of
+#: any two of these columns occurs in some row (a covering subset of the product).
+QIDLE_TEAMS = [
+    # K, comm, battery, share, known, state, reward, alpha, epsilon, avoid
+    (1, True, True, True, True, "cell_heading", "idleness", 0.1, 0.3, False),
+    (1, True, False, False, True, "cell_heading_idle", "dot", 0.0, 0.3, False),
+    (1, False, True, True, False, "cell_heading", "idleness", 0.0, 0.3, True),
+    (1, False, False, True, False, "cell_idle", "idleness", 0.1, 0.0, False),
+    (2, True, True, True, True, "cell_heading", "dot", 0.0, 0.3, True),
+    (2, True, False, True, False, "cell_heading", "idleness", 0.1, 0.0, True),
+    (2, False, True, False, True, "cell_idle", "dot", 0.1, 0.0, False),
+    (2, False, False, False, False, "cell_heading_idle", "dot", 0.0, 0.3, True),
+    (4, True, True, False, False, "cell_idle", "idleness", 0.0, 0.3, True),
+    (4, True, False, True, True, "cell_heading_idle", "dot", 0.1, 0.3, True),
+    (4, False, True, False, True, "cell_heading", "idleness", 0.0, 0.0, True),
+    (4, False, False, True, True, "cell_idle", "idleness", 0.1, 0.3, False),
+    (8, True, True, False, False, "cell_heading_idle", "idleness", 0.1, 0.0, True),
+    (8, True, False, False, True, "cell_heading", "dot", 0.0, 0.3, False),
+    (8, False, True, False, False, "cell_heading", "idleness", 0.1, 0.3, True),
+    (8, False, False, True, True, "cell_idle", "idleness", 0.0, 0.3, True),
+]
+
+
+def qidle(row: tuple) -> dict:
+    """The flat config of a row of :data:`QIDLE_TEAMS`."""
+    agents, comm, battery, share, known, state, reward, alpha, epsilon, avoid = row
+    return {
+        "policy": "qlearning-idleness",
+        "agents": agents,
+        "team.communication": comm,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "battery.charge_steps": 4,
+        "qidle.share": share,
+        "qidle.known_reward": known,
+        "qidle.state": state,
+        "qidle.reward": reward,
+        "qidle.alpha": alpha,
+        "qidle.epsilon": epsilon,
+        "qidle.explore_steps": 200,  # epsilon reaches 0 before the end
+        "qidle.reward_cap": 1.5 if agents == 8 else 3.0,
+        "team.avoid_collisions": avoid,
+    }
+
+
+@pytest.mark.parametrize("row", QIDLE_TEAMS, ids=lambda r: "-".join(map(str, r[:3])))
+def test_compiled_qlearning_idleness_teams(rooms_map, tmp_path, row):
+    flat = {**BASE, "map": str(rooms_map), "steps": 300, **qidle(row)}
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("seed", [1, 2])
+@pytest.mark.parametrize("agents", [3, 6])
+def test_compiled_qlearning_idleness_dead_end_stations(tmp_path, seed, agents):
+    """Station pockets, queues, yields and pushes on random tree-like mazes, shared
+    table (seed 1) or one per robot (seed 2)."""
+    path = tmp_path / "maze.txt"
+    path.write_text(mazes.random_maze(5, 6, seed, loops=0.1 * seed, stations=2))
+    flat = {
+        **BASE,
+        "map": str(path),
+        "agents": agents,
+        "policy": "qlearning-idleness",
+        "qidle.share": seed == 1,
+        "qidle.alpha": 0.0 if seed == 1 else 0.2,
+        "battery.capacity": 90,
+        "battery.charge_steps": 3 * (seed - 1),
+        "battery.initial_charge": "full" if seed == 1 else "staggered",
+        "steps": 600,
+        "max_episode_steps": 300,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {"record.watch": [3, 4, 17], "record.timeline": 7, "record.warmup": 20},
+        {"record.transitions": True, "qidle.state": "cell_idle", "qidle.known_reward": False},
+        {
+            "record.transitions": True,
+            "record.watch": [5],
+            "agents": 4,
+            "qidle.share": False,
+            "qidle.reward": "dot",
+            "qidle.epsilon": 0.2,
+            "qidle.explore_steps": 100,
+        },
+    ],
+)
+@pytest.mark.parametrize("battery", [True, False])
+def test_compiled_qlearning_idleness_recorders(rooms_map, tmp_path, extra, battery):
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "agents": 2,
+        "policy": "qlearning-idleness",
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "steps": 300,
+        **extra,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("communication", [True, False])
+def test_compiled_qlearning_idleness_quota_leaves_the_strategy_as_numpy(
+    rooms_map, tmp_path, communication
+):
+    """Runs stop at different steps on an episode quota (dot reward: the dots come back
+    at each episode's end); the strategy object (q, n, last, dots, feat) ends as on numpy."""
+    flat = {
+        **BASE,
+        "runs": 3,
+        "map": str(rooms_map),
+        "agents": 3,
+        "policy": "qlearning-idleness",
+        "team.communication": communication,
+        "battery.enabled": False,
+        "qidle.reward": "dot",
+        "qidle.epsilon": 0.5,
+        "qidle.explore_steps": 400,
+        "episodes": 3,
+        "max_episode_steps": None,
+        "steps": 900,
+        "record.transitions": True,
+    }
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+    assert both({**flat, "record.transitions": False}, tmp_path, strategy=True)[0] == "numba"
+
+
+@pytest.mark.parametrize("first", ["numpy", "numba"])
+def test_qlearning_idleness_resumes_on_the_other_engine(rooms_map, tmp_path, first):
+    """A checkpoint taken on one engine, resumed on the other: the files and the
+    strategy object of an uninterrupted numpy run."""
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "agents": 3,
+        "policy": "qlearning-idleness",
+        "battery.enabled": True,
+        "battery.capacity": 30,
+        "qidle.epsilon": 0.3,
+        "qidle.explore_steps": 150,
+        "record.transitions": True,
+        "steps": 300,
+    }
+    whole = simulate(from_flat({**flat, "engine": "numpy"}))
+    then = "numba" if first == "numpy" else "numpy"
+
+    class StopAt(ck.Checkpointer):
+        def tick(self, position, payload):
+            if position == 133:
+                self.request_stop()
+            super().tick(position, payload)
+
+    with pytest.raises(ck.Interrupted):
+        simulate(from_flat({**flat, "engine": first}), checkpoint=StopAt(tmp_path / "cp", every=0))
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    assert resumed.load().position == 133
+    rest = simulate(from_flat({**flat, "engine": then}), checkpoint=resumed)
+    assert rest.engine == then
+    same_arrays(whole.strategy, rest.strategy)
+    a = write_run(whole, tmp_path / "whole", meta=META)
+    b = write_run(rest, tmp_path / "rest", meta=META)
+    for name in sorted(p.name for p in a.iterdir()):
+        if name != "meta.json":
+            assert (a / name).read_bytes() == (b / name).read_bytes(), name

@@ -26,7 +26,7 @@ def numba_installed() -> bool:
 #: The strategies the compiled engine covers (each a file of
 #: :mod:`qpatrol.engines.compiled`, listed in its ``MODULES``; kept here too so that
 #: choosing an engine does not import numba).
-COMPILED_POLICIES = ("qlearning",)
+COMPILED_POLICIES = ("qlearning", "qlearning-idleness")
 
 
 def compiled_gap(cfg: Config) -> str | None:

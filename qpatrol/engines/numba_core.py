@@ -699,6 +699,7 @@ def run_block(
                 eaten,
                 blocked_by,
                 ended,
+                active,
                 sp,
                 record_all,
                 watched,

@@ -130,7 +130,7 @@ class Strategy(base.Strategy):
             4,
         )
         self.q = np.full(shape, float(cfg["qidle.q_init"]))
-        self.n = np.zeros(shape, dtype=np.int64)
+        self.n = np.zeros(shape, dtype=np.int32)  # a count never exceeds 10**9 (steps)
         g = p.n_groups
         # the last-visit and dot maps of every group, kept from the outcomes (= the world's)
         self.last = np.zeros((self.n_runs, g, p.n_cells), dtype=np.int64)
@@ -270,7 +270,7 @@ class Strategy(base.Strategy):
                 )
 
     def tables(self) -> dict[str, np.ndarray]:
-        return {"q": self.q, "n": self.n}
+        return {"q": self.q, "n": self.n.astype(np.int64)}
 
     def describe(self) -> dict[str, object]:
         return {"shared_table": self.shared, "state": self.cfg["qidle.state"]}

@@ -12,14 +12,16 @@ from __future__ import annotations
 
 from numba import njit
 
-from qpatrol.engines.compiled import qlearning
+from qpatrol.engines.compiled import qlearning, qlearning_idleness
 from qpatrol.engines.compiled.pack import Pack
 
 #: Strategy name -> (code, module).
 MODULES = {
     "qlearning": (0, qlearning),
+    "qlearning-idleness": (1, qlearning_idleness),
 }
 QLEARNING = 0
+QLEARNING_IDLENESS = 1
 
 
 def covers(name: str) -> bool:
@@ -70,6 +72,10 @@ def act(
     where none is open); ``sp``: the strategy's :class:`Pack`."""
     if code == QLEARNING:
         qlearning.act(r, i, u, pos, head, open_mask, choosing, ask, sp.fpar, sp.ipar, sp.q)
+    elif code == QLEARNING_IDLENESS:
+        qlearning_idleness.act(
+            r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp
+        )
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -93,6 +99,7 @@ def learn(
     eaten,
     blocked_by,
     ended,
+    active,
     sp,
     record_all,
     watched,
@@ -107,7 +114,8 @@ def learn(
     after the step; per robot ``[K]``: ``prev_pos``, ``prev_head``, ``moved``, ``ask``
     (the move asked for, -1 none), ``as_asked`` (made it), ``choosing`` (the strategy
     chose it), ``reward``, ``eaten``, ``blocked_by`` (the robot in the way, -1 none);
-    ``ended`` bool ``[G]``: the group's episode ended this step."""
+    ``ended`` bool ``[G]``: the group's episode ended this step; ``active`` bool ``[R]``:
+    the runs that go on after it (an episode quota may have stopped run ``r``)."""
     if code == QLEARNING:
         n_up = qlearning.learn(
             r,
@@ -125,6 +133,32 @@ def learn(
             sp.ipar,
             sp.q,
             sp.n,
+            record_all,
+            watched,
+            up_int,
+            up_float,
+            n_up,
+        )
+    elif code == QLEARNING_IDLENESS:
+        n_up = qlearning_idleness.learn(
+            r,
+            t,
+            nbrs,
+            wall_legal,
+            dot_value,
+            has_dot,
+            communication,
+            pos,
+            prev_pos,
+            prev_head,
+            moved,
+            ask,
+            as_asked,
+            choosing,
+            eaten,
+            ended,
+            active,
+            sp,
             record_all,
             watched,
             up_int,

@@ -1,0 +1,272 @@
+"""``qlearning-idleness`` compiled: Q-learning paid the idleness of the cell entered.
+
+The numpy twin is :mod:`qpatrol.strategies.qlearning_idleness` (arithmetic operation
+for operation: state ``(cell, heading, idlest)``, the idlest neighbour first in N, E,
+S, W order; the reward ``min(cap, (t - last) / scale)`` or the dot value; the choice
+greedy over ``r(s, a) + Q(s, a)`` (known reward) or ``Q(s, a)`` among the open moves,
+ties and ``epsilon(t) = epsilon x max(0, 1 - t / explore_steps)`` from the run's
+uniforms; ``Q(s,a) <- Q(s,a) + alpha (paid r + gamma max_{a' legal} [r(s', a') +
+Q(s', a')] - Q(s,a))``, robot by robot in robot order).
+
+Pack (see :mod:`qpatrol.engines.compiled`):
+
+* ``q`` float64 and ``n`` int32 ``[R, P, C, H * F, 4]``: the strategy's own
+  ``[R, P, C, H, F, 4]`` tables as views (``P`` tables: 1 shared or one per robot; slot
+  ``h * F + f`` for heading ``h`` and idlest direction ``f``);
+* ``cell_i`` int64 ``[R, G, C]``: the strategy's own last-visit maps (``last``);
+* ``cell_b`` bool ``[R, G, C]``: the strategy's own dot maps (``dots``);
+* ``robot_i`` int64 ``[R, K, 3]``: per robot, the idlest-neighbour slot at its last
+  choice, the slot it would see next once its run stopped (episode quota), and the
+  team step of its last choice (-1: none yet); :func:`unpack` makes ``feat`` of them;
+* ``cell_f`` float64 ``[1, 1, K]``: working array, the robots' rewards of this step;
+* ``fpar = [gamma, alpha, epsilon, cap, scale]``;
+* ``ipar = [explore_steps, reward is dot, known reward, use heading, use idlest,
+  shared table, F]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.learner import _NTH
+
+#: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
+NTH = _NTH.astype(np.int64)
+GAMMA, ALPHA, EPSILON, CAP, SCALE = range(5)
+EXPLORE_STEPS, DOT, KNOWN, USE_HEADING, USE_IDLE, SHARED, N_FEAT = range(7)
+
+
+def _slots(a: np.ndarray) -> np.ndarray:
+    """A ``[R, P, C, H, F, 4]`` table as the view ``[R, P, C, H * F, 4]``."""
+    r, p, c, h, f, d = a.shape
+    v = a.reshape(r, p, c, h * f, d)
+    if not np.shares_memory(v, a):
+        raise ValueError("qlearning-idleness: the Q-table is not C-contiguous")
+    return v
+
+
+def pack(strategy) -> Pack:
+    """The compiled arrays of a :class:`qpatrol.strategies.qlearning_idleness.Strategy`
+    (its own ``q``, ``n``, ``last`` and ``dots``, updated in place; a copy of
+    ``feat``)."""
+    s = strategy
+    return dummy_pack(
+        fpar=np.array([s.gamma, s.alpha, s.epsilon, s.cap, s.scale], dtype=np.float64),
+        ipar=np.array(
+            [
+                s.explore_steps,
+                s.reward_kind == "dot",
+                s.known,
+                s.use_heading,
+                s.use_idle,
+                s.shared,
+                s.q.shape[4],
+            ],
+            dtype=np.int64,
+        ),
+        q=_slots(s.q),
+        n=_slots(s.n),
+        cell_i=s.last,
+        cell_b=s.dots,
+        robot_i=np.stack([s.feat, s.feat, np.full_like(s.feat, -1)], axis=2).astype(np.int64),
+        cell_f=np.zeros((1, 1, s.n_agents), dtype=np.float64),
+    )
+
+
+def unpack(p: Pack, strategy) -> None:
+    """Set ``feat`` as the numpy engine leaves it (``q``, ``n``, ``last`` and ``dots``
+    are the strategy's own): the slots of the last choice, except in runs that stopped
+    before the batch's last step, where the numpy engine went on computing the slots
+    (of the final maps) at every step the batch took."""
+    f = p.robot_i
+    t_last = f[:, :, 2].max(initial=-1)
+    strategy.feat = np.where(f[:, :, 2] == t_last, f[:, :, 0], f[:, :, 1])
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _idlest(nbrs, last, r, g, c):
+    """Direction of the non-wall neighbour of ``c`` visited longest ago on map ``g``
+    (``last`` int ``[R, G, C]``), first in N, E, S, W order; 0 without a neighbour."""
+    best = np.iinfo(np.int64).max
+    f = 0
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and last[r, g, nb] < best:
+            best = last[r, g, nb]
+            f = d
+    return f
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _reward(sp, dot_value, r, g, c, t):
+    """The reward of entering ``c`` at team step ``t`` on map ``g`` as it stands
+    (``Strategy.reward_of``)."""
+    if sp.ipar[DOT] != 0:
+        return dot_value[c] if sp.cell_b[r, g, c] else 0.0
+    return min(sp.fpar[CAP], (t - sp.cell_i[r, g, c]) / sp.fpar[SCALE])
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp):
+    """``ask[k]`` for every choosing robot of run ``r`` at team step ``t`` (step ``i``
+    of the block, ``u`` float ``[R, T, K, 2]``): the open move of greatest ``r(s, a) +
+    Q(s, a)`` (ties by ``u[r, i, k, 1]``; with probability ``epsilon(t)`` (``u[r, i, k,
+    0]``) any open move), -1 where there is none. Every robot's idlest slot goes to
+    ``robot_i[r, k, 0]``."""
+    q, feat, ipar = sp.q, sp.robot_i, sp.ipar
+    known = ipar[KNOWN] != 0
+    use_heading = ipar[USE_HEADING] != 0
+    use_idle = ipar[USE_IDLE] != 0
+    shared = ipar[SHARED] != 0
+    n_feat = ipar[N_FEAT]
+    epsilon = 0.0
+    if ipar[EXPLORE_STEPS] > 0:
+        epsilon = sp.fpar[EPSILON] * max(0.0, 1.0 - t / ipar[EXPLORE_STEPS])
+    for k in range(pos.shape[1]):
+        c = pos[r, k]
+        g = 0 if communication else k
+        f = _idlest(nbrs, sp.cell_i, r, g, c) if use_idle else 0
+        feat[r, k, 0] = f
+        feat[r, k, 2] = t
+        if not choosing[k]:
+            ask[k] = -1
+            continue
+        pk = 0 if shared else k
+        slot = (head[r, k] if use_heading else 0) * n_feat + f
+        best = -np.inf
+        for d in range(4):
+            if open_mask[k, d]:
+                score = q[r, pk, c, slot, d] + (
+                    _reward(sp, dot_value, r, g, nbrs[c, d], t) if known else 0.0
+                )
+                if score > best:
+                    best = score
+        explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
+        bits = 0
+        count = 0
+        for d in range(4):
+            if not open_mask[k, d]:
+                continue
+            if not explore:
+                score = q[r, pk, c, slot, d] + (
+                    _reward(sp, dot_value, r, g, nbrs[c, d], t) if known else 0.0
+                )
+                if score != best:
+                    continue
+            bits |= 1 << d
+            count += 1
+        if count == 0:
+            ask[k] = -1
+        else:
+            ask[k] = NTH[bits, min(np.int64(u[r, i, k, 1] * count), count - 1)]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def learn(
+    r,
+    t,
+    nbrs,
+    wall_legal,
+    dot_value,
+    has_dot,
+    communication,
+    pos,
+    prev_pos,
+    prev_head,
+    moved,
+    ask,
+    as_asked,
+    choosing,
+    eaten,
+    ended,
+    active,
+    sp,
+    record_all,
+    watched,
+    up_int,
+    up_float,
+    n_up,
+):
+    """After team step ``t`` of run ``r``: pay the robots that entered a cell, update the
+    maps (``Strategy.rewards``), then the Q-update of every robot that made the move it
+    chose, in robot order, recorded as :meth:`qpatrol.records.Recorder.updates` wants
+    them. ``ended`` bool ``[G]``: the group's episode ended (every dot back); ``active``
+    bool ``[R]``: a run that stopped keeps the slots its robots would see next. Returns
+    the number of update rows now written."""
+    q, n, last, dots, feat, rew = sp.q, sp.n, sp.cell_i, sp.cell_b, sp.robot_i, sp.cell_f
+    fpar, ipar = sp.fpar, sp.ipar
+    n_agents = pos.shape[1]
+    for k in range(n_agents):  # Strategy.rewards, robot by robot as the world
+        rew[0, 0, k] = 0.0
+        if not moved[k]:
+            continue
+        c = pos[r, k]
+        g = 0 if communication else k
+        rew[0, 0, k] = _reward(sp, dot_value, r, g, c, t)
+        last[r, g, c] = t
+        dots[r, g, c] = False
+    for g in range(ended.shape[0]):
+        if ended[g]:
+            for c in range(has_dot.shape[0]):
+                dots[r, g, c] = has_dot[c]
+    use_heading = ipar[USE_HEADING] != 0
+    use_idle = ipar[USE_IDLE] != 0
+    if not active[r]:  # the numpy engine keeps choosing (nothing) on the final maps
+        for k in range(n_agents):
+            g = 0 if communication else k
+            feat[r, k, 1] = _idlest(nbrs, last, r, g, pos[r, k]) if use_idle else 0
+    known = ipar[KNOWN] != 0
+    shared = ipar[SHARED] != 0
+    n_feat = ipar[N_FEAT]
+    gamma, alpha_par = fpar[GAMMA], fpar[ALPHA]
+    paid = 0.0 if known else 1.0
+    for k in range(n_agents):  # a shared entry sees every update
+        if not as_asked[k] or not choosing[k]:
+            continue
+        pk = 0 if shared else k
+        g = 0 if communication else k
+        ca = prev_pos[k]
+        ha = prev_head[k] if use_heading else 0
+        aa = ask[k]
+        sa = ha * n_feat + feat[r, k, 0]
+        cb = pos[r, k]
+        hb = aa if use_heading else 0
+        sb = hb * n_feat + (_idlest(nbrs, last, r, g, cb) if use_idle else 0)
+        top = -np.inf
+        for d in range(4):
+            if wall_legal[cb, d]:
+                v = q[r, pk, cb, sb, d] + (
+                    _reward(sp, dot_value, r, g, nbrs[cb, d], t + 1) if known else 0.0
+                )
+                if v > top:
+                    top = v
+        bootstrap = gamma * top
+        target = paid * rew[0, 0, k] + bootstrap
+        q_sa = q[r, pk, ca, sa, aa]
+        n_after = n[r, pk, ca, sa, aa] + 1
+        alpha = alpha_par if alpha_par > 0 else 1.0 / n_after
+        q[r, pk, ca, sa, aa] = q_sa + alpha * (target - q_sa)
+        n[r, pk, ca, sa, aa] = n_after
+        if record_all or watched[ca]:  # Recorder.updates
+            ri = up_int[n_up]
+            ri[0] = r
+            ri[1] = t
+            ri[2] = k
+            ri[3] = ca
+            ri[4] = ha
+            ri[5] = aa
+            ri[6] = cb
+            ri[7] = hb
+            ri[8] = 1 if eaten[k] else 0
+            rf = up_float[n_up]
+            rf[0] = rew[0, 0, k]
+            rf[1] = alpha
+            rf[2] = q_sa
+            rf[3] = q[r, pk, ca, sa, aa]
+            rf[4] = bootstrap
+            for d in range(4):
+                rf[5 + d] = q[r, pk, ca, sa, d]
+            n_up += 1
+    return n_up
