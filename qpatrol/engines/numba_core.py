@@ -925,7 +925,7 @@ class Loop:
         t0 = s.t
         t_end, n_ep, n_up, n_tl = run_block(t0, np.ascontiguousarray(u), *self.args)
         s.t = int(t_end)
-        compiled.unpack(self.strategy, self.pack)
+        compiled.unpack(self.strategy, self.pack, s)
         if self.timeline is not None:
             self.timeline.add_rows(self.tl_buf[:n_tl])
         # a run that stopped before the batch did sat out its last steps: no wait, no

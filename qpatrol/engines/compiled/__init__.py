@@ -12,14 +12,29 @@ from __future__ import annotations
 
 from numba import njit
 
-from qpatrol.engines.compiled import qlearning
+from qpatrol.engines.compiled import (
+    conscientious,
+    evap,
+    follow,
+    qlearning,
+    random,
+    shared_conscientious,
+)
 from qpatrol.engines.compiled.pack import Pack
+
+QLEARNING = 0
+RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 5, 6, 7
 
 #: Strategy name -> (code, module).
 MODULES = {
-    "qlearning": (0, qlearning),
+    "qlearning": (QLEARNING, qlearning),
+    "random": (RANDOM, random),
+    "conscientious": (CONSCIENTIOUS, conscientious),
+    "shared-conscientious": (SHARED_CONSCIENTIOUS, shared_conscientious),
+    "evap": (EVAP, evap),
+    "cyclic": (CYCLIC, follow),
+    "partition": (PARTITION, follow),
 }
-QLEARNING = 0
 
 
 def covers(name: str) -> bool:
@@ -33,10 +48,17 @@ def pack(strategy) -> tuple[int, Pack]:
     return code, module.pack(strategy)
 
 
-def unpack(strategy, p: Pack) -> None:
+def unpack(strategy, p: Pack, state=None) -> None:
     """Copy what the compiled loop changed back into the numpy strategy object (for
-    arrays the pack holds as copies)."""
-    MODULES[strategy.name][1].unpack(p, strategy)
+    arrays the pack holds as copies). With the world's ``state``, a module's
+    ``sat_out(strategy, state)`` (if it has one) then does what the numpy engine's
+    strategy does in the steps that runs sit out after their episode quota (the
+    compiled loop skips them)."""
+    module = MODULES[strategy.name][1]
+    module.unpack(p, strategy)
+    sat_out = getattr(module, "sat_out", None)
+    if sat_out is not None and state is not None:
+        sat_out(strategy, state)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -70,6 +92,45 @@ def act(
     where none is open); ``sp``: the strategy's :class:`Pack`."""
     if code == QLEARNING:
         qlearning.act(r, i, u, pos, head, open_mask, choosing, ask, sp.fpar, sp.ipar, sp.q)
+    elif code == RANDOM:
+        random.act(r, i, u, open_mask, choosing, ask)
+    elif code == CONSCIENTIOUS:
+        conscientious.act(r, i, u, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
+    elif code == SHARED_CONSCIENTIOUS:
+        shared_conscientious.act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask)
+    elif code == EVAP:
+        evap.act(
+            r,
+            i,
+            t,
+            u,
+            nbrs,
+            communication,
+            pos,
+            open_mask,
+            choosing,
+            ask,
+            sp.cell_f,
+            sp.cell_i,
+            sp.fpar,
+        )
+    elif code == CYCLIC or code == PARTITION:
+        follow.act(
+            r,
+            t,
+            nbrs,
+            battery,
+            pocket_of,
+            pos,
+            reserved,
+            choosing,
+            ask,
+            sp.ipar,
+            sp.robot_i,
+            sp.table_i,
+            sp.row_i,
+            sp.dist,
+        )
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -131,4 +192,10 @@ def learn(
             up_float,
             n_up,
         )
+    elif code == CONSCIENTIOUS:
+        conscientious.learn(r, t, pos, moved, sp.cell_i)
+    elif code == EVAP:
+        evap.learn(r, t, communication, pos, moved, sp.cell_f, sp.cell_i, sp.fpar)
+    elif code == CYCLIC or code == PARTITION:
+        follow.learn(r, blocked_by, sp.robot_i)
     return n_up
