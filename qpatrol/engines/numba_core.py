@@ -768,6 +768,9 @@ def run_block(
     return t_end, n_ep, n_up, n_tl
 
 
+compiled.key_cache(run_block, __file__)  # the cache also follows the strategies' files
+
+
 def scratch(n_agents: int, n_groups: int, n_cells: int) -> tuple[np.ndarray, ...]:
     """The loop's working arrays, allocated once per batch (the loop itself allocates
     nothing: it is compiled without numba's reference counting, which would otherwise

@@ -10,6 +10,9 @@ code and call it from :func:`act` and :func:`learn`.
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 from numba import njit
 
 from qpatrol.engines.compiled import (
@@ -35,6 +38,22 @@ MODULES = {
     "cyclic": (CYCLIC, follow),
     "partition": (PARTITION, follow),
 }
+
+
+def key_cache(dispatcher, *files: str) -> None:
+    """Key numba's on-disk cache of ``dispatcher`` (``njit(cache=True)``) on its own
+    source file, ``files`` and every file of this package, not on its own file alone:
+    the loop inlines the strategies' code, and numba would otherwise load a loop
+    compiled before a strategy's file changed (after an edit, or an upgrade that left
+    the cache in ``__pycache__``). Uses numba's private cache object; without it (another
+    numba version), nothing changes."""
+    cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+    if cache_file is None or not hasattr(cache_file, "_source_stamp"):
+        return
+    digest = hashlib.sha256()
+    for path in [*map(Path, files), *sorted(Path(__file__).parent.glob("*.py"))]:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    cache_file._source_stamp = ("qpatrol", digest.hexdigest())
 
 
 def covers(name: str) -> bool:
