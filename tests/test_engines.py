@@ -360,3 +360,19 @@ def test_sat_out_mirrors_the_numpy_engine(rooms_map):
     assert state.steps_done[1] < state.t  # run 1 sat out the step
     assert np.array_equal(mirror.blocked_by[1], strategy.blocked_by[1])
     assert np.array_equal(mirror.hold[1], strategy.hold[1]) and not strategy.hold[1].any()
+
+
+def test_evap_powers_are_numpys_and_long_tables_fall_back():
+    """The compiled evap reads ``keep ** n`` from numpy's own table (numba's power is
+    not numpy's to the bit); a table past 2^22 entries is refused, the run falls back."""
+    from qpatrol.engines.compiled import evap
+
+    table = evap.powers(0.98, 100_000)
+    assert table[-1] == 0.0 and table[-2] > 0.0  # cut at the first 0.0 ...
+    n = np.arange(100_000, dtype=np.int64)
+    assert np.array_equal(table[np.minimum(n, table.size - 1)], 0.98**n)  # ... and after
+    assert evap.powers(0.5, 30).size == 31
+    cfg = from_flat({"policy": "evap", "steps": 5_000_000, "runs": 1})
+    assert engines.compiled_gap(cfg) is None
+    gap = engines.compiled_gap(cfg.replace(**{"evap.evaporation": 1e-9}))
+    assert gap is not None and "evap" in gap
