@@ -1,9 +1,9 @@
 """The compiled engine writes the numpy engine's files to the bit, on every config.
 
-Configs the compiled engine covers (qlearning, qlearning-idleness) run through both
-loops; the rest must fall back to the numpy engine and say so. Every file of the run folder
-is compared byte for byte; in ``meta.json`` only ``loop_engine``/``loop_engine_note``
-(which loop ran) may differ.
+Configs run through both loops: those of the compiled strategies
+(:data:`qpatrol.engines.COMPILED_POLICIES`) must run compiled, the rest must fall back
+to the numpy engine and say so. Every file of the run folder is compared byte for byte;
+in ``meta.json`` only ``loop_engine``/``loop_engine_note`` (which loop ran) may differ.
 """
 
 from __future__ import annotations
@@ -40,7 +40,13 @@ def both(flat: dict, tmp_path: Path, strategy: bool = False) -> tuple[str, str]:
         folders[engine] = write_run(result, tmp_path / engine, replace=True, meta=META)
     if strategy:
         same_arrays(objs["numpy"], objs["numba"])
-    a, b = folders["numpy"], folders["numba"]
+    same_files(folders["numpy"], folders["numba"], flat)
+    assert ran["numpy"] == ("numpy", "")
+    return ran["numba"]
+
+
+def same_files(a: Path, b: Path, flat: dict) -> None:
+    """Every file of run folders ``a`` and ``b`` is the same (meta.json: but the engine)."""
     names = sorted(p.name for p in a.iterdir())
     assert names == sorted(p.name for p in b.iterdir())
     for name in names:
@@ -51,8 +57,6 @@ def both(flat: dict, tmp_path: Path, strategy: bool = False) -> tuple[str, str]:
             assert ma == mb
         else:
             assert (a / name).read_bytes() == (b / name).read_bytes(), (flat, name)
-    assert ran["numpy"] == ("numpy", "")
-    return ran["numba"]
 
 
 def same_arrays(a: object, b: object) -> None:
@@ -407,3 +411,190 @@ def test_qlearning_idleness_resumes_on_the_other_engine(rooms_map, tmp_path, fir
     for name in sorted(p.name for p in a.iterdir()):
         if name != "meta.json":
             assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+# --------------------------------------------------------------------- classic strategies
+
+#: The strategies compiled besides qlearning (qpatrol/engines/compiled/).
+CLASSIC = ("random", "conscientious", "shared-conscientious", "evap", "cyclic", "partition")
+
+
+@pytest.mark.parametrize("policy", CLASSIC)
+@pytest.mark.parametrize("agents", [1, 2, 4, 8])
+@pytest.mark.parametrize("communication", [True, False])
+@pytest.mark.parametrize("battery", [True, False])
+def test_compiled_classic_teams(rooms_map, tmp_path, policy, agents, communication, battery):
+    """Collisions avoided (pushes, right of way, head-on exchanges of walks), on a map
+    of 30 cells that 8 robots crowd; battery with one station."""
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "policy": policy,
+        "agents": agents,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "battery.charge_steps": 4,
+        "team.communication": communication,
+        "steps": 300,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("policy", CLASSIC)
+@pytest.mark.parametrize("agents", [2, 8])
+@pytest.mark.parametrize("battery", [True, False])
+def test_compiled_classic_without_avoidance(rooms_map, tmp_path, policy, agents, battery):
+    """Robots may share cells (two of one group entering one cell in a step)."""
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "policy": policy,
+        "agents": agents,
+        "battery.enabled": battery,
+        "battery.capacity": 30,
+        "team.avoid_collisions": False,
+        "team.communication": agents == 8,
+        "steps": 300,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("policy", CLASSIC)
+@pytest.mark.parametrize("seed, agents", [(1, 3), (2, 6), (3, 1)])
+def test_compiled_classic_on_dead_end_stations(tmp_path, policy, seed, agents):
+    """Station pockets (walk targets skipped while another robot holds the pocket, not
+    while the robot itself does, leaving it), queues, homing yields and pushes: random
+    tree-like mazes."""
+    path = tmp_path / "maze.txt"
+    path.write_text(mazes.random_maze(5, 6, seed, loops=0.1 * seed, stations=2))
+    flat = {
+        **BASE,
+        "map": str(path),
+        "policy": policy,
+        "agents": agents,
+        "battery.capacity": 90,
+        "battery.charge_steps": 3 * (seed - 1),
+        "battery.initial_charge": "full" if seed == 1 else "staggered",
+        "team.communication": seed == 1,
+        "steps": 900,
+        "max_episode_steps": 300,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("policy", CLASSIC)
+@pytest.mark.parametrize(
+    "extra",
+    [
+        {
+            "record.watch": [3, 4, 17],
+            "record.timeline": 7,
+            "record.transitions": True,
+            "record.warmup": 20,
+            "evap.evaporation": 0.3,
+        },
+        {"episodes": 2, "max_episode_steps": None, "steps": 900, "team.communication": False},
+    ],
+)
+def test_compiled_classic_recorders_and_quotas(rooms_map, tmp_path, policy, extra):
+    """Every recorder and a warm-up; runs that meet an episode quota at different steps
+    and sit out the rest of the batch."""
+    flat = {**BASE, "map": str(rooms_map), "policy": policy, "agents": 3, "steps": 300}
+    flat.update({"battery.capacity": 40, "battery.charge_steps": 5, **extra})
+    assert both(flat, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("policy", ["conscientious", "evap", "cyclic", "partition"])
+def test_checkpoint_resumed_on_the_other_engine(rooms_map, tmp_path, policy):
+    """A run checkpointed halfway on one engine and resumed on the other writes the
+    files of an uninterrupted run: the strategy's arrays are the numpy engine's after
+    every compiled step."""
+    flat = {**BASE, "map": str(rooms_map), "policy": policy, "agents": 4, "steps": 240}
+    flat.update({"battery.capacity": 30, "battery.charge_steps": 4, "record.timeline": 50})
+    whole = write_run(simulate(from_flat(flat)), tmp_path / "whole", meta=META)
+
+    class StopAt(ck.Checkpointer):
+        def tick(self, position, payload):
+            if position == 111:
+                self.request_stop()
+            super().tick(position, payload)
+
+    first, then = ("numpy", "numba") if policy in ("evap", "cyclic") else ("numba", "numpy")
+    with pytest.raises(ck.Interrupted):
+        simulate(from_flat({**flat, "engine": first}), checkpoint=StopAt(tmp_path / "cp", every=0))
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    rest = simulate(from_flat({**flat, "engine": then}), checkpoint=resumed)
+    assert rest.engine == then
+    same_files(whole, write_run(rest, tmp_path / "rest", meta=META), flat)
+
+
+#: Each compiled strategy given the code of another whose pack it can feed (so the
+#: loop reads only arrays that exist): the comparison must see the difference.
+WRONG_CODE = {
+    "random": "shared-conscientious",
+    "conscientious": "random",
+    "shared-conscientious": "random",
+    "evap": "random",
+    "cyclic": "random",
+    "partition": "random",
+}
+
+
+@pytest.mark.parametrize("policy", CLASSIC)
+def test_a_broken_compiled_strategy_is_caught(rooms_map, tmp_path, monkeypatch, policy):
+    """The comparison has teeth: a compiled strategy that chooses otherwise fails it."""
+    from qpatrol.engines import compiled
+
+    wrong = compiled.MODULES[WRONG_CODE[policy]][0]
+    monkeypatch.setitem(compiled.MODULES, policy, (wrong, compiled.MODULES[policy][1]))
+    flat = {**BASE, "map": str(rooms_map), "policy": policy, "agents": 3, "steps": 200}
+    with pytest.raises(AssertionError):
+        both({**flat, "battery.enabled": False}, tmp_path)
+
+
+def test_sat_out_mirrors_the_numpy_engine(rooms_map):
+    """The compiled loop skips runs that met their episode quota; ``follow.sat_out``
+    does what the numpy engine's walk followers do in those steps: no blocker, and the
+    cyclic hold ends once past ``gather_until`` (unit test on one numpy step)."""
+    import copy
+
+    from qpatrol import strategies, world
+    from qpatrol.engines.compiled import follow
+    from qpatrol.maps import get_map
+    from qpatrol.records import Recorder
+    from qpatrol.run import advance
+
+    cfg = from_flat({"map": str(rooms_map), "policy": "cyclic", "agents": 3, "runs": 2})
+    m = get_map(cfg["map"])
+    p = world.make_params(cfg, m)
+    starts = np.array([[1, 5, 9], [2, 6, 12]])
+    state = world.init_state(p, starts)
+    strategy = strategies.make("cyclic", cfg, m, p, starts)
+    state.t = strategy.gather_until + 3
+    state.steps_done[:] = state.t
+    state.active[1] = False  # run 1 met its quota
+    strategy.blocked_by[:] = [[1, 0, -1], [2, -1, 0]]
+    mirror = copy.deepcopy(strategy)
+    u = np.full((2, 3, 2), 0.5)
+    advance(state, p, strategy, u, Recorder(np.arange(2)))
+    mirror_state = copy.deepcopy(state)
+    follow.sat_out(mirror, mirror_state)
+    assert state.steps_done[1] < state.t  # run 1 sat out the step
+    assert np.array_equal(mirror.blocked_by[1], strategy.blocked_by[1])
+    assert np.array_equal(mirror.hold[1], strategy.hold[1]) and not strategy.hold[1].any()
+
+
+def test_evap_powers_are_numpys_and_long_tables_fall_back():
+    """The compiled evap reads ``keep ** n`` from numpy's own table (numba's power is
+    not numpy's to the bit); a table past 2^22 entries is refused, the run falls back."""
+    from qpatrol.engines.compiled import evap
+
+    table = evap.powers(0.98, 100_000)
+    assert table[-1] == 0.0 and table[-2] > 0.0  # cut at the first 0.0 ...
+    n = np.arange(100_000, dtype=np.int64)
+    assert np.array_equal(table[np.minimum(n, table.size - 1)], 0.98**n)  # ... and after
+    assert evap.powers(0.5, 30).size == 31
+    cfg = from_flat({"policy": "evap", "steps": 5_000_000, "runs": 1})
+    assert engines.compiled_gap(cfg) is None
+    gap = engines.compiled_gap(cfg.replace(**{"evap.evaporation": 1e-9}))
+    assert gap is not None and "evap" in gap

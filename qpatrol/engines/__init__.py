@@ -15,6 +15,8 @@ from __future__ import annotations
 
 import importlib.util
 
+import numpy as np
+
 from qpatrol.config import Config, ConfigError
 
 
@@ -26,13 +28,34 @@ def numba_installed() -> bool:
 #: The strategies the compiled engine covers (each a file of
 #: :mod:`qpatrol.engines.compiled`, listed in its ``MODULES``; kept here too so that
 #: choosing an engine does not import numba).
-COMPILED_POLICIES = ("qlearning", "qlearning-idleness")
+COMPILED_POLICIES = (
+    "qlearning",
+    "qlearning-idleness",
+    "random",
+    "conscientious",
+    "shared-conscientious",
+    "evap",
+    "cyclic",
+    "partition",
+)
+
+#: Most powers ``keep ** n`` the compiled ``evap`` keeps (32 MiB): its table runs to the
+#: run's steps or to the first power that is 0.0 (n = 36,883 at the default evaporation
+#: 0.02), see :mod:`qpatrol.engines.compiled.evap`.
+EVAP_POWERS_MAX = 1 << 22
 
 
 def compiled_gap(cfg: Config) -> str | None:
     """Why the compiled engine cannot run ``cfg`` (None: it can)."""
     if cfg["policy"] not in COMPILED_POLICIES:
         return f"policy {cfg['policy']} (compiled: {', '.join(COMPILED_POLICIES)})"
+    if cfg["policy"] == "evap" and cfg["steps"] > EVAP_POWERS_MAX:
+        keep = 1.0 - float(cfg["evap.evaporation"])
+        if (keep ** np.arange(EVAP_POWERS_MAX + 1, dtype=np.int64))[-1] > 0.0:
+            return (
+                f"evap with evaporation {cfg['evap.evaporation']} over {cfg['steps']:,} steps "
+                f"(the compiled table of pheromone powers stops at {EVAP_POWERS_MAX:,})"
+            )
     return None
 
 

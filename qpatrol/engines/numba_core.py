@@ -780,6 +780,9 @@ def run_block(
     return t_end, n_ep, n_up, n_tl
 
 
+compiled.key_cache(run_block, __file__)  # the cache also follows the strategies' files
+
+
 def scratch(n_agents: int, n_groups: int, n_cells: int) -> tuple[np.ndarray, ...]:
     """The loop's working arrays, allocated once per batch (the loop itself allocates
     nothing: it is compiled without numba's reference counting, which would otherwise
@@ -983,7 +986,7 @@ class Loop:
             if self.timeline is not None:
                 self.timeline.add_rows(self.tl_buf[:n_tl])
         s.t = int(t_end)
-        compiled.unpack(self.strategy, self.pack)
+        compiled.unpack(self.strategy, self.pack, s)
         # a run that stopped before the batch did sat out its last steps: no wait, no
         # token, and a robot leaving a station released it
         out = s.steps_done < s.t

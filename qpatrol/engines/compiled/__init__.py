@@ -10,18 +10,53 @@ code and call it from :func:`act` and :func:`learn`.
 
 from __future__ import annotations
 
+import hashlib
+from pathlib import Path
+
 from numba import njit
 
-from qpatrol.engines.compiled import qlearning, qlearning_idleness
+from qpatrol.engines.compiled import (
+    conscientious,
+    evap,
+    follow,
+    qlearning,
+    qlearning_idleness,
+    random,
+    shared_conscientious,
+)
 from qpatrol.engines.compiled.pack import Pack
+
+QLEARNING = 0
+QLEARNING_IDLENESS = 1
+RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 5, 6, 7
 
 #: Strategy name -> (code, module).
 MODULES = {
-    "qlearning": (0, qlearning),
-    "qlearning-idleness": (1, qlearning_idleness),
+    "qlearning": (QLEARNING, qlearning),
+    "qlearning-idleness": (QLEARNING_IDLENESS, qlearning_idleness),
+    "random": (RANDOM, random),
+    "conscientious": (CONSCIENTIOUS, conscientious),
+    "shared-conscientious": (SHARED_CONSCIENTIOUS, shared_conscientious),
+    "evap": (EVAP, evap),
+    "cyclic": (CYCLIC, follow),
+    "partition": (PARTITION, follow),
 }
-QLEARNING = 0
-QLEARNING_IDLENESS = 1
+
+
+def key_cache(dispatcher, *files: str) -> None:
+    """Key numba's on-disk cache of ``dispatcher`` (``njit(cache=True)``) on its own
+    source file, ``files`` and every file of this package, not on its own file alone:
+    the loop inlines the strategies' code, and numba would otherwise load a loop
+    compiled before a strategy's file changed (after an edit, or an upgrade that left
+    the cache in ``__pycache__``). Uses numba's private cache object; without it (another
+    numba version), nothing changes."""
+    cache_file = getattr(getattr(dispatcher, "_cache", None), "_cache_file", None)
+    if cache_file is None or not hasattr(cache_file, "_source_stamp"):
+        return
+    digest = hashlib.sha256()
+    for path in [*map(Path, files), *sorted(Path(__file__).parent.glob("*.py"))]:
+        digest.update(path.name.encode() + b"\0" + path.read_bytes())
+    cache_file._source_stamp = ("qpatrol", digest.hexdigest())
 
 
 def covers(name: str) -> bool:
@@ -35,10 +70,17 @@ def pack(strategy) -> tuple[int, Pack]:
     return code, module.pack(strategy)
 
 
-def unpack(strategy, p: Pack) -> None:
+def unpack(strategy, p: Pack, state=None) -> None:
     """Copy what the compiled loop changed back into the numpy strategy object (for
-    arrays the pack holds as copies)."""
-    MODULES[strategy.name][1].unpack(p, strategy)
+    arrays the pack holds as copies). With the world's ``state``, a module's
+    ``sat_out(strategy, state)`` (if it has one) then does what the numpy engine's
+    strategy does in the steps that runs sit out after their episode quota (the
+    compiled loop skips them)."""
+    module = MODULES[strategy.name][1]
+    module.unpack(p, strategy)
+    sat_out = getattr(module, "sat_out", None)
+    if sat_out is not None and state is not None:
+        sat_out(strategy, state)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -75,6 +117,45 @@ def act(
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp
+        )
+    elif code == RANDOM:
+        random.act(r, i, u, open_mask, choosing, ask)
+    elif code == CONSCIENTIOUS:
+        conscientious.act(r, i, u, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
+    elif code == SHARED_CONSCIENTIOUS:
+        shared_conscientious.act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask)
+    elif code == EVAP:
+        evap.act(
+            r,
+            i,
+            t,
+            u,
+            nbrs,
+            communication,
+            pos,
+            open_mask,
+            choosing,
+            ask,
+            sp.cell_f,
+            sp.cell_i,
+            sp.fpar,
+        )
+    elif code == CYCLIC or code == PARTITION:
+        follow.act(
+            r,
+            t,
+            nbrs,
+            battery,
+            pocket_of,
+            pos,
+            reserved,
+            choosing,
+            ask,
+            sp.ipar,
+            sp.robot_i,
+            sp.table_i,
+            sp.row_i,
+            sp.dist,
         )
 
 
@@ -165,4 +246,10 @@ def learn(
             up_float,
             n_up,
         )
+    elif code == CONSCIENTIOUS:
+        conscientious.learn(r, t, pos, moved, sp.cell_i)
+    elif code == EVAP:
+        evap.learn(r, t, communication, pos, moved, sp.cell_f, sp.cell_i, sp.fpar)
+    elif code == CYCLIC or code == PARTITION:
+        follow.learn(r, blocked_by, sp.robot_i)
     return n_up

@@ -1,0 +1,55 @@
+"""Choosing among a robot's open moves, shared by the compiled strategies.
+
+The numpy twin is :func:`qpatrol.strategies.base.choose_min` (with
+:func:`qpatrol.learner.pick`): the open direction of least score, the j-th of the tied
+ones in N, E, S, W order taken, ``j = floor(u x ties)``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.learner import _NTH
+
+#: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
+NTH = _NTH.astype(np.int64)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def pick(bits, count, uu):
+    """The ``floor(uu x count)``-th direction of the mask ``bits`` (``count`` set bits),
+    as :func:`qpatrol.learner.pick`; -1 when ``count`` is 0."""
+    if count == 0:
+        return -1
+    return NTH[bits, min(np.int64(uu * count), count - 1)]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def any_open(open_mask, k, uu):
+    """A uniform choice among robot k's open moves (``open_mask`` bool ``[K, 4]``), as
+    ``choose_min`` with equal scores; -1 where none is open."""
+    bits = 0
+    count = 0
+    for d in range(4):
+        if open_mask[k, d]:
+            bits |= 1 << d
+            count += 1
+    return pick(bits, count, uu)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def least(score, open_mask, k, uu):
+    """Robot k's open direction of least ``score`` (a 4-tuple of float64, N, E, S, W),
+    ties broken by ``uu``; -1 where none is open (``choose_min`` for one robot)."""
+    best = np.inf
+    for d in range(4):
+        if open_mask[k, d] and score[d] < best:
+            best = score[d]
+    bits = 0
+    count = 0
+    for d in range(4):
+        if open_mask[k, d] and score[d] == best:
+            bits |= 1 << d
+            count += 1
+    return pick(bits, count, uu)

@@ -1,0 +1,51 @@
+"""``conscientious`` compiled: go to the open neighbour *I* entered longest ago.
+
+The numpy twin is :mod:`qpatrol.strategies.conscientious` (``choose_min`` of the robot's
+own last entries, as float64, ties by ``u[..., 1]``; every entered cell is remembered).
+
+Pack: ``cell_i`` = the strategy's ``memory`` int64 ``[R, K, C]`` (the step at which
+robot k last entered cell c; its own array, updated in place).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.engines.compiled.choice import least
+from qpatrol.engines.compiled.pack import Pack, dummy_pack
+
+
+def pack(strategy) -> Pack:
+    """The strategy's own ``memory`` (updated in place)."""
+    return dummy_pack(cell_i=strategy.memory)
+
+
+def unpack(p: Pack, strategy) -> None:
+    """Nothing to copy back: ``memory`` is the strategy's own array."""
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(r, i, u, nbrs, pos, open_mask, choosing, ask, memory):
+    """``ask[k]``: each choosing robot's open neighbour of oldest ``memory[r, k]``."""
+    for k in range(choosing.shape[0]):
+        if not choosing[k]:
+            ask[k] = -1
+            continue
+        c = pos[r, k]
+        m = memory[r, k]
+        score = (
+            np.float64(m[max(nbrs[c, 0], 0)]),
+            np.float64(m[max(nbrs[c, 1], 0)]),
+            np.float64(m[max(nbrs[c, 2], 0)]),
+            np.float64(m[max(nbrs[c, 3], 0)]),
+        )
+        ask[k] = least(score, open_mask, k, u[r, i, k, 1])
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def learn(r, t, pos, moved, memory):
+    """Each robot that entered a cell at step ``t`` (``moved`` bool ``[K]``) remembers it."""
+    for k in range(moved.shape[0]):
+        if moved[k]:
+            memory[r, k, pos[r, k]] = t

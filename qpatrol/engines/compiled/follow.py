@@ -1,0 +1,132 @@
+"""``cyclic`` and ``partition`` compiled: robots that follow closed walks.
+
+The numpy twin is :class:`qpatrol.strategies.follow.WalkFollower` with its two
+strategies, :mod:`qpatrol.strategies.cyclic` (one walk for the team, robots hold on
+their slots until the team has gathered) and :mod:`qpatrol.strategies.partition` (one
+walk per region). Per run, in the twin's order: (cyclic) release the hold once the team
+has gathered or ``gather_until`` has passed; robots that blocked each other head-on swap
+walks and targets; a robot on its target advances it; targets in another robot's held
+station pocket are skipped; each choosing robot asks for the first move (N, E, S, W) of
+a shortest path to its target cell. Learning keeps who blocked whom.
+
+Pack: ``robot_i`` int64 ``[R, K, 4]`` = (``wid``, ``target``, ``hold`` as 0/1,
+``blocked_by``) of each robot, copied from the strategy and back by :func:`unpack`;
+``table_i`` = ``walk`` int64 ``[W, Lmax]``; ``row_i`` = ``length`` int64 ``[W]``;
+``dist`` int64 ``[C, C]``; ``ipar = [gather (1: cyclic), gather_until, Lmax]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.engines.compiled.pack import Pack, dummy_pack
+
+#: Columns of ``robot_i``.
+WID, TARGET, HOLD, BLOCKED = 0, 1, 2, 3
+
+
+def pack(strategy) -> Pack:
+    """The walks, distances and each robot's walk, target, hold and blocker."""
+    robots = np.stack(
+        [strategy.wid, strategy.target, strategy.hold, strategy.blocked_by], axis=-1
+    ).astype(np.int64)
+    gather = strategy.name == "cyclic"
+    return dummy_pack(
+        ipar=np.array(
+            [int(gather), strategy.gather_until if gather else 0, int(strategy.length.max())],
+            dtype=np.int64,
+        ),
+        robot_i=np.ascontiguousarray(robots),
+        table_i=np.ascontiguousarray(strategy.walk, dtype=np.int64),
+        row_i=np.ascontiguousarray(strategy.length, dtype=np.int64),
+        dist=np.ascontiguousarray(strategy.dist, dtype=np.int64),
+    )
+
+
+def unpack(p: Pack, strategy) -> None:
+    """Copy each robot's walk, target, hold and blocker back into the strategy."""
+    ri = p.robot_i
+    strategy.wid = ri[..., WID].copy()
+    strategy.target = ri[..., TARGET].copy()
+    strategy.hold = ri[..., HOLD] != 0
+    strategy.blocked_by = ri[..., BLOCKED].copy()
+
+
+def sat_out(strategy, state) -> None:
+    """What the numpy engine does to the runs that sat out steps after meeting their
+    episode quota (their robots choose nothing; the compiled loop skips them): their
+    outcome has no blocker, and (cyclic) their hold ends if the team stands gathered or
+    the last step is past ``gather_until``."""
+    out = state.steps_done < state.t
+    if not out.any():
+        return
+    strategy.blocked_by[out] = -1
+    if strategy.name == "cyclic":
+        gathered = (state.pos == strategy.goal_cells()).all(axis=1)
+        gathered |= state.t > strategy.gather_until
+        strategy.hold[out & gathered & strategy.hold.any(axis=1)] = False
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _advance(ri, k, length):
+    """Robot k's target, one index further along its walk."""
+    ri[k, TARGET] = (ri[k, TARGET] + 1) % length[ri[k, WID]]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(
+    r, t, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, robot_i, walk, length, dist
+):
+    """``ask[k]`` for every robot of run ``r`` at step ``t``: towards its target, -1 for
+    robots not choosing (or on their target)."""
+    n_agents = choosing.shape[0]
+    ri = robot_i[r]
+    if ipar[0] != 0:  # cyclic: the team holds until it has gathered on its slots
+        held = False
+        for k in range(n_agents):
+            held = held or ri[k, HOLD] != 0
+        if held:
+            gathered = True
+            for k in range(n_agents):
+                if pos[r, k] != walk[ri[k, WID], ri[k, TARGET]]:
+                    gathered = False
+            if gathered or t > ipar[1]:
+                for k in range(n_agents):
+                    ri[k, HOLD] = 0
+    for k in range(n_agents):  # robots that blocked each other head-on swap plans
+        j = ri[k, BLOCKED]
+        if j > k and choosing[k] and choosing[j] and ri[j, BLOCKED] == k:
+            for col in (WID, TARGET):
+                ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
+    for k in range(n_agents):
+        if choosing[k] and ri[k, HOLD] == 0 and pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]:
+            _advance(ri, k, length)
+    if battery:  # skip targets in another robot's held station pocket
+        for k in range(n_agents):
+            if not choosing[k]:
+                continue
+            for _ in range(ipar[2]):
+                h = pocket_of[walk[ri[k, WID], ri[k, TARGET]]]
+                if h < 0 or reserved[r, h] < 0 or reserved[r, h] == k:
+                    break
+                _advance(ri, k, length)
+    for k in range(n_agents):  # the first move of a shortest path, N, E, S, W first
+        ask[k] = -1
+        if not choosing[k]:
+            continue
+        c = pos[r, k]
+        goal = walk[ri[k, WID], ri[k, TARGET]]
+        closer = dist[c, goal] - 1
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb >= 0 and dist[nb, goal] == closer:
+                ask[k] = d
+                break
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def learn(r, blocked_by, robot_i):
+    """Keep who blocked each robot of run ``r`` (``blocked_by`` int ``[K]``, -1 none)."""
+    for k in range(blocked_by.shape[0]):
+        robot_i[r, k, BLOCKED] = blocked_by[k]

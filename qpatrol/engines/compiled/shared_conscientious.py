@@ -1,0 +1,43 @@
+"""``shared-conscientious`` compiled: go to the open neighbour the team entered longest
+ago.
+
+The numpy twin is :mod:`qpatrol.strategies.shared_conscientious` (``choose_min`` of the
+world's last visits of the robot's group, as float64, ties by ``u[..., 1]``). It keeps
+nothing: the pack is all dummies, and it reads the world's ``last`` int ``[R, G, C]``.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.engines.compiled.choice import least
+from qpatrol.engines.compiled.pack import Pack, dummy_pack
+
+
+def pack(strategy) -> Pack:
+    """A pack of dummies: the strategy keeps nothing."""
+    return dummy_pack()
+
+
+def unpack(p: Pack, strategy) -> None:
+    """Nothing to copy back."""
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask):
+    """``ask[k]``: each choosing robot's open neighbour of oldest ``last[r, g]`` (``g`` =
+    0 with communication, else k)."""
+    for k in range(choosing.shape[0]):
+        if not choosing[k]:
+            ask[k] = -1
+            continue
+        c = pos[r, k]
+        m = last[r, 0 if communication else k]
+        score = (
+            np.float64(m[max(nbrs[c, 0], 0)]),
+            np.float64(m[max(nbrs[c, 1], 0)]),
+            np.float64(m[max(nbrs[c, 2], 0)]),
+            np.float64(m[max(nbrs[c, 3], 0)]),
+        )
+        ask[k] = least(score, open_mask, k, u[r, i, k, 1])
