@@ -62,7 +62,7 @@ def compiled_gap(cfg: Config) -> str | None:
 #: ``engine: auto`` takes numba for batches of at least this many agent-steps (runs x
 #: agents x steps); smaller ones run on numpy, where they take seconds at most. (It also
 #: keeps the progress of a small sweep point observable: tests/test_progress.py.)
-AUTO_MIN_AGENT_STEPS = 50_000
+AUTO_MIN_AGENT_STEPS = 20_000
 
 
 def choose(cfg: Config) -> tuple[str, str]:
