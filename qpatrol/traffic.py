@@ -93,24 +93,22 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
             k = int(s.token[r])
             if want[r, k] < 0:
                 continue
-            keep_out = battery.held_pockets(s, p, r) if p.battery else None
-            cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable[r], keep_out)
-            if cell < 0:
-                push_failed[r] = True
-                continue
-            for i in range(len(path) - 2, -1, -1):
-                j = s.occ[r, path[i]]
-                _move(s, r, j, path[i + 1])
-                moved[r, j] = True
-                as_asked[r, j] = want[r, j] == path[i + 1]
-            _move(s, r, k, cell)
-            moved[r, k] = True
-            as_asked[r, k] = cell == want[r, k]
-            push_failed[r] = not as_asked[r, k]
+            holder_step(s, p, r, k, want, movable[r], Resolution(moved, as_asked, push_failed))
 
     # 2. everyone else, in priority order, into cells empty at that moment
-    order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
-    rows_all = np.arange(R)
+    in_turn(s, want, moved, as_asked, np.arange(R))
+    return Resolution(moved, as_asked, push_failed)
+
+
+def in_turn(
+    s: State, want: np.ndarray, moved: np.ndarray, as_asked: np.ndarray, rows_all: np.ndarray
+) -> None:
+    """Part 2 of :func:`resolve` for the runs ``rows_all`` (int ``[B]``), in place: the
+    robots that have not moved, in priority order and in passes until none can, each
+    into its asked cell (``want`` int ``[R, K]``, -1: none) if that is empty at that
+    moment; ``moved`` and ``as_asked`` (bool ``[R, K]``) are set for them."""
+    K = s.pos.shape[1]
+    order = np.argsort(-priority(s, s.t)[rows_all], axis=1, kind="stable")
     progress = True
     while progress:
         progress = False
@@ -126,7 +124,33 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
                 s.pos[rr, kk] = ww
                 moved[rr, kk] = as_asked[rr, kk] = True
                 progress = True
-    return Resolution(moved, as_asked, push_failed)
+
+
+def holder_step(
+    s: State, p: Params, r: int, k: int, want: np.ndarray, movable: np.ndarray, res: Resolution
+) -> None:
+    """Run ``r``'s token holder ``k`` takes its way (in place: ``s.pos``, ``s.occ`` and
+    ``res``'s rows r): into the cell it asks for, pushing the robots in the way aside,
+    or aside itself (:func:`_holder_move`).
+
+    Args:
+        want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).
+        movable: bool ``[K]``, the robots of run r that may be pushed.
+    """
+    keep_out = battery.held_pockets(s, p, r) if p.battery else None
+    cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
+    if cell < 0:
+        res.push_failed[r] = True
+        return
+    for i in range(len(path) - 2, -1, -1):
+        j = s.occ[r, path[i]]
+        _move(s, r, j, path[i + 1])
+        res.moved[r, j] = True
+        res.as_asked[r, j] = want[r, j] == path[i + 1]
+    _move(s, r, k, cell)
+    res.moved[r, k] = True
+    res.as_asked[r, k] = cell == want[r, k]
+    res.push_failed[r] = not res.as_asked[r, k]
 
 
 def _holder_move(

@@ -22,9 +22,10 @@ def view(a: np.ndarray, shape: int | tuple[int, ...]) -> np.ndarray:
 
 
 def max4(x: np.ndarray) -> np.ndarray:
-    """float ``[B]``: ``x.max(axis=1)`` of float ``[B, 4]``, the same floats (signed zeros
-    included: numpy's reduction keeps the later of equal values, as ``np.maximum`` does)."""
-    return np.maximum(np.maximum(x[:, 0], x[:, 1]), np.maximum(x[:, 2], x[:, 3]))
+    """float ``[...]``: ``x.max(axis=-1)`` of float ``[..., 4]``, the same floats (signed
+    zeros included: numpy's reduction keeps the later of equal values, as ``np.maximum``
+    does)."""
+    return np.maximum(np.maximum(x[..., 0], x[..., 1]), np.maximum(x[..., 2], x[..., 3]))
 
 
 #: A bool row ``[4]`` read as one uint32 (its bytes), modulo CODE_MOD, is unique per
@@ -46,12 +47,24 @@ assert np.unique(_code(_PATTERNS)).size == 16
 COUNT_OF_CODE = np.array([bin(int(m)).count("1") for m in MASK_OF_CODE], dtype=np.int64)
 LAST_OF_CODE = np.maximum(COUNT_OF_CODE - 1, 0)
 NTH_OF_CODE = _NTH[MASK_OF_CODE].reshape(-1)
+#: int [CODE_MOD]: the first True of each key, as ``argmax`` gives it (0 for none).
+FIRST_OF_CODE = _PATTERNS[MASK_OF_CODE].argmax(axis=1)
+
+
+def code(rows: np.ndarray) -> np.ndarray:
+    """int ``[...]``: the key of each row of bool ``rows`` ``[..., 4]`` (C-contiguous)."""
+    return rows.view(np.uint32)[..., 0] % CODE_MOD
+
+
+def any4(rows: np.ndarray) -> np.ndarray:
+    """bool ``[...]``: ``rows.any(axis=-1)`` of bool ``[..., 4]`` (C-contiguous)."""
+    return rows.view(np.uint32)[..., 0] != 0
 
 
 def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """``(action [B], count [B])``: :func:`qpatrol.learner.pick` of bool ``cand`` ``[B, 4]``
     (C-contiguous) with uniforms ``u`` ``[B]``; the action is 0 where count is 0."""
-    code = cand.view(np.uint32)[:, 0] % CODE_MOD
-    count = COUNT_OF_CODE.take(code)
-    j = np.minimum((u * count).astype(np.int64), LAST_OF_CODE.take(code))
-    return NTH_OF_CODE.take(code * 4 + j), count
+    key = cand.view(np.uint32)[:, 0] % CODE_MOD
+    count = COUNT_OF_CODE.take(key)
+    j = np.minimum((u * count).astype(np.int64), LAST_OF_CODE.take(key))
+    return NTH_OF_CODE.take(key * 4 + j), count

@@ -2,7 +2,8 @@
 
 Each team step is computed either by :func:`qpatrol.run.advance` (the general step:
 every strategy, setting and recorder) or by a fast step for the configs it covers
-(:mod:`qpatrol.engines.numpy_solo`: lone Q-learners); a fast step declines a step it
+(:mod:`qpatrol.engines.numpy_solo`: lone Q-learners; :mod:`qpatrol.engines.numpy_team`:
+Q-learning teams, battery off); a fast step declines a step it
 does not cover (it then changes nothing) and the general step takes it, so the two
 alternate freely and the results are the same to the bit. :data:`FAST` switches the
 fast steps off (the equality tests run every config both ways).
@@ -14,7 +15,7 @@ from collections.abc import Callable
 from typing import Any
 
 from qpatrol.checkpoint import Checkpointer
-from qpatrol.engines import numpy_solo
+from qpatrol.engines import numpy_solo, numpy_team
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
 from qpatrol.rng import Streams
@@ -27,12 +28,14 @@ FAST = True
 
 def fast_step(
     p: Params, s: State, strategy: Any, m: Measures, rec: Recorder, timeline: Timeline
-) -> numpy_solo.Solo | None:
+) -> numpy_solo.Solo | numpy_team.Team | None:
     """The fast step of this batch, or None where no fast step applies."""
     if not FAST:
         return None
     if numpy_solo.covers(p, strategy) and not rec.wants_updates and not timeline.window:
         return numpy_solo.Solo(p, s, strategy, m)
+    if numpy_team.covers(p, strategy):
+        return numpy_team.Team(p, s, strategy, m)
     return None
 
 
@@ -61,7 +64,11 @@ def run(
         if quota and not state.active.any():
             break
         u = streams.next()
-        if fast is None or (quota and not state.active.all()) or not fast.step(u, rec, tail):
+        if (
+            fast is None
+            or (quota and not state.active.all())
+            or not fast.step(u, rec, tail, timeline)
+        ):
             out = advance(state, p, strategy, u, rec)
             watch.observe(out, state.wait, state.charge if p.battery else None)
             tail.observe(state)

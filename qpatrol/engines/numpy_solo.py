@@ -20,6 +20,7 @@ import numpy as np
 from qpatrol.engines.flat import max4, pick, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
+from qpatrol.timeline import Timeline
 from qpatrol.world import Params, State, _end_episodes
 
 
@@ -45,6 +46,7 @@ class Solo:
         dir_of = (nbrs[:, None, :] == nbrs[:, :, None]).argmax(axis=2)  # first d, same cell
         heading = np.arange(4) if strategy.use_heading else np.zeros(4, dtype=np.int64)
         self.p, self.s, self.strategy, self.m = p, s, strategy, m
+        self.taken = 0  # fast steps taken (for tests)
         self.nbrs = nbrs.reshape(-1)  # int [C 4]: next cell of (cell, direction), -1 wall
         self.legal = p.wall_legal  # bool [C, 4]
         self.dir_of = dir_of.reshape(-1)  # int [C 4]: the direction traffic.direction_of gives
@@ -75,11 +77,11 @@ class Solo:
         self.t = -1
         self.row = self.legal_row = self.masked = self.best = None
 
-    def step(self, u: np.ndarray, rec: Recorder, tail: Tail) -> bool:
+    def step(self, u: np.ndarray, rec: Recorder, tail: Tail, timeline: Timeline) -> bool:
         """One team step of every run (all active), in place; False if it does not
         apply this step (a robot without a move), and then nothing was changed.
 
-        ``u``: float ``[R, 1, 2]``, this step's uniforms.
+        ``u``: float ``[R, 1, 2]``, this step's uniforms; ``timeline`` is off.
         """
         s, p, strategy, m = self.s, self.p, self.strategy, self.m
         pos = self.pos
@@ -98,6 +100,7 @@ class Solo:
         a, count = pick(cand, u[:, 0, 1])
         if not count.all():
             return False
+        self.taken += 1
         ca = pos * 4 + a  # flat (cell, direction) index
         c1 = self.nbrs.take(ca)
         d = self.dir_of.take(ca)
