@@ -89,26 +89,15 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     holders = np.flatnonzero((s.token >= 0) & s.active)
     if holders.size:
         movable = s.mode != battery.CHARGING
+        res = Resolution(moved, as_asked, push_failed)
         for r in holders.tolist():
             k = int(s.token[r])
-            if want[r, k] < 0:
-                continue
-            holder_step(s, p, r, k, want, movable[r], Resolution(moved, as_asked, push_failed))
+            if want[r, k] >= 0:
+                holder_step(s, p, r, k, want, movable[r], res)
 
     # 2. everyone else, in priority order, into cells empty at that moment
-    in_turn(s, want, moved, as_asked, np.arange(R))
-    return Resolution(moved, as_asked, push_failed)
-
-
-def in_turn(
-    s: State, want: np.ndarray, moved: np.ndarray, as_asked: np.ndarray, rows_all: np.ndarray
-) -> None:
-    """Part 2 of :func:`resolve` for the runs ``rows_all`` (int ``[B]``), in place: the
-    robots that have not moved, in priority order and in passes until none can, each
-    into its asked cell (``want`` int ``[R, K]``, -1: none) if that is empty at that
-    moment; ``moved`` and ``as_asked`` (bool ``[R, K]``) are set for them."""
-    K = s.pos.shape[1]
-    order = np.argsort(-priority(s, s.t)[rows_all], axis=1, kind="stable")
+    order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
+    rows_all = np.arange(R)
     progress = True
     while progress:
         progress = False
@@ -124,14 +113,15 @@ def in_turn(
                 s.pos[rr, kk] = ww
                 moved[rr, kk] = as_asked[rr, kk] = True
                 progress = True
+    return Resolution(moved, as_asked, push_failed)
 
 
 def holder_step(
     s: State, p: Params, r: int, k: int, want: np.ndarray, movable: np.ndarray, res: Resolution
 ) -> None:
     """Run ``r``'s token holder ``k`` takes its way (in place: ``s.pos``, ``s.occ`` and
-    ``res``'s rows r): into the cell it asks for, pushing the robots in the way aside,
-    or aside itself (:func:`_holder_move`).
+    the rows r of ``res``): into the cell it asks for, pushing the robots in the way
+    aside, or aside itself (:func:`_holder_move`).
 
     Args:
         want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).

@@ -12,6 +12,7 @@ from __future__ import annotations
 
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from qpatrol.config import from_flat
@@ -80,3 +81,45 @@ def test_team(rooms_map, tmp_path, monkeypatch, agents, communication, avoid):
     kind, taken = both_ways(flat, tmp_path, monkeypatch)
     print(kind, taken)
     assert kind == ("Solo" if agents == 1 else "Team") and taken > 100
+
+
+@pytest.mark.parametrize("agents", [2, 3, 4, 8])
+@pytest.mark.parametrize("seed", [0, 1, 2])
+def test_team_moves_match_traffic(rooms_map, agents, seed):
+    """Crowded random states: the team step's moves and token passing are
+    traffic.resolve's and traffic.pass_token's (robots pushed, cells several robots ask
+    for, chains and cycles of robots in the way)."""
+    from qpatrol import traffic, world
+    from qpatrol.engines.numpy_team import Team
+    from qpatrol.measures import Measures
+    from qpatrol.run import prepare
+    from qpatrol.strategies import make
+
+    cfg = from_flat({**BASE, "map": str(rooms_map), "agents": agents, "runs": 300})
+    m, p = prepare(cfg)
+    rng = np.random.default_rng(seed)
+    starts = np.stack([rng.permutation(p.n_cells)[:agents] for _ in range(cfg["runs"])])
+    states = [world.init_state(p, starts) for _ in range(2)]
+    for s in states:
+        s.t = 7
+        s.wait = rng.integers(0, 3, starts.shape) if s is states[0] else states[0].wait.copy()
+        s.token = rng.integers(-1, agents, cfg["runs"]) if s is states[0] else states[0].token
+        s.token_held = rng.integers(0, 3, cfg["runs"]) if s is states[0] else states[0].token_held
+    nb = p.neighbors[starts]  # [R, K, 4]
+    pick = rng.random(nb.shape)
+    pick[nb < 0] = -1
+    want = np.take_along_axis(nb, pick.argmax(axis=2)[..., None], axis=2)[..., 0]
+    a, b = states
+    res_a = traffic.resolve(a, p, want)
+    team = Team(p, b, make("qlearning", cfg, m, p, starts), Measures(300, agents, p.n_cells, 0))
+    res_b = team._resolve(want)
+    for name in ("moved", "as_asked", "push_failed"):
+        assert np.array_equal(getattr(res_a, name), getattr(res_b, name)), name
+    assert np.array_equal(a.pos, b.pos) and np.array_equal(a.occ, b.occ)
+    assert res_a.moved.any() and not res_a.moved.all()
+    for s, res in ((a, res_a), (b, res_b)):
+        s.wait = np.where(res.as_asked, 0, s.wait + 1)
+    blocked_by = np.where(~res_a.as_asked, a.occ[np.arange(300)[:, None], want], -1)
+    traffic.pass_token(a, p, want, res_a, blocked_by)
+    team._pass_token(res_b, blocked_by)
+    assert np.array_equal(a.token, b.token) and np.array_equal(a.token_held, b.token_held)

@@ -12,10 +12,10 @@ are the general step's, operation for operation:
 * moves: :func:`qpatrol.traffic.resolve`. A token holder whose asked cell is empty
   moves at once; one that must push runs :func:`qpatrol.traffic.holder_step`. The
   other robots of a run move in priority order into cells empty at that moment, in
-  passes until none can: when no two of them ask for the same cell, the outcome does
-  not depend on the order (a robot moves if and only if the chain of robots standing
-  in the cells asked for ends in an empty cell), which is computed for all runs at
-  once; runs where two ask for the same cell run :func:`qpatrol.traffic.in_turn`.
+  passes until none can; the outcome is computed for all runs at once, without the
+  passes: which robot takes a cell several ask for follows from the order, and a robot
+  moves if and only if it takes its cell and the chain of robots standing in the cells
+  asked for ends in an empty cell (:meth:`Team._resolve`).
 * entering cells (dots, last visits, the episode counters of each dot map in robot
   order), learning, measures and recorders as in :func:`qpatrol.world.step`,
   :meth:`~qpatrol.strategies.qlearning.Strategy.learn` and
@@ -74,6 +74,7 @@ class Team:
         group = self.run_of * g + (0 if p.communication else self.k_of)
         self.map0 = group * c  # int [R K]: first cell of each robot's dot map
         self.visit0 = robots * c  # int [R K]: first cell of each robot in [R K C] counts
+        self.robot0 = (runs * k)[:, None]  # int [R, 1]: flat index of robot 0 of run r
         self.movable = np.ones(k, dtype=bool)  # nobody charges: every robot may be pushed
         self.earlier = np.tri(k, k, -1, dtype=bool)  # bool [K, K]: robot j < robot k
         self.all_runs = np.ones(n_runs, dtype=bool)
@@ -165,7 +166,7 @@ class Team:
         s.wait = np.where(failed, s.wait + 1, 0)
         if p.avoid_collisions and k > 1:
             blocked_by = np.where(failed, self.occ.take(self.cell0[:, None] + want), -1)
-            traffic.pass_token(s, p, want, res, blocked_by)
+            self._pass_token(res, blocked_by)
         s.steps_done.fill(t)
         ended = not s.dots_left.all()
         if p.max_episode_steps and not ended:
@@ -208,24 +209,24 @@ class Team:
             moved[fr, fk] = as_asked[fr, fk] = True
             for r in hr[~free].tolist():
                 traffic.holder_step(s, self.p, r, int(s.token[r]), want, self.movable, res)
-        # 2. the others: order-free where no two ask for the same cell, else in turn
+        # 2. the others in turn (priority order, passes until none can move), each into
+        # its asked cell if empty at that moment. The outcome, without the turns: of the
+        # robots asking for one cell, the first in turn takes it, or if a robot stands
+        # in it, the first in turn after that robot (the cell frees up at its turn); a
+        # winner moves if its cell is empty or the robot in it moves.
         wanting = ~moved
-        if k > 1:
-            asked = np.where(wanting, want, -1 - self.ks)  # distinct where not wanting
-            ordered = np.sort(asked, axis=1)
-            shared = np.unique(np.flatnonzero(ordered[:, 1:] == ordered[:, :-1]) // (k - 1))
+        in_way = self.occ.take(self.cell0[:, None] + want)  # int [R, K]: robot in the cell
+        ahead = self.robot0 + np.maximum(in_way, 0)  # int [R, K]: its flat index
+        if k == 1:
+            go = wanting & (in_way < 0)
         else:
-            shared = np.zeros(0, dtype=np.int64)
-        in_way = self.occ.take(self.cell0[:, None] + want)  # robot in the asked cell, -1
-        go = wanting & (in_way < 0)
-        if shared.size:
-            go[shared] = False
-        if k > 1:
-            chain = wanting & (in_way >= 0)
-            if shared.size:
-                chain[shared] = False
+            rank = np.argsort(np.argsort(-self._priority(s.t), axis=1, kind="stable"), axis=1)
+            key = np.where(in_way < 0, rank, (rank - rank.reshape(-1).take(ahead) - 1) % k)
+            rivals = (want[:, :, None] == want[:, None, :]) & wanting[:, None, :]
+            wins = wanting & (key == np.where(rivals, key[:, None, :], k).min(axis=2))
+            go = wins & (in_way < 0)
+            chain = wins & (in_way >= 0)
             if chain.any():
-                ahead = self.run_of.reshape(n_runs, k) * k + np.maximum(in_way, 0)
                 while True:
                     more = go | (chain & go.reshape(-1).take(ahead))
                     if np.array_equal(more, go):
@@ -239,9 +240,36 @@ class Team:
             self.pos1[g] = gw
             moved |= go
             as_asked |= go
-        if shared.size:
-            traffic.in_turn(s, want, moved, as_asked, shared)
         return res
+
+    def _priority(self, t: int) -> np.ndarray:
+        """int ``[R, K]``: :func:`qpatrol.traffic.priority` at step t, every robot patrolling
+        (battery off: the class is the same for all)."""
+        k = self.ks.size
+        turn = (k - 1) - (self.ks - t) % k
+        return (1 << 40) + np.minimum(self.s.wait, 1 << 30) * k + turn
+
+    def _pass_token(self, res: traffic.Resolution, blocked_by: np.ndarray) -> None:
+        """:func:`qpatrol.traffic.pass_token`, every robot of every run having asked for a
+        move; ``blocked_by`` int ``[R, K]``: the robot in the way of a failed move, -1."""
+        s = self.s
+        tok = s.token
+        blocked = ~res.as_asked
+        key = np.where(blocked, self._priority(s.t + 1), -1)
+        had = tok >= 0
+        failed = had & res.push_failed
+        fr = np.flatnonzero(failed)
+        if fr.size:
+            key[fr, tok[fr]] = -1
+        best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
+        held = self.robot0[:, 0] + np.maximum(tok, 0)  # flat index of the holder
+        blocker = np.where(had, blocked_by.reshape(-1).take(held), -1)
+        waits = blocked.reshape(-1).take(self.robot0[:, 0] + np.maximum(blocker, 0))
+        blocker_waits = (blocker >= 0) & waits
+        keep = had & res.as_asked.reshape(-1).take(held) & (s.token_held < self.p.diameter)
+        new = np.where(keep, tok, np.where(failed & blocker_waits, blocker, best))
+        s.token_held = np.where((new == tok) & (new >= 0), s.token_held + 1, 0)
+        s.token = new
 
     def _episode_counts(
         self, mv: np.ndarray, ate: np.ndarray, moved: np.ndarray
@@ -352,7 +380,7 @@ class Team:
             seen = prev > 0
             gap = np.where(seen, t - prev, 0)
             np.add.at(m.gap_sum, runs, gap)
-            np.add.at(m.gap_count, runs, seen)
+            np.add.at(m.gap_count, runs, seen.astype(np.int64))
             np.maximum.at(m.gap_max, runs, gap)
             if t - 1 > m.warmup:
                 np.maximum.at(m.worst, runs, t - 1 - prev)
