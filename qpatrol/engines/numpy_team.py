@@ -196,19 +196,27 @@ class Team:
         moved = np.zeros((n_runs, k), dtype=bool)
         as_asked = np.zeros((n_runs, k), dtype=bool)
         res = traffic.Resolution(moved, as_asked, np.zeros(n_runs, dtype=bool))
-        # 1. token holders: into an empty asked cell at once, else push (per run)
+        # 1. token holders: into an empty asked cell, or pushing the robot in it into an
+        # empty neighbour of that cell (the first, N E S W, that is not the holder's: the
+        # push search's first find); other pushes one run at a time
         hr = np.flatnonzero(s.token >= 0)
         if hr.size:
             hk = s.token[hr]
             hw = want[hr, hk]
             free = self.occ.take(self.cell0[hr] + hw) < 0
-            fr, fk, fw = hr[free], hk[free], hw[free]
-            self.occ[self.cell0[fr] + pos[fr, fk]] = -1
-            self.occ[self.cell0[fr] + fw] = fk
-            pos[fr, fk] = fw
-            moved[fr, fk] = as_asked[fr, fk] = True
-            for r in hr[~free].tolist():
-                traffic.holder_step(s, self.p, r, int(s.token[r]), want, self.movable, res)
+            self._holder_moves(hr[free], hk[free], hw[free], None, want, res)
+            hr, hk, hw = hr[~free], hk[~free], hw[~free]
+            if hr.size:
+                own = pos[hr, hk]
+                beyond = self.nb.take(hw, axis=0)  # int [B, 4]: around the asked cell
+                there = self.occ.take(self.cell0[hr, None] + np.maximum(beyond, 0))
+                empty = (beyond >= 0) & (beyond != own[:, None]) & (there < 0)
+                key = code(empty)
+                one = key != 0
+                to = self.nbrs.take(hw * 4 + FIRST_OF_CODE.take(key))
+                self._holder_moves(hr[one], hk[one], hw[one], to[one], want, res)
+                for r in hr[~one].tolist():
+                    traffic.holder_step(s, self.p, r, int(s.token[r]), want, self.movable, res)
         # 2. the others in turn (priority order, passes until none can move), each into
         # its asked cell if empty at that moment. The outcome, without the turns: of the
         # robots asking for one cell, the first in turn takes it, or if a robot stands
@@ -241,6 +249,30 @@ class Team:
             moved |= go
             as_asked |= go
         return res
+
+    def _holder_moves(
+        self,
+        hr: np.ndarray,
+        hk: np.ndarray,
+        hw: np.ndarray,
+        to: np.ndarray | None,
+        want: np.ndarray,
+        res: traffic.Resolution,
+    ) -> None:
+        """Token holders ``hk`` of runs ``hr`` (int ``[B]``) move into their asked cells
+        ``hw``, the robots standing there (if ``to`` is given) one cell on, into ``to``
+        (as :func:`qpatrol.traffic.holder_step` with a push path ``[hw, to]``)."""
+        pos, base = self.s.pos, self.cell0.take(hr)
+        if to is not None:
+            pushed = self.occ.take(base + hw)
+            self.occ[base + to] = pushed
+            pos[hr, pushed] = to
+            res.moved[hr, pushed] = True
+            res.as_asked[hr, pushed] = want[hr, pushed] == to
+        self.occ[base + pos[hr, hk]] = -1
+        self.occ[base + hw] = hk
+        pos[hr, hk] = hw
+        res.moved[hr, hk] = res.as_asked[hr, hk] = True
 
     def _priority(self, t: int) -> np.ndarray:
         """int ``[R, K]``: :func:`qpatrol.traffic.priority` at step t, every robot patrolling
