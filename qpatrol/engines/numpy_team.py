@@ -75,6 +75,7 @@ class Team:
         self.map0 = group * c  # int [R K]: first cell of each robot's dot map
         self.visit0 = robots * c  # int [R K]: first cell of each robot in [R K C] counts
         self.robot0 = (runs * k)[:, None]  # int [R, 1]: flat index of robot 0 of run r
+        self.claim = np.zeros(n_runs * c, dtype=np.int64)  # int [R C]: scratch of _resolve
         self.movable = np.ones(k, dtype=bool)  # nobody charges: every robot may be pushed
         self.earlier = np.tri(k, k, -1, dtype=bool)  # bool [K, K]: robot j < robot k
         self.all_runs = np.ones(n_runs, dtype=bool)
@@ -230,8 +231,11 @@ class Team:
         else:
             rank = np.argsort(np.argsort(-self._priority(s.t), axis=1, kind="stable"), axis=1)
             key = np.where(in_way < 0, rank, (rank - rank.reshape(-1).take(ahead) - 1) % k)
-            rivals = (want[:, :, None] == want[:, None, :]) & wanting[:, None, :]
-            wins = wanting & (key == np.where(rivals, key[:, None, :], k).min(axis=2))
+            key = np.where(wanting, key, k)
+            cell = self.cell0[:, None] + want
+            self.claim[cell] = k  # the least key of the robots asking for each cell
+            np.minimum.at(self.claim, cell, key)
+            wins = wanting & (key == self.claim.take(cell))
             go = wins & (in_way < 0)
             chain = wins & (in_way >= 0)
             if chain.any():
@@ -312,8 +316,8 @@ class Team:
         s = self.s
         if self.p.n_groups == 1:
             n_runs, k = moved.shape
-            eaten = self._dense(mv, ate, False).reshape(n_runs, k).cumsum(axis=1)
-            entered = moved.cumsum(axis=1)
+            eaten = _cumsum(self._dense(mv, ate.astype(np.int64), 0).reshape(n_runs, k))
+            entered = _cumsum(moved.astype(np.int64))
             dots = (s.ep_dots + eaten).reshape(-1).take(mv)  # ep_dots [R, 1]
             cells = (s.ep_visits + entered).reshape(-1).take(mv)
             s.dots_left -= eaten[:, -1:]
@@ -406,9 +410,9 @@ class Team:
         runs = self.run_of.take(mv)
         np.add.at(m.last_sum, runs, t - prev)
         vi = self.visit0.take(mv) + c1
-        self.visits[vi] += 1
+        np.add.at(self.visits, vi, 1)
         if t > m.warmup:
-            self.window_visits[vi] += 1
+            np.add.at(self.window_visits, vi, 1)
             seen = prev > 0
             gap = np.where(seen, t - prev, 0)
             np.add.at(m.gap_sum, runs, gap)
@@ -418,5 +422,16 @@ class Team:
                 np.maximum.at(m.worst, runs, t - 1 - prev)
             m.idle_total += m.n_cells * t - m.last_sum
             m.measured += 1
-            np.maximum(m.max_wait, s.wait.max(axis=1), out=m.max_wait)
-            m.wait_total += (s.wait > 0).sum(axis=1)
+            waiting = np.flatnonzero(s.wait)  # robots with a wait > 0 (max_wait >= 0)
+            if waiting.size:
+                who = self.run_of.take(waiting)
+                np.maximum.at(m.max_wait, who, s.wait.reshape(-1).take(waiting))
+                np.add.at(m.wait_total, who, 1)
+
+
+def _cumsum(x: np.ndarray) -> np.ndarray:
+    """``x.cumsum(axis=1)`` of int ``[R, K]`` in place, one column at a time (a reduction
+    along a short last axis is slow in numpy)."""
+    for j in range(1, x.shape[1]):
+        x[:, j] += x[:, j - 1]
+    return x
