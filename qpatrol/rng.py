@@ -26,7 +26,10 @@ class Streams:
     so the block size never changes a result.
     """
 
-    def __init__(self, seeds: list[np.random.SeedSequence], agents: int, block: int = 512):
+    #: Steps drawn at once by :meth:`next` unless told otherwise.
+    BLOCK = 512
+
+    def __init__(self, seeds: list[np.random.SeedSequence], agents: int, block: int = BLOCK):
         self.generators = [np.random.Generator(np.random.PCG64(s)) for s in seeds]
         self.agents = agents
         self.block = block

@@ -154,7 +154,9 @@ def _simulate_batch(
     engine, note = engines.choose(cfg)
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
-        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
+        # blocks of uniforms no longer than the run (the same numbers for any block)
+        block = max(1, min(Streams.BLOCK, cfg["steps"]))
+        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents, block)
         starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
         state = world.init_state(p, starts)
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)

@@ -152,9 +152,9 @@ class Solo:
         self.row, self.legal_row, self.masked, self.best = row1, legal1, masked1, best1
         # --- measures (Measures.observe) -----------------------------------------------------
         m.last_sum += idle
-        self.visits[gi] += 1
+        np.add.at(self.visits, gi, 1)
         if t > m.warmup:
-            self.window_visits[gi] += 1
+            np.add.at(self.window_visits, gi, 1)
             seen = prev > 0
             gap = np.where(seen, idle, 0)
             m.gap_sum += gap
