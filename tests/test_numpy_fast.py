@@ -22,16 +22,30 @@ from qpatrol.run import simulate, write_run
 META = {"started": "-", "ended": "-"}
 
 
-def both_ways(flat: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tuple[str, int]:
+def both_ways(
+    flat: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch, decline: int = 0
+) -> tuple[str, int]:
     """Run ``flat`` with and without the fast steps and compare every file; ``(kind,
-    steps)``: the fast step's class and how many team steps it took (of all runs)."""
+    steps)``: the fast step's class and how many team steps it took (of all runs).
+    ``decline``: the fast step also declines every ``decline``-th step it is offered,
+    which the general step then takes (0: only those it does not cover)."""
     cfg = from_flat({"engine": "numpy", **flat})
     made = []
     real = numpy_loop.fast_step
 
-    def spy(*args):
-        made.append(real(*args))
-        return made[-1]
+    def spy(*args, **kwargs):
+        fast = real(*args, **kwargs)
+        made.append(fast)
+        if fast is not None and decline:
+            offered = [0]
+            step = fast.step
+
+            def sometimes(*a):
+                offered[0] += 1
+                return offered[0] % decline != 0 and step(*a)
+
+            fast.step = sometimes
+        return fast
 
     monkeypatch.setattr(numpy_loop, "fast_step", spy)
     folders = {}
@@ -47,7 +61,14 @@ def both_ways(flat: dict, tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> tu
     return type(made[0]).__name__, made[0].taken
 
 
-BASE = {"runs": 3, "seed": 5, "steps": 300, "max_episode_steps": 60, "battery.enabled": False}
+BASE = {
+    "runs": 3,
+    "seed": 5,
+    "steps": 300,
+    "max_episode_steps": 60,
+    "battery.enabled": False,
+    "reward.lambda": 0.3,
+}
 
 
 @pytest.mark.parametrize(
@@ -57,7 +78,7 @@ BASE = {"runs": 3, "seed": 5, "steps": 300, "max_episode_steps": 60, "battery.en
         {"record.trajectory": 7, "record.warmup": 40},
         {"learning.epsilon": 0.3, "learning.state_space": "cell"},
         {"team.avoid_collisions": False, "episodes": 3, "max_episode_steps": None},
-        {"learning.gamma": 0.9, "learning.multiplier": 100.0, "reward.lambda": 0.5},
+        {"learning.gamma": 0.9, "learning.multiplier": 100.0, "reward.lambda": 0.3},
     ],
 )
 def test_solo(rooms_map, tmp_path, monkeypatch, extra):
@@ -123,3 +144,38 @@ def test_team_moves_match_traffic(rooms_map, agents, seed):
     traffic.pass_token(a, p, want, res_a, blocked_by)
     team._pass_token(res_b, blocked_by)
     assert np.array_equal(a.token, b.token) and np.array_equal(a.token_held, b.token_held)
+
+
+@pytest.mark.parametrize("agents", [1, 3])
+@pytest.mark.parametrize("decline", [2, 7])
+def test_fast_and_general_steps_alternate(rooms_map, tmp_path, monkeypatch, agents, decline):
+    """The fast step hands every few steps to the general step and takes over again: the
+    deferred arrays are brought up to date, the kept Q rows dropped (warm-up, episodes,
+    recorders and the timeline across the hand-overs)."""
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "agents": agents,
+        "record.warmup": 25,
+        "record.trajectory": 4,
+        "record.timeline": 40 if agents > 1 else 0,
+        "learning.epsilon": 0.1,
+    }
+    kind, taken = both_ways(flat, tmp_path, monkeypatch, decline)
+    assert 0 < taken < BASE["steps"]
+
+
+@pytest.mark.parametrize(
+    "record",
+    [
+        {"record.transitions": True, "record.watch": [5, 9], "record.timeline": 30},
+        {"record.watch": [3, 4, 17], "learning.state_space": "cell", "record.warmup": 50},
+    ],
+)
+@pytest.mark.parametrize("agents", [1, 4])
+def test_team_recorders(rooms_map, tmp_path, monkeypatch, record, agents):
+    """Transitions, watched states and the timeline: the team step records them (also for
+    a lone robot, which the lone-learner step leaves to it)."""
+    flat = {**BASE, "map": str(rooms_map), "agents": agents, **record}
+    kind, taken = both_ways(flat, tmp_path, monkeypatch)
+    assert kind == "Team" and taken == BASE["steps"]

@@ -27,15 +27,22 @@ FAST = True
 
 
 def fast_step(
-    p: Params, s: State, strategy: Any, m: Measures, rec: Recorder, timeline: Timeline
+    p: Params,
+    s: State,
+    strategy: Any,
+    m: Measures,
+    rec: Recorder,
+    timeline: Timeline,
+    defer: bool = True,
 ) -> numpy_solo.Solo | numpy_team.Team | None:
-    """The fast step of this batch, or None where no fast step applies."""
+    """The fast step of this batch, or None where no fast step applies; ``defer``: it
+    may defer writes until its ``deferred.sync()`` (:mod:`qpatrol.engines.deferred`)."""
     if not FAST:
         return None
     if numpy_solo.covers(p, strategy) and not rec.wants_updates and not timeline.window:
-        return numpy_solo.Solo(p, s, strategy, m)
+        return numpy_solo.Solo(p, s, strategy, m, defer)
     if numpy_team.covers(p, strategy):
-        return numpy_team.Team(p, s, strategy, m)
+        return numpy_team.Team(p, s, strategy, m, defer)
     return None
 
 
@@ -57,7 +64,7 @@ def run(
     active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step."""
     from qpatrol.run import advance  # run.py imports this module
 
-    fast = fast_step(p, state, strategy, watch, rec, timeline)
+    fast = fast_step(p, state, strategy, watch, rec, timeline, defer=checkpoint is None)
     quota = bool(p.episodes)  # only an episode quota makes runs inactive
     every = max(1, total // 200)
     for i in range(first, total):
@@ -69,6 +76,8 @@ def run(
             or (quota and not state.active.all())
             or not fast.step(u, rec, tail, timeline)
         ):
+            if fast is not None:
+                fast.deferred.sync()
             out = advance(state, p, strategy, u, rec)
             watch.observe(out, state.wait, state.charge if p.battery else None)
             tail.observe(state)
@@ -77,3 +86,5 @@ def run(
             progress(i + 1, total)
         if checkpoint is not None:
             checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+    if fast is not None:
+        fast.deferred.sync()

@@ -17,6 +17,7 @@ from __future__ import annotations
 
 import numpy as np
 
+from qpatrol.engines.deferred import Deferred
 from qpatrol.engines.flat import max4, pick, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
@@ -40,13 +41,16 @@ class Solo:
     measures' ``[R, C]`` and ``[R, 1, C]``) arrays viewed flat, index ``r C + cell``.
     """
 
-    def __init__(self, p: Params, s: State, strategy: object, m: Measures):
+    def __init__(self, p: Params, s: State, strategy: object, m: Measures, defer: bool = True):
         c, n_runs = p.n_cells, s.n_runs
         nbrs = p.neighbors
         dir_of = (nbrs[:, None, :] == nbrs[:, :, None]).argmax(axis=2)  # first d, same cell
         heading = np.arange(4) if strategy.use_heading else np.zeros(4, dtype=np.int64)
         self.p, self.s, self.strategy, self.m = p, s, strategy, m
         self.taken = 0  # fast steps taken (for tests)
+        # the world's last visits are the measures' (one robot); a lone robot's
+        # occupancy follows from its cell
+        self.deferred = Deferred(s, m, defer, last=True, occ=p.avoid_collisions)
         self.nbrs = nbrs.reshape(-1)  # int [C 4]: next cell of (cell, direction), -1 wall
         self.legal = p.wall_legal  # bool [C, 4]
         self.dir_of = dir_of.reshape(-1)  # int [C 4]: the direction traffic.direction_of gives
@@ -101,12 +105,13 @@ class Solo:
         if not count.all():
             return False
         self.taken += 1
+        self.deferred.mark()
         ca = pos * 4 + a  # flat (cell, direction) index
         c1 = self.nbrs.take(ca)
         d = self.dir_of.take(ca)
         gi = self.cell0 + c1  # flat [R C] index of the cell entered
         t = s.t = s.t + 1
-        if p.avoid_collisions:
+        if p.avoid_collisions and not self.deferred.occ:
             self.occ[self.cell0 + pos] = -1
             self.occ[gi] = 0
         pos[:] = c1
@@ -120,7 +125,8 @@ class Solo:
         ep_visits += 1
         prev = self.m_last.take(gi)  # = the world's last visit: one robot, one map
         idle = t - prev
-        self.last[gi] = t
+        if not self.deferred.last:
+            self.last[gi] = t
         self.m_last[gi] = t
         self.ep_seen[gi] = True
         self.ep_seen_state[gi * 4 + d] = True
@@ -152,9 +158,10 @@ class Solo:
         self.row, self.legal_row, self.masked, self.best = row1, legal1, masked1, best1
         # --- measures (Measures.observe) -----------------------------------------------------
         m.last_sum += idle
+        if t > m.warmup and self.deferred.count_window():
+            np.add.at(self.window_visits, gi, 1)
         np.add.at(self.visits, gi, 1)
         if t > m.warmup:
-            np.add.at(self.window_visits, gi, 1)
             seen = prev > 0
             gap = np.where(seen, idle, 0)
             m.gap_sum += gap

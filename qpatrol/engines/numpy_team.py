@@ -35,6 +35,7 @@ from types import SimpleNamespace
 import numpy as np
 
 from qpatrol import traffic
+from qpatrol.engines.deferred import Deferred
 from qpatrol.engines.flat import FIRST_OF_CODE, any4, code, max4, pick, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
@@ -59,10 +60,12 @@ class Team:
     ``(r G + g) C + cell``.
     """
 
-    def __init__(self, p: Params, s: State, strategy: object, m: Measures):
+    def __init__(self, p: Params, s: State, strategy: object, m: Measures, defer: bool = True):
         n_runs, k, c, g = s.n_runs, p.n_agents, p.n_cells, p.n_groups
         self.p, self.s, self.strategy, self.m = p, s, strategy, m
         self.taken = 0  # fast steps taken (for tests)
+        # one shared map: the world's last visits are the measures'
+        self.deferred = Deferred(s, m, defer, last=p.n_groups == 1, occ=False)
         runs = np.arange(n_runs, dtype=np.int64)
         robots = np.arange(n_runs * k, dtype=np.int64)
         self.run_of = robots // k  # int [R K]: run of each robot
@@ -127,6 +130,7 @@ class Team:
         want = self.nbrs.take(pos * 4 + a)  # int [R, K]: the cell it asks for
         # --- moves (traffic.resolve) ----------------------------------------------------------
         self.taken += 1
+        self.deferred.mark()
         t = s.t = s.t + 1
         prev_pos = self.pos1.copy()  # int [R K]
         prev_head = self.head1.copy()
@@ -146,13 +150,14 @@ class Team:
         d = FIRST_OF_CODE.take(code(self.nb.take(prev_pos.take(mv), axis=0) == c1[:, None]))
         gc = self.map0.take(mv) + c1  # the cell on the robot's dot map
         ate = self.dots.take(gc)
-        last = self.last.take(gc)
+        last = (self.m_last if p.n_groups == 1 else self.last).take(gc)  # the same for G = 1
         if after is not None and p.n_groups == 1:  # the earlier robot ate, and visited at t
             ate &= ~after
             last = np.where(after, t, last)
         self.dots[gc] = False
         idle = t - last
-        self.last[gc] = t
+        if not self.deferred.last:
+            self.last[gc] = t
         self.ep_seen[gc] = True
         self.ep_seen_state[gc * 4 + d] = True
         ep_dots, ep_visits = self._episode_counts(mv, ate, res.moved)
@@ -410,9 +415,10 @@ class Team:
         runs = self.run_of.take(mv)
         np.add.at(m.last_sum, runs, t - prev)
         vi = self.visit0.take(mv) + c1
+        if t > m.warmup and self.deferred.count_window():
+            np.add.at(self.window_visits, vi, 1)
         np.add.at(self.visits, vi, 1)
         if t > m.warmup:
-            np.add.at(self.window_visits, vi, 1)
             seen = prev > 0
             gap = np.where(seen, t - prev, 0)
             np.add.at(m.gap_sum, runs, gap)
