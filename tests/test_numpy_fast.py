@@ -179,3 +179,30 @@ def test_team_recorders(rooms_map, tmp_path, monkeypatch, record, agents):
     flat = {**BASE, "map": str(rooms_map), "agents": agents, **record}
     kind, taken = both_ways(flat, tmp_path, monkeypatch)
     assert kind == "Team" and taken == BASE["steps"]
+
+
+@pytest.mark.parametrize("agents", [1, 3])
+def test_checkpoint_resume_with_fast_steps(rooms_map, tmp_path, monkeypatch, agents):
+    """With a checkpointer nothing is deferred: a run stopped at a checkpoint and resumed
+    (a new fast step, no kept rows) writes the files of a run on the general step only;
+    an episode quota ends runs on the way (the general step takes over)."""
+    from qpatrol import checkpoint as ck
+
+    flat = {**BASE, "map": str(rooms_map), "agents": agents, "episodes": 4, "record.warmup": 30}
+    cfg = from_flat({"engine": "numpy", **flat})
+
+    class StopAt(ck.Checkpointer):
+        def tick(self, position, payload):
+            if position == 123:
+                self.request_stop()
+            super().tick(position, payload)
+
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(tmp_path / "cp", every=0))
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    assert resumed.load().position == 123
+    a = write_run(simulate(cfg, checkpoint=resumed), tmp_path / "resumed", meta=META)
+    monkeypatch.setattr(numpy_loop, "FAST", False)
+    b = write_run(simulate(cfg), tmp_path / "general", meta=META)
+    for name in sorted(p.name for p in a.iterdir()):
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
