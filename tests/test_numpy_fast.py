@@ -206,3 +206,22 @@ def test_checkpoint_resume_with_fast_steps(rooms_map, tmp_path, monkeypatch, age
     b = write_run(simulate(cfg), tmp_path / "general", meta=META)
     for name in sorted(p.name for p in a.iterdir()):
         assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
+def test_flat_blocks_match_learner():
+    """The fast steps' 4-column max and tie-break give learner's results to the bit:
+    signed zeros and -inf in the max, every candidate mask, uniforms up to 1 - 2**-53."""
+    import itertools
+
+    from qpatrol import learner
+    from qpatrol.engines import flat
+
+    rows = np.array(list(itertools.product([-0.0, 0.0, -np.inf, 1.0, -1.0], repeat=4)))
+    got, want = flat.max4(rows), rows.max(axis=1)
+    assert np.array_equal(got, want) and np.array_equal(np.signbit(got), np.signbit(want))
+    cand = np.array(list(itertools.product([False, True], repeat=4)) * 7)
+    u = np.concatenate([np.linspace(0.0, 1.0, cand.shape[0], endpoint=False)])
+    u[-16:] = np.nextafter(1.0, 0.0)
+    action, count = flat.pick(np.ascontiguousarray(cand), u)
+    expected, has = learner.pick(cand, u)
+    assert np.array_equal(action, expected) and np.array_equal(count > 0, has)

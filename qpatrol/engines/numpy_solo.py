@@ -102,7 +102,7 @@ class Solo:
         if strategy.epsilon > 0.0:
             cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
         a, count = pick(cand, u[:, 0, 1])
-        if not count.all():
+        if np.count_nonzero(count) < count.size:  # a robot without a move
             return False
         self.taken += 1
         self.deferred.mark()
@@ -137,9 +137,9 @@ class Solo:
         )
         s.wait = self.no_wait  # every asked move was made (s.wait is only ever rebound)
         s.steps_done.fill(t)
-        ended = not self.dots_left.all()
+        ended = np.count_nonzero(self.dots_left) < self.dots_left.size
         if p.max_episode_steps and not ended:
-            ended = self.ep_start.min() <= t - p.max_episode_steps
+            ended = np.minimum.reduce(self.ep_start) <= t - p.max_episode_steps
         if ended:
             rec.episodes(t, _end_episodes(s, p))
         # --- learn (qlearning.learn): the robot made the move it chose -----------------------

@@ -124,7 +124,7 @@ class Team:
         if strategy.epsilon > 0.0:
             cand = np.where((u[..., 0] < strategy.epsilon)[..., None], prefer, cand)
         a, count = pick(cand.reshape(-1, 4), u[..., 1].reshape(-1))
-        if not count.all():
+        if np.count_nonzero(count) < count.size:  # a robot without a move
             return False
         a = a.reshape(n_runs, k)  # the asked direction of every robot
         want = self.nbrs.take(pos * 4 + a)  # int [R, K]: the cell it asks for
@@ -174,9 +174,9 @@ class Team:
             blocked_by = np.where(failed, self.occ.take(self.cell0[:, None] + want), -1)
             self._pass_token(res, blocked_by)
         s.steps_done.fill(t)
-        ended = not s.dots_left.all()
+        ended = np.count_nonzero(s.dots_left) < s.dots_left.size
         if p.max_episode_steps and not ended:
-            ended = s.ep_start.min() <= t - p.max_episode_steps
+            ended = np.minimum.reduce(s.ep_start, axis=None) <= t - p.max_episode_steps
         if ended:
             rec.episodes(t, _end_episodes(s, p))
         # --- learn (qlearning.learn): robots that made the move they chose -------------------
@@ -243,7 +243,7 @@ class Team:
             wins = wanting & (key == self.claim.take(cell))
             go = wins & (in_way < 0)
             chain = wins & (in_way >= 0)
-            if chain.any():
+            if np.count_nonzero(chain):
                 while True:
                     more = go | (chain & go.reshape(-1).take(ahead))
                     if np.array_equal(more, go):
