@@ -39,9 +39,10 @@ class Streams:
     def next(self) -> np.ndarray:
         """float ``[R, K, 2]``: the uniforms of the next step."""
         if self._i >= self._buf.shape[1]:
-            self._buf = np.stack(
-                [g.random((self.block, self.agents, 2)) for g in self.generators], axis=0
-            )
+            buf = np.empty((len(self.generators), self.block, self.agents, 2))
+            for r, g in enumerate(self.generators):
+                g.random(out=buf[r])  # the numbers of g.random((block, agents, 2))
+            self._buf = buf
             self._i = 0
         u = self._buf[:, self._i]
         self._i += 1
