@@ -145,7 +145,7 @@ class Team:
                 same = (want[:, :, None] == want[:, None, :]) & self.earlier
                 after = same.any(axis=2).reshape(-1)
         # --- entering a cell: dots, visits, reward, heading (world.step) ----------------------
-        mv = np.flatnonzero(res.moved)  # robots that moved, run by run
+        mv = _nonzero(res.moved)  # robots that moved, run by run
         c1 = self.pos1.take(mv)
         d = FIRST_OF_CODE.take(code(self.nb.take(prev_pos.take(mv), axis=0) == c1[:, None]))
         gc = self.map0.take(mv) + c1  # the cell on the robot's dot map
@@ -180,7 +180,7 @@ class Team:
         if ended:
             rec.episodes(t, _end_episodes(s, p))
         # --- learn (qlearning.learn): robots that made the move they chose -------------------
-        done = np.flatnonzero(res.as_asked)  # a subset of mv
+        done = _nonzero(res.as_asked)  # a subset of mv
         if done.size:
             if done.size != mv.size:
                 reward = self._dense(mv, reward, 0.0).take(done)
@@ -205,7 +205,7 @@ class Team:
         # 1. token holders: into an empty asked cell, or pushing the robot in it into an
         # empty neighbour of that cell (the first, N E S W, that is not the holder's: the
         # push search's first find); other pushes one run at a time
-        hr = np.flatnonzero(s.token >= 0)
+        hr = _nonzero(s.token >= 0)
         if hr.size:
             hk = s.token[hr]
             hw = want[hr, hk]
@@ -249,7 +249,7 @@ class Team:
                     if np.array_equal(more, go):
                         break
                     go = more
-        g = np.flatnonzero(go)
+        g = _nonzero(go)
         if g.size:
             gr, gw = self.run_of.take(g), want.reshape(-1).take(g)
             self.occ[self.cell0.take(gr) + self.pos1.take(g)] = -1
@@ -299,7 +299,7 @@ class Team:
         key = np.where(blocked, self._priority(s.t + 1), -1)
         had = tok >= 0
         failed = had & res.push_failed
-        fr = np.flatnonzero(failed)
+        fr = _nonzero(failed)
         if fr.size:
             key[fr, tok[fr]] = -1
         best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
@@ -428,7 +428,7 @@ class Team:
                 np.maximum.at(m.worst, runs, t - 1 - prev)
             m.idle_total += m.n_cells * t - m.last_sum
             m.measured += 1
-            waiting = np.flatnonzero(s.wait)  # robots with a wait > 0 (max_wait >= 0)
+            waiting = _nonzero(s.wait)  # robots with a wait > 0 (max_wait >= 0)
             if waiting.size:
                 who = self.run_of.take(waiting)
                 np.maximum.at(m.max_wait, who, s.wait.reshape(-1).take(waiting))
@@ -441,3 +441,8 @@ def _cumsum(x: np.ndarray) -> np.ndarray:
     for j in range(1, x.shape[1]):
         x[:, j] += x[:, j - 1]
     return x
+
+
+def _nonzero(x: np.ndarray) -> np.ndarray:
+    """int ``[N]``: ``np.flatnonzero(x)`` of a C-contiguous ``x``, without its wrappers."""
+    return x.reshape(-1).nonzero()[0]
