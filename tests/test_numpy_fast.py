@@ -225,3 +225,36 @@ def test_flat_blocks_match_learner():
     action, count = flat.pick(np.ascontiguousarray(cand), u)
     expected, has = learner.pick(cand, u)
     assert np.array_equal(action, expected) and np.array_equal(count > 0, has)
+
+
+@pytest.mark.parametrize("agents", [2, 3, 4, 8])
+def test_team_token_passing_matches_traffic(rooms_map, agents):
+    """Random outcomes of a step (failed pushes, blocked robots, waits): the team step
+    passes the token as traffic.pass_token does."""
+    from qpatrol import traffic, world
+    from qpatrol.engines.numpy_team import Team
+    from qpatrol.measures import Measures
+    from qpatrol.run import prepare
+    from qpatrol.strategies import make
+
+    runs = 2000
+    cfg = from_flat({**BASE, "map": str(rooms_map), "agents": agents, "runs": runs})
+    m, p = prepare(cfg)
+    rng = np.random.default_rng(agents)
+    starts = np.stack([rng.permutation(p.n_cells)[:agents] for _ in range(runs)])
+    a, b = (world.init_state(p, starts) for _ in range(2))
+    token = rng.integers(-1, agents, runs)
+    held = rng.integers(0, p.diameter + 2, runs)
+    wait = rng.integers(0, 3, starts.shape)
+    for s in (a, b):
+        s.t, s.token, s.token_held, s.wait = 11, token.copy(), held.copy(), wait.copy()
+    as_asked = rng.random(starts.shape) < 0.6
+    res = traffic.Resolution(
+        ~as_asked | as_asked, as_asked, (token >= 0) & (rng.random(runs) < 0.5)
+    )
+    blocked_by = np.where(as_asked, -1, rng.integers(-1, agents, starts.shape))
+    want = rng.integers(0, p.n_cells, starts.shape)
+    traffic.pass_token(a, p, want, res, blocked_by)
+    team = Team(p, b, make("qlearning", cfg, m, p, starts), Measures(runs, agents, p.n_cells, 0))
+    team._pass_token(res, blocked_by)
+    assert np.array_equal(a.token, b.token) and np.array_equal(a.token_held, b.token_held)

@@ -83,6 +83,8 @@ class Team:
         self.earlier = np.tri(k, k, -1, dtype=bool)  # bool [K, K]: robot j < robot k
         self.all_runs = np.ones(n_runs, dtype=bool)
         self.nb = p.neighbors  # int [C, 4]: next cell per direction, -1 = wall
+        dir_of = (p.neighbors[:, None, :] == p.neighbors[:, :, None]).argmax(axis=2)
+        self.dir_of = dir_of.reshape(-1)  # int [C 4]: the first direction to the same cell
         self.nbrs = p.neighbors.reshape(-1)  # int [C 4]
         self.legal = p.wall_legal  # bool [C, 4]
         self.q2 = view(strategy.q, (-1, 4))  # float [R K C 4, 4]
@@ -127,7 +129,8 @@ class Team:
         if np.count_nonzero(count) < count.size:  # a robot without a move
             return False
         a = a.reshape(n_runs, k)  # the asked direction of every robot
-        want = self.nbrs.take(pos * 4 + a)  # int [R, K]: the cell it asks for
+        ca = pos * 4 + a  # int [R, K]: flat (cell, direction) index
+        want = self.nbrs.take(ca)  # int [R, K]: the cell it asks for
         # --- moves (traffic.resolve) ----------------------------------------------------------
         self.taken += 1
         self.deferred.mark()
@@ -146,8 +149,12 @@ class Team:
                 after = same.any(axis=2).reshape(-1)
         # --- entering a cell: dots, visits, reward, heading (world.step) ----------------------
         mv = _nonzero(res.moved)  # robots that moved, run by run
+        done = _nonzero(res.as_asked)  # a subset of mv: those that moved as asked
         c1 = self.pos1.take(mv)
-        d = FIRST_OF_CODE.take(code(self.nb.take(prev_pos.take(mv), axis=0) == c1[:, None]))
+        if done.size == mv.size:  # traffic.direction_of: the first direction to c1
+            d = self.dir_of.take(ca.reshape(-1).take(mv))
+        else:
+            d = FIRST_OF_CODE.take(code(self.nb.take(prev_pos.take(mv), axis=0) == c1[:, None]))
         gc = self.map0.take(mv) + c1  # the cell on the robot's dot map
         ate = self.dots.take(gc)
         last = (self.m_last if p.n_groups == 1 else self.last).take(gc)  # the same for G = 1
@@ -180,7 +187,6 @@ class Team:
         if ended:
             rec.episodes(t, _end_episodes(s, p))
         # --- learn (qlearning.learn): robots that made the move they chose -------------------
-        done = _nonzero(res.as_asked)  # a subset of mv
         if done.size:
             if done.size != mv.size:
                 reward = self._dense(mv, reward, 0.0).take(done)
@@ -234,7 +240,7 @@ class Team:
         if k == 1:
             go = wanting & (in_way < 0)
         else:
-            rank = np.argsort(np.argsort(-self._priority(s.t), axis=1, kind="stable"), axis=1)
+            rank = self._rank(s.t)
             key = np.where(in_way < 0, rank, (rank - rank.reshape(-1).take(ahead) - 1) % k)
             key = np.where(wanting, key, k)
             cell = self.cell0[:, None] + want
@@ -283,26 +289,42 @@ class Team:
         pos[hr, hk] = hw
         res.moved[hr, hk] = res.as_asked[hr, hk] = True
 
-    def _priority(self, t: int) -> np.ndarray:
-        """int ``[R, K]``: :func:`qpatrol.traffic.priority` at step t, every robot patrolling
-        (battery off: the class is the same for all)."""
+    def _rank(self, t: int) -> np.ndarray:
+        """int ``[R, K]``: each robot's place (0: first) in the turn order of step t,
+        ``argsort(-traffic.priority)``: every robot patrols (battery off), so the longest
+        wait goes first, then the turn; in a run where no robot waits, the turn alone."""
         k = self.ks.size
         turn = (k - 1) - (self.ks - t) % k
-        return (1 << 40) + np.minimum(self.s.wait, 1 << 30) * k + turn
+        rank = np.broadcast_to((k - 1) - turn, self.s.pos.shape).copy()
+        rows = np.unique(_nonzero(self.s.wait) // k)  # runs where a robot waits
+        if rows.size:
+            prio = (1 << 40) + np.minimum(self.s.wait[rows], 1 << 30) * k + turn
+            rank[rows] = np.argsort(np.argsort(-prio, axis=1, kind="stable"), axis=1)
+        return rank
 
     def _pass_token(self, res: traffic.Resolution, blocked_by: np.ndarray) -> None:
         """:func:`qpatrol.traffic.pass_token`, every robot of every run having asked for a
         move; ``blocked_by`` int ``[R, K]``: the robot in the way of a failed move, -1."""
         s = self.s
         tok = s.token
+        k = self.ks.size
         blocked = ~res.as_asked
-        key = np.where(blocked, self._priority(s.t + 1), -1)
         had = tok >= 0
         failed = had & res.push_failed
-        fr = _nonzero(failed)
-        if fr.size:
-            key[fr, tok[fr]] = -1
-        best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
+        # the blocked robot of highest priority at t + 1 in each run (not a holder whose
+        # push failed), -1 if none: traffic.priority of the few blocked robots only
+        best = np.full(tok.size, -1, dtype=np.int64)
+        bl = _nonzero(blocked)
+        if bl.size:
+            runs, ks = self.run_of.take(bl), self.k_of.take(bl)
+            ok = ~(failed.take(runs) & (ks == tok.take(runs)))
+            bl, runs, ks = bl[ok], runs[ok], ks[ok]
+            turn = (k - 1) - (ks - (s.t + 1)) % k
+            key = (1 << 40) + np.minimum(s.wait.reshape(-1).take(bl), 1 << 30) * k + turn
+            top = np.full(tok.size, -1, dtype=np.int64)
+            np.maximum.at(top, runs, key)
+            first = key == top.take(runs)
+            best[runs[first]] = ks[first]
         held = self.robot0[:, 0] + np.maximum(tok, 0)  # flat index of the holder
         blocker = np.where(had, blocked_by.reshape(-1).take(held), -1)
         waits = blocked.reshape(-1).take(self.robot0[:, 0] + np.maximum(blocker, 0))
@@ -362,7 +384,7 @@ class Team:
             ha, hb = prev_head.take(done), aa
         else:
             ha = hb = np.zeros_like(aa)
-        cb = self.nbrs.take(ca * 4 + aa)
+        cb = self.pos1.take(done)  # the cell each entered, as asked
         first = self.q_row0.reshape(-1).take(done)
         q_next = self.q2.take(first + cb * 4 + hb, axis=0)
         bootstrap = strategy.gamma * max4(np.where(self.legal.take(cb, axis=0), q_next, -np.inf))
