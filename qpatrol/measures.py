@@ -167,31 +167,52 @@ def summarize(
     done_steps = np.bincount(
         row[counted], weights=episodes["steps"].to_numpy()[counted].astype(np.float64), minlength=n
     )
+    # the per-run numbers as Python lists (one conversion per measure, not per run);
+    # each quotient is the float64 division it was when written per run
+    with np.errstate(divide="ignore", invalid="ignore"):
+        per_episode = (done_steps / n_done).tolist()
+        avg = (m.idle_total / (m.n_cells * m.measured)).tolist()
+        interval = (m.gap_sum / m.gap_count).tolist()
+    measured = m.measured.tolist()
+    gaps = m.gap_count.tolist()
+    cols = [
+        ids.tolist(),
+        np.asarray(steps_done).tolist(),
+        n_complete.tolist(),
+        n_truncated.tolist(),
+        n_done.tolist(),
+        coverage.tolist(),
+        worst.tolist(),
+        m.gap_max.tolist(),
+        dol.tolist(),
+        m.wait_total.tolist(),
+        m.max_wait.tolist(),
+        m.min_charge.tolist(),
+    ]
+    never = int(np.iinfo(np.int64).max)
     out = []
-    for i, run in enumerate(ids.tolist()):
-        measured = int(m.measured[i])
-        gaps = int(m.gap_count[i])
-        min_charge = int(m.min_charge[i])
+    for i, (run, steps, done, cut, n_ep, cov, wst, gmax, lab, waits, mwait, charge) in enumerate(
+        zip(*cols, strict=True)
+    ):
+        seen, n_gaps = measured[i], gaps[i]
         out.append(
             {
                 "run": int(run),
-                "steps": int(steps_done[i]),
-                "episodes_completed": int(n_complete[i]),
-                "episodes_truncated": int(n_truncated[i]),
-                "mean_steps_per_episode": float(done_steps[i] / n_done[i]) if n_done[i] else None,
-                "coverage": float(coverage[i]) if measured else None,
-                "avg_idleness": float(m.idle_total[i] / (m.n_cells * measured))
-                if measured
-                else None,
-                "worst_idleness": int(worst[i]) if measured else None,
-                "mean_interval": float(m.gap_sum[i] / gaps) if gaps else None,
-                "max_interval": int(m.gap_max[i]) if gaps else None,
-                "division_of_labour": None if np.isnan(dol[i]) else float(dol[i]),
-                "waits": int(m.wait_total[i]),
-                "max_wait": int(m.max_wait[i]),
+                "steps": int(steps),
+                "episodes_completed": done,
+                "episodes_truncated": cut,
+                "mean_steps_per_episode": per_episode[i] if n_ep else None,
+                "coverage": cov if seen else None,
+                "avg_idleness": avg[i] if seen else None,
+                "worst_idleness": wst if seen else None,
+                "mean_interval": interval[i] if n_gaps else None,
+                "max_interval": gmax if n_gaps else None,
+                "division_of_labour": None if lab != lab else lab,  # NaN: no visit
+                "waits": waits,
+                "max_wait": mwait,
                 "wait_bound": int(bound),
-                "live": bool(m.max_wait[i] <= bound),
-                "min_charge": None if min_charge == np.iinfo(np.int64).max else min_charge,
+                "live": bool(mwait <= bound),
+                "min_charge": None if charge == never else charge,
             }
         )
     return out

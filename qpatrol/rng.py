@@ -26,7 +26,10 @@ class Streams:
     so the block size never changes a result.
     """
 
-    def __init__(self, seeds: list[np.random.SeedSequence], agents: int, block: int = 512):
+    #: Steps drawn at once by :meth:`next` unless told otherwise.
+    BLOCK = 512
+
+    def __init__(self, seeds: list[np.random.SeedSequence], agents: int, block: int = BLOCK):
         self.generators = [np.random.Generator(np.random.PCG64(s)) for s in seeds]
         self.agents = agents
         self.block = block
@@ -36,9 +39,10 @@ class Streams:
     def next(self) -> np.ndarray:
         """float ``[R, K, 2]``: the uniforms of the next step."""
         if self._i >= self._buf.shape[1]:
-            self._buf = np.stack(
-                [g.random((self.block, self.agents, 2)) for g in self.generators], axis=0
-            )
+            buf = np.empty((len(self.generators), self.block, self.agents, 2))
+            for r, g in enumerate(self.generators):
+                g.random(out=buf[r])  # the numbers of g.random((block, agents, 2))
+            self._buf = buf
             self._i = 0
         u = self._buf[:, self._i]
         self._i += 1

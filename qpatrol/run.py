@@ -26,7 +26,7 @@ import pandas as pd
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
-from qpatrol.engines import numpy_solo
+from qpatrol.engines import numpy_loop
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
@@ -154,7 +154,9 @@ def _simulate_batch(
     engine, note = engines.choose(cfg)
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
-        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents)
+        # blocks of uniforms no longer than the run (the same numbers for any block)
+        block = max(1, min(Streams.BLOCK, cfg["steps"]))
+        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents, block)
         starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
         state = world.init_state(p, starts)
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
@@ -185,27 +187,20 @@ def _simulate_batch(
             checkpoint,
         )
     else:
-        every = max(1, total // 200)
-        solo = None
-        if numpy_solo.covers(p, strategy) and not rec.wants_updates and not timeline.window:
-            solo = numpy_solo.prepare(p, state, strategy, watch)
-        for i in range(first, total):
-            if not state.active.any():
-                break
-            u = streams.next()
-            if (
-                solo is None
-                or not state.active.all()
-                or not numpy_solo.step(solo, state, p, strategy, u, watch, rec, tail)
-            ):
-                out = advance(state, p, strategy, u, rec)
-                watch.observe(out, state.wait, state.charge if p.battery else None)
-                tail.observe(state)
-                timeline.observe(out)
-            if progress is not None and (i + 1) % every == 0:
-                progress(i + 1, total)
-            if checkpoint is not None:
-                checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+        numpy_loop.run(
+            state,
+            p,
+            strategy,
+            watch,
+            streams,
+            rec,
+            tail,
+            timeline,
+            first,
+            total,
+            progress,
+            checkpoint,
+        )
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()

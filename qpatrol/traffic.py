@@ -89,24 +89,11 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     holders = np.flatnonzero((s.token >= 0) & s.active)
     if holders.size:
         movable = s.mode != battery.CHARGING
+        res = Resolution(moved, as_asked, push_failed)
         for r in holders.tolist():
             k = int(s.token[r])
-            if want[r, k] < 0:
-                continue
-            keep_out = battery.held_pockets(s, p, r) if p.battery else None
-            cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable[r], keep_out)
-            if cell < 0:
-                push_failed[r] = True
-                continue
-            for i in range(len(path) - 2, -1, -1):
-                j = s.occ[r, path[i]]
-                _move(s, r, j, path[i + 1])
-                moved[r, j] = True
-                as_asked[r, j] = want[r, j] == path[i + 1]
-            _move(s, r, k, cell)
-            moved[r, k] = True
-            as_asked[r, k] = cell == want[r, k]
-            push_failed[r] = not as_asked[r, k]
+            if want[r, k] >= 0:
+                holder_step(s, p, r, k, want, movable[r], res)
 
     # 2. everyone else, in priority order, into cells empty at that moment
     order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
@@ -129,6 +116,33 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     return Resolution(moved, as_asked, push_failed)
 
 
+def holder_step(
+    s: State, p: Params, r: int, k: int, want: np.ndarray, movable: np.ndarray, res: Resolution
+) -> None:
+    """Run ``r``'s token holder ``k`` takes its way (in place: ``s.pos``, ``s.occ`` and
+    the rows r of ``res``): into the cell it asks for, pushing the robots in the way
+    aside, or aside itself (:func:`_holder_move`).
+
+    Args:
+        want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).
+        movable: bool ``[K]``, the robots of run r that may be pushed.
+    """
+    keep_out = battery.held_pockets(s, p, r) if p.battery else None
+    cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
+    if cell < 0:
+        res.push_failed[r] = True
+        return
+    for i in range(len(path) - 2, -1, -1):
+        j = s.occ[r, path[i]]
+        _move(s, r, j, path[i + 1])
+        res.moved[r, j] = True
+        res.as_asked[r, j] = want[r, j] == path[i + 1]
+    _move(s, r, k, cell)
+    res.moved[r, k] = True
+    res.as_asked[r, k] = cell == want[r, k]
+    res.push_failed[r] = not res.as_asked[r, k]
+
+
 def _holder_move(
     s: State,
     p: Params,
@@ -144,16 +158,36 @@ def _holder_move(
     first other neighbour (N, E, S, W) that is empty or can be emptied, so that a
     holder stuck in a jam steps aside and lets the jam unwind.
     """
-    candidates = [asked] + [int(c) for c in p.neighbors[s.pos[r, k]] if c >= 0 and c != asked]
+    nbrs = _neighbour_lists(p)
+    own = int(s.pos[r, k])
+    occ = s.occ[r].tolist()
+    may_move = movable.tolist()
+    out = keep_out.tolist() if keep_out is not None else None
+    candidates = [asked] + [c for c in nbrs[own] if c >= 0 and c != asked]
     for i, cell in enumerate(candidates):
-        if i > 0 and keep_out is not None and keep_out[cell]:
+        if i > 0 and out is not None and out[cell]:
             continue
-        if s.occ[r, cell] < 0:
+        if occ[cell] < 0:
             return cell, []
-        path = _push_path(s, p, r, k, cell, movable, keep_out)
+        path = _push_path(nbrs, occ, own, cell, may_move, out)
         if path is not None:
             return cell, path
     return -1, []
+
+
+#: Neighbour lists of the maps seen (``id(neighbors) -> (neighbors, lists)``): the
+#: searches of pushes run on Python lists, several times faster than on array items.
+_LISTS: dict[int, tuple[np.ndarray, list[list[int]]]] = {}
+
+
+def _neighbour_lists(p: Params) -> list[list[int]]:
+    """``p.neighbors`` as Python lists (computed once per map)."""
+    seen = _LISTS.get(id(p.neighbors))
+    if seen is None or seen[0] is not p.neighbors:
+        if len(_LISTS) > 64:
+            _LISTS.clear()
+        seen = _LISTS[id(p.neighbors)] = (p.neighbors, p.neighbors.tolist())
+    return seen[1]
 
 
 def _move(s: State, r: int, k: int, cell: int) -> None:
@@ -163,32 +197,28 @@ def _move(s: State, r: int, k: int, cell: int) -> None:
 
 
 def _push_path(
-    s: State,
-    p: Params,
-    r: int,
-    k: int,
+    nbrs: list[list[int]],
+    occ: list[int],
+    own: int,
     start: int,
-    movable: np.ndarray,
-    keep_out: np.ndarray | None,
+    movable: list[bool],
+    keep_out: list[bool] | None,
 ) -> list[int] | None:
     """Cells ``[start, ..., empty]`` along which the robots from ``start`` on can shift.
 
-    Breadth-first from ``start`` (whose robot must be movable), never through robot
-    ``k``'s own cell, through immovable robots, nor into ``keep_out`` cells (bool
-    ``[C]``: pockets of held stations); neighbours in N, E, S, W order. None if no
-    empty cell can be reached.
+    Breadth-first from ``start`` (whose robot must be movable), never through the
+    holder's own cell ``own``, through immovable robots, nor into ``keep_out`` cells
+    (``[C]``: pockets of held stations); neighbours in N, E, S, W order. ``nbrs``:
+    each cell's neighbours (-1: wall); ``occ``: the robot on each cell of the run (-1:
+    none); ``movable``: per robot. None if no empty cell can be reached.
     """
-    occ = s.occ[r]
     if not movable[occ[start]]:
         return None
-    own = int(s.pos[r, k])
     parent = {start: -1}
     queue = deque([start])
-    nbrs = p.neighbors
     while queue:
         c = queue.popleft()
         for nb in nbrs[c]:
-            nb = int(nb)
             if nb < 0 or nb == own or nb in parent:
                 continue
             if keep_out is not None and keep_out[nb]:

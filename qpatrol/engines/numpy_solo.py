@@ -1,196 +1,177 @@
 """The numpy engine's fast step for lone Q-learners: one robot per run, battery off.
 
-One team step of every run in about fifty numpy calls, on flat views of the same arrays
-the general step uses (:mod:`qpatrol.world`, the learner's tables, the measures), so
-the two may alternate from one step to the next: :func:`step` is used while every run
-is active and every robot has a move, the general step otherwise. Work per step does
-not grow with the map: a Q row is one gather from the table viewed as ``[R C 4, 4]``
-(row ``(r C + cell) 4 + heading``), walls are ``-inf``, and no ``[runs, cells]`` array
-is allocated. The arithmetic is the general step's, operation for operation.
+One team step of every run in about seventy cheap numpy calls on flat views of the
+arrays the general step uses (:mod:`qpatrol.world`, the learner's tables, the
+measures), so the two may alternate from one step to the next: :meth:`Solo.step` is used
+while every run is active and every robot has a move, the general step otherwise.
+Work per step does not grow with the map: a Q row is one ``take`` from the table viewed
+as ``[R C 4, 4]`` (row ``(r C + cell) 4 + heading``), and no ``[runs, cells]`` array is
+allocated. The arithmetic is the general step's, operation for operation.
+
+A lone robot always makes the move it chose, so the state it reaches is the one it
+bootstraps from: the masked Q row of that state (and its maximum) are kept from one
+fast step to the next and not read again, as long as no general step came in between.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
-from qpatrol.learner import _COUNT, _NTH
+from qpatrol.engines.deferred import Deferred
+from qpatrol.engines.flat import max4, pick, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
+from qpatrol.timeline import Timeline
 from qpatrol.world import Params, State, _end_episodes
 
 
 def covers(p: Params, strategy: object) -> bool:
-    """True when :func:`step` applies: qlearning, one robot, battery off (on a map where
-    no cell is its own neighbour)."""
+    """True when :class:`Solo` applies: qlearning, one robot, battery off (on a map
+    where no cell is its own neighbour)."""
     if p.n_agents != 1 or p.battery or getattr(strategy, "name", "") != "qlearning":
         return False
     return not (p.neighbors == np.arange(p.n_cells)[:, None]).any()
 
 
-@dataclass
 class Solo:
-    """Constants and flat views of the fast step for one batch, built once per loop
-    (the views stay valid: neither step rebinds these arrays)."""
+    """The fast step of one batch: constants, flat views (valid for the whole loop:
+    neither step rebinds these arrays) and what one fast step leaves for the next.
 
-    nbrs: np.ndarray  # int [C 4], next cell per (cell, direction), -1 = wall
-    legal: np.ndarray  # bool [C, 4]
-    dir_of: np.ndarray  # int [C 4]: the direction traffic.direction_of reports
-    row0: np.ndarray  # int [R]: r C 4, first Q row of run r
-    cell0: np.ndarray  # int [R]: r C, first cell of run r in [R C] maps
-    nth: np.ndarray  # int [16 4]: learner._NTH flattened
-    bits: np.ndarray  # int [4]: 1, 2, 4, 8
-    no_wait: np.ndarray  # int [R, 1] zeros: the waits after a step of this kind
-    q2: np.ndarray  # float [R C 4, 4]: the Q-table, one row per (run, cell, heading)
-    q1: np.ndarray  # float [R C 4 4]
-    n1: np.ndarray  # int [R C 4 4]
-    pos: np.ndarray  # int [R]: views of the world's [R, 1] and [R, 1, C...] arrays
-    head: np.ndarray
-    occ: np.ndarray  # [R C]
-    dots: np.ndarray  # [R C]
-    last: np.ndarray  # [R C]
-    ep_seen: np.ndarray  # [R C]
-    ep_seen_state: np.ndarray  # [R C 4]
-    dots_left: np.ndarray  # [R]
-    ep_dots: np.ndarray
-    ep_visits: np.ndarray
-    ep_start: np.ndarray
-    m_last: np.ndarray  # [R C]: the measures' arrays
-    visits: np.ndarray  # [R C]
-    window_visits: np.ndarray  # [R C]
+    Arrays: ``R`` runs, ``C`` cells; ``[R C]`` maps are the world's ``[R, 1, C]`` (or the
+    measures' ``[R, C]`` and ``[R, 1, C]``) arrays viewed flat, index ``r C + cell``.
+    """
 
+    def __init__(self, p: Params, s: State, strategy: object, m: Measures, defer: bool = True):
+        c, n_runs = p.n_cells, s.n_runs
+        nbrs = p.neighbors
+        dir_of = (nbrs[:, None, :] == nbrs[:, :, None]).argmax(axis=2)  # first d, same cell
+        heading = np.arange(4) if strategy.use_heading else np.zeros(4, dtype=np.int64)
+        self.p, self.s, self.strategy, self.m = p, s, strategy, m
+        self.taken = 0  # fast steps taken (for tests)
+        # the world's last visits are the measures' (one robot); a lone robot's
+        # occupancy follows from its cell
+        self.deferred = Deferred(s, m, defer, last=True, occ=p.avoid_collisions)
+        self.nbrs = nbrs.reshape(-1)  # int [C 4]: next cell of (cell, direction), -1 wall
+        self.legal = p.wall_legal  # bool [C, 4]
+        self.dir_of = dir_of.reshape(-1)  # int [C 4]: the direction traffic.direction_of gives
+        self.next_row = (np.maximum(nbrs, 0) * 4 + heading).reshape(-1)  # int [C 4]: Q row
+        # offset (cell' 4 + heading') of the state reached by (cell, direction)
+        self.row0 = np.arange(n_runs, dtype=np.int64) * (c * 4)  # int [R]: run's first Q row
+        self.cell0 = np.arange(n_runs, dtype=np.int64) * c  # int [R]: run's first cell
+        self.no_wait = np.zeros_like(s.wait)  # int [R, 1]: waits after a fast step
+        self.q2 = view(strategy.q, (-1, 4))  # float [R C 4, 4]: Q row of (run, cell, heading)
+        self.q1 = view(strategy.q, -1)  # float [R C 4 4]
+        self.n1 = view(strategy.n, -1)  # int32 [R C 4 4]
+        self.pos = s.pos[:, 0]  # int [R]: views of the world's [R, 1] arrays
+        self.head = s.head[:, 0]
+        self.occ = view(s.occ, -1)  # int [R C]
+        self.dots = view(s.dots, -1)  # bool [R C]
+        self.last = view(s.last, -1)  # int [R C]
+        self.ep_seen = view(s.ep_seen, -1)  # bool [R C]
+        self.ep_seen_state = view(s.ep_seen_state, -1)  # bool [R C 4]
+        self.dots_left = s.dots_left[:, 0]  # int [R]
+        self.ep_dots = s.ep_dots[:, 0]
+        self.ep_visits = s.ep_visits[:, 0]
+        self.ep_start = s.ep_start[:, 0]
+        self.m_last = view(m.last, -1)  # int [R C]: the measures' arrays
+        self.visits = view(m.visits, -1)
+        self.window_visits = view(m.window_visits, -1)
+        # kept from the last fast step (valid while self.t == s.t): the Q row index
+        # [R], its cell's legal moves bool [R, 4], the masked row float [R, 4] and its max
+        self.t = -1
+        self.row = self.legal_row = self.masked = self.best = None
 
-def prepare(p: Params, s: State, strategy: object, m: Measures) -> Solo:
-    """The constants and views of :func:`step` for batch ``s`` on ``p``'s map."""
-    c = p.n_cells
-    n_runs = s.n_runs
-    nbrs = p.neighbors
-    dir_of = (nbrs[:, None, :] == nbrs[:, :, None]).argmax(axis=2)  # first d with same cell
-    return Solo(
-        nbrs=nbrs.reshape(-1),
-        legal=p.wall_legal,
-        dir_of=dir_of.reshape(-1),
-        row0=np.arange(n_runs, dtype=np.int64) * (c * 4),
-        cell0=np.arange(n_runs, dtype=np.int64) * c,
-        nth=_NTH.reshape(-1),
-        bits=np.array([1, 2, 4, 8]),
-        no_wait=np.zeros_like(s.wait),
-        q2=_view(strategy.q, (-1, 4)),
-        q1=_view(strategy.q, -1),
-        n1=_view(strategy.n, -1),
-        pos=s.pos[:, 0],
-        head=s.head[:, 0],
-        occ=_view(s.occ, -1),
-        dots=_view(s.dots, -1),
-        last=_view(s.last, -1),
-        ep_seen=_view(s.ep_seen, -1),
-        ep_seen_state=_view(s.ep_seen_state, -1),
-        dots_left=s.dots_left[:, 0],
-        ep_dots=s.ep_dots[:, 0],
-        ep_visits=s.ep_visits[:, 0],
-        ep_start=s.ep_start[:, 0],
-        m_last=_view(m.last, -1),
-        visits=_view(m.visits, -1),
-        window_visits=_view(m.window_visits, -1),
-    )
+    def step(self, u: np.ndarray, rec: Recorder, tail: Tail, timeline: Timeline) -> bool:
+        """One team step of every run (all active), in place; False if it does not
+        apply this step (a robot without a move), and then nothing was changed.
 
-
-def _view(a: np.ndarray, shape: int | tuple[int, ...]) -> np.ndarray:
-    """``a`` reshaped without a copy (writes through to ``a``)."""
-    v = a.view()
-    v.shape = shape  # raises rather than copying
-    return v
-
-
-def step(
-    solo: Solo,
-    s: State,
-    p: Params,
-    strategy: object,
-    u: np.ndarray,
-    m: Measures,
-    rec: Recorder,
-    tail: Tail,
-) -> bool:
-    """One team step of every run (all active), in place; False if it does not apply
-    this step (a robot without a legal move), and then nothing was changed."""
-    q2, q1, n1, pos = solo.q2, solo.q1, solo.n1, solo.pos
-    c0 = pos.copy()
-    h0 = solo.head if strategy.use_heading else 0
-    row = solo.row0 + c0 * 4 + h0
-    legal = solo.legal[c0]
-    masked = np.where(legal, q2[row], -np.inf)
-    cand = legal & (masked == masked.max(axis=1)[:, None])
-    if strategy.epsilon > 0.0:
-        cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
-    mask = cand @ solo.bits
-    count = _COUNT[mask]
-    if not count.all():
-        return False
-    j = np.minimum((u[:, 0, 1] * count).astype(np.int64), count - 1)
-    a = solo.nth[mask * 4 + j]
-    ca = c0 * 4 + a
-    c1 = solo.nbrs[ca]
-    d = solo.dir_of[ca]
-    t = s.t = s.t + 1
-    pos[:] = c1
-    gi = solo.cell0 + c1  # flat [R C] index of the cell entered
-    if p.avoid_collisions:
-        solo.occ[solo.cell0 + c0] = -1
-        solo.occ[gi] = 0
-    solo.head[:] = d
-    # --- entering the cell: dots, visits, reward (world.step) ---------------------------
-    ate = solo.dots[gi]
-    solo.dots[gi] = False
-    ep_dots, ep_visits = solo.ep_dots, solo.ep_visits
-    solo.dots_left -= ate
-    ep_dots += ate
-    ep_visits += 1
-    idle = t - solo.last[gi]
-    solo.last[gi] = t
-    solo.ep_seen[gi] = True
-    solo.ep_seen_state[gi * 4 + d] = True
-    reward = (
-        np.where(ate, p.dot_value[c1], 0.0)
-        + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
-        + p.lambda_weight * ep_dots / ep_visits
-    )
-    s.wait = solo.no_wait  # every asked move was made (s.wait is only ever rebound)
-    s.steps_done.fill(t)
-    ended = not solo.dots_left.all()
-    if p.max_episode_steps and not ended:
-        ended = solo.ep_start.min() <= t - p.max_episode_steps
-    if ended:
-        rec.episodes(t, _end_episodes(s, p))
-    # --- learn (qlearning.learn): every robot made the move it chose ---------------------
-    hb = a if strategy.use_heading else 0
-    bootstrap = strategy.gamma * np.where(solo.legal[c1], q2[solo.row0 + c1 * 4 + hb], -np.inf).max(
-        axis=1
-    )
-    target = reward + bootstrap
-    idx = row * 4 + a
-    q_sa = q1[idx]
-    n_after = n1[idx] + 1
-    alpha = 1.0 / n_after
-    q1[idx] = q_sa + alpha * (target - q_sa)
-    n1[idx] = n_after
-    # --- measures (Measures.observe) -------------------------------------------------------
-    prev = solo.m_last[gi]
-    solo.m_last[gi] = t
-    m.last_sum += t - prev
-    solo.visits[gi] += 1
-    if t > m.warmup:
-        solo.window_visits[gi] += 1
-        seen = prev > 0
-        gap = np.where(seen, t - prev, 0)
-        m.gap_sum += gap
-        m.gap_count += seen
-        np.maximum(m.gap_max, gap, out=m.gap_max)
-        if t - 1 > m.warmup:
-            np.maximum(m.worst, t - 1 - prev, out=m.worst)
-        m.idle_total += m.n_cells * t - m.last_sum
-        m.measured += 1
-        # waits are all 0: max_wait and wait_total do not change
-    tail.observe(s)
-    return True
+        ``u``: float ``[R, 1, 2]``, this step's uniforms; ``timeline`` is off.
+        """
+        s, p, strategy, m = self.s, self.p, self.strategy, self.m
+        pos = self.pos
+        if self.t == s.t:
+            row, legal, masked, best = self.row, self.legal_row, self.masked, self.best
+        else:  # the first step, or a general step came in between
+            c = pos.copy()
+            row = self.row0 + (c * 4 + (self.head if strategy.use_heading else 0))
+            legal = self.legal.take(c, axis=0)
+            masked = np.where(legal, self.q2.take(row, axis=0), -np.inf)
+            best = max4(masked)
+        # --- choose (learner.choose) --------------------------------------------------------
+        cand = legal & (masked == best[:, None])
+        if strategy.epsilon > 0.0:
+            cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
+        a, count = pick(cand, u[:, 0, 1])
+        if np.count_nonzero(count) < count.size:  # a robot without a move
+            return False
+        self.taken += 1
+        self.deferred.mark()
+        ca = pos * 4 + a  # flat (cell, direction) index
+        c1 = self.nbrs.take(ca)
+        d = self.dir_of.take(ca)
+        gi = self.cell0 + c1  # flat [R C] index of the cell entered
+        t = s.t = s.t + 1
+        if p.avoid_collisions and not self.deferred.occ:
+            self.occ[self.cell0 + pos] = -1
+            self.occ[gi] = 0
+        pos[:] = c1
+        self.head[:] = d
+        # --- entering the cell: dots, visits, reward (world.step) ---------------------------
+        ate = self.dots.take(gi)
+        self.dots[gi] = False
+        ep_dots, ep_visits = self.ep_dots, self.ep_visits
+        self.dots_left -= ate
+        ep_dots += ate
+        ep_visits += 1
+        prev = self.m_last.take(gi)  # = the world's last visit: one robot, one map
+        idle = t - prev
+        if not self.deferred.last:
+            self.last[gi] = t
+        self.m_last[gi] = t
+        self.ep_seen[gi] = True
+        self.ep_seen_state[gi * 4 + d] = True
+        reward = (
+            np.where(ate, p.dot_value.take(c1), 0.0)
+            + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
+            + p.lambda_weight * ep_dots / ep_visits
+        )
+        s.wait = self.no_wait  # every asked move was made (s.wait is only ever rebound)
+        s.steps_done.fill(t)
+        ended = np.count_nonzero(self.dots_left) < self.dots_left.size
+        if p.max_episode_steps and not ended:
+            ended = np.minimum.reduce(self.ep_start) <= t - p.max_episode_steps
+        if ended:
+            rec.episodes(t, _end_episodes(s, p))
+        # --- learn (qlearning.learn): the robot made the move it chose -----------------------
+        row1 = self.row0 + self.next_row.take(ca)
+        legal1 = self.legal.take(c1, axis=0)
+        masked1 = np.where(legal1, self.q2.take(row1, axis=0), -np.inf)
+        best1 = max4(masked1)
+        target = reward + strategy.gamma * best1
+        idx = row * 4 + a
+        q_sa = self.q1.take(idx)
+        n_after = self.n1.take(idx) + 1
+        alpha = 1.0 / n_after
+        self.q1[idx] = q_sa + alpha * (target - q_sa)
+        self.n1[idx] = n_after
+        self.t = t
+        self.row, self.legal_row, self.masked, self.best = row1, legal1, masked1, best1
+        # --- measures (Measures.observe) -----------------------------------------------------
+        m.last_sum += idle
+        if t > m.warmup and self.deferred.count_window():
+            np.add.at(self.window_visits, gi, 1)
+        np.add.at(self.visits, gi, 1)
+        if t > m.warmup:
+            seen = prev > 0
+            gap = np.where(seen, idle, 0)
+            m.gap_sum += gap
+            m.gap_count += seen
+            np.maximum(m.gap_max, gap, out=m.gap_max)
+            if t - 1 > m.warmup:
+                np.maximum(m.worst, idle - 1, out=m.worst)
+            m.idle_total += m.n_cells * t - m.last_sum
+            m.measured += 1
+            # waits are all 0: max_wait and wait_total do not change
+        if tail.n:
+            tail.observe(s)
+        return True
