@@ -22,6 +22,7 @@ import json
 import shutil
 import threading
 import time
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 from datetime import datetime
@@ -428,9 +429,14 @@ def make_figures(
     if n <= 1 or not draw:
         return [(name, make_figure(name, folder, img, draw=draw)) for name, folder, img in tasks]
     order = sorted(tasks, key=lambda t: t[0] not in SLOW_FIGURES)
-    made = Parallel(n_jobs=n, backend="loky")(
-        delayed(make_figure)(name, folder, img, draw) for name, folder, img in order
-    )
+    with warnings.catch_warnings():
+        # The sweeps' workers are reused; loky replaces one whose memory grew (numba's
+        # compiled code, cached walks) between two tasks and warns, though no task is
+        # lost: every figure returns the files it wrote.
+        warnings.filterwarnings("ignore", "A worker stopped while some jobs", UserWarning)
+        made = Parallel(n_jobs=n, backend="loky")(
+            delayed(make_figure)(name, folder, img, draw) for name, folder, img in order
+        )
     by_name = {t[0]: files for t, files in zip(order, made, strict=True)}
     return [(name, by_name[name]) for name, _, _ in tasks]
 
