@@ -16,7 +16,7 @@ from typing import Any
 
 import numpy as np
 
-from qpatrol import limits, reference, world
+from qpatrol import engines, limits, reference, world
 from qpatrol.config import Config, from_flat
 from qpatrol.maps import DIRECTIONS
 from qpatrol.rng import Streams, run_seeds
@@ -64,7 +64,11 @@ def time_core(cfg: Config) -> tuple[float, RunResult]:
     """``(seconds, result)`` of one :func:`qpatrol.run.simulate` of ``cfg`` (the map is
     loaded and the compiled engine warmed up beforehand, outside the timing)."""
     prepared = prepare(cfg)
-    warm = cfg.replace(runs=1, steps=min(cfg["steps"], 50))
+    # the warm-up runs on the engine the workload will run on (under ``engine: auto``
+    # its few steps alone would take the numpy engine, and the compiled loop would be
+    # loaded from numba's cache, about 0.4 s, inside the timing)
+    engine, _ = engines.choose(cfg)
+    warm = cfg.replace(runs=1, steps=min(cfg["steps"], 50), engine=engine)
     simulate(warm, prepared=prepare(warm))
     t = time.perf_counter()
     result = simulate(cfg, prepared=prepared)

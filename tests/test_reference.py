@@ -72,3 +72,22 @@ def test_bench_command_text_and_errors():
     assert res.exit_code == 0 and "ratio" in res.stdout and "engine numpy" in res.stdout
     res = CliRunner().invoke(app, ["bench", "--engine", "fast"])
     assert res.exit_code == 2 and "engine: got 'fast'" in res.stderr
+
+
+def test_bench_warms_up_the_engine_it_times(monkeypatch):
+    """Under ``engine: auto`` a workload large enough for the compiled engine is warmed
+    up on it (the warm-up's few steps alone would take numpy, and loading the compiled
+    loop would then fall inside the timing)."""
+    pytest.importorskip("numba")
+    from qpatrol import bench
+
+    seen = []
+    real = bench.simulate
+    monkeypatch.setattr(
+        bench, "simulate", lambda cfg, **kw: seen.append(cfg["engine"]) or real(cfg, **kw)
+    )
+    bench.time_core(bench.workload(2, 2, 6000, engine="auto"))
+    assert seen == ["numba", "auto"]
+    seen.clear()
+    bench.time_core(bench.workload(1, 1, 300, engine="auto"))  # small: numpy throughout
+    assert seen == ["numpy", "auto"]
