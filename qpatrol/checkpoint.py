@@ -109,6 +109,12 @@ class Checkpointer:
         clock: time source (for tests).
     """
 
+    #: True: the loop calls :meth:`tick` after every team step. False (the default): the
+    #: compiled engine calls it after each block of steps it computes at once (at most
+    #: 65,536 agent-steps, a few milliseconds), so a save or a stop comes at the end of
+    #: that block (the numpy engine ticks after every step either way).
+    every_step: bool = False
+
     def __init__(
         self,
         folder: str | Path,

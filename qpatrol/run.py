@@ -313,8 +313,9 @@ def _compiled_loop(
         group = max(1, COMPILED_BLOCK // (K * block))
     if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
         block, group = max(1, (COMPILED_BLOCK // 8) // (R * K)), R
-    if checkpoint is not None:
-        block, group = 1, R  # a checkpointer may save (or stop) after any team step
+    if checkpoint is not None:  # it may save (or stop) after any call
+        group = R
+        block = 1 if checkpoint.every_step else max(1, min(block, COMPILED_BLOCK // (R * K)))
     loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
     every = max(1, total // 200)
     i = first

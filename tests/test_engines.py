@@ -394,6 +394,8 @@ def test_qlearning_idleness_resumes_on_the_other_engine(rooms_map, tmp_path, fir
     then = "numba" if first == "numpy" else "numpy"
 
     class StopAt(ck.Checkpointer):
+        every_step = True  # stops at an exact step
+
         def tick(self, position, payload):
             if position == 133:
                 self.request_stop()
@@ -514,6 +516,8 @@ def test_checkpoint_resumed_on_the_other_engine(rooms_map, tmp_path, policy):
     whole = write_run(simulate(from_flat(flat)), tmp_path / "whole", meta=META)
 
     class StopAt(ck.Checkpointer):
+        every_step = True  # stops at an exact step
+
         def tick(self, position, payload):
             if position == 111:
                 self.request_stop()

@@ -192,6 +192,8 @@ def test_checkpoint_resume_with_fast_steps(rooms_map, tmp_path, monkeypatch, age
     cfg = from_flat({"engine": "numpy", **flat})
 
     class StopAt(ck.Checkpointer):
+        every_step = True  # stops at an exact step
+
         def tick(self, position, payload):
             if position == 123:
                 self.request_stop()
