@@ -69,6 +69,19 @@ def figure_2(fig: pd.DataFrame, res: pd.DataFrame) -> Section:
     verdict = (
         "reproduced" if monotone and best == 100 else "partly" if monotone else "not reproduced"
     )
+    frozen = int((~res["live"].astype(bool)).sum()) if "live" in res else 0
+    missing = int(res["avg_idleness"].isna().sum())
+    wrong = f"Runs that went wrong: {frozen} frozen, {missing} without an idleness value."
+    if "episodes_truncated" in res:
+        cut = res.groupby("learning.multiplier")["episodes_truncated"].mean()
+        cut = cut[cut > 0]
+        if len(cut):
+            wrong += (
+                " Dot episodes cut at max_episode_steps (not counted as completed; no "
+                "idleness measure uses them): "
+                + ", ".join(f"{_fmt(m)}x {_fmt(c)} per run" for m, c in cut.items())
+                + "."
+            )
     table = [
         "| multiplier | updates shown | W/E chosen | W<->E switches | avg idleness (team steps) "
         "| episodes completed |",
@@ -87,6 +100,7 @@ def figure_2(fig: pd.DataFrame, res: pd.DataFrame) -> Section:
             f"{fig.groupby('multiplier').size().min()} updates per multiplier. Idleness and "
             f"episodes: mean over the {runs} runs of each multiplier.",
             "\n".join(table),
+            wrong,
             "Share of W/E choices by multiplier: "
             + ", ".join(f"{_fmt(s)}" for s in shares)
             + f" ({'rising' if monotone else 'not monotone'} with the multiplier). Lowest "

@@ -93,3 +93,27 @@ def test_policies_goal_of_a_learner_beyond_the_paper():
     assert "5,000 for qlearning, 5,000 for qlearning-idleness" in text
     assert "max_episode_steps (no idleness measure uses them): qlearning at 1 point " in text
     assert "(most: m, K = 1, 2.5 per run)" in text
+
+
+def test_figure_2_names_its_runs_that_went_wrong():
+    """A frozen run, a run without idleness and cut episodes are counted by hand."""
+    fig = pd.DataFrame(
+        {
+            "multiplier": [1.0, 1.0, 100.0, 100.0],
+            "action": ["W", "N", "E", "W"],
+            "heading": "E",
+        }
+    )
+    res = pd.DataFrame(
+        {
+            "learning.multiplier": [1.0, 1.0, 100.0, 100.0],
+            "avg_idleness": [900.0, float("nan"), 50.0, 60.0],
+            "episodes_completed": [1, 0, 9, 8],
+            "episodes_truncated": [4, 7, 0, 0],
+            "live": [True, True, False, True],
+        }
+    )
+    text = "\n".join(report.figure_2(fig, res).findings)
+    assert "Runs that went wrong: 1 frozen, 1 without an idleness value." in text
+    assert "cut at max_episode_steps" in text and "1x 5.5 per run." in text
+    assert "100x" not in text.split("cut at max_episode_steps")[1].split("\n")[0]
