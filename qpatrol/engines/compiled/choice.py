@@ -1,8 +1,10 @@
 """Choosing among a robot's open moves, shared by the compiled strategies.
 
-The numpy twin is :func:`qpatrol.strategies.base.choose_min` (with
-:func:`qpatrol.learner.pick`): the open direction of least score, the j-th of the tied
-ones in N, E, S, W order taken, ``j = floor(u x ties)``.
+The numpy twins are :func:`qpatrol.strategies.base.choose_min` (:func:`least`) and
+:func:`qpatrol.learner.choose` (:func:`greatest`), both with :func:`qpatrol.learner.pick`:
+the open direction of least (greatest) score, the j-th of the tied ones in N, E, S, W
+order taken, ``j = floor(u x ties)``; and :func:`qpatrol.strategies.base.neighbour_values`
+(:func:`at_neighbours`).
 """
 
 from __future__ import annotations
@@ -53,3 +55,33 @@ def least(score, open_mask, k, uu):
             bits |= 1 << d
             count += 1
     return pick(bits, count, uu)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def greatest(score, open_mask, k, explore, uu):
+    """Robot k's open direction of greatest ``score`` (a 4-tuple of float64, N, E, S,
+    W), or with ``explore`` any open direction, ties broken by ``uu``; -1 where none is
+    open (``learner.choose`` for one robot)."""
+    best = -np.inf
+    for d in range(4):
+        if open_mask[k, d] and score[d] > best:
+            best = score[d]
+    bits = 0
+    count = 0
+    for d in range(4):
+        if open_mask[k, d] and (explore or score[d] == best):
+            bits |= 1 << d
+            count += 1
+    return pick(bits, count, uu)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def at_neighbours(values, nbrs, c):
+    """A per-cell map ``values`` ``[C]`` read at the four neighbours of cell ``c`` (cell
+    0 for a wall, never chosen), as float64, N, E, S, W."""
+    return (
+        np.float64(values[max(nbrs[c, 0], 0)]),
+        np.float64(values[max(nbrs[c, 1], 0)]),
+        np.float64(values[max(nbrs[c, 2], 0)]),
+        np.float64(values[max(nbrs[c, 3], 0)]),
+    )

@@ -9,10 +9,9 @@ robot k last entered cell c; its own array, updated in place).
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import least
+from qpatrol.engines.compiled.choice import at_neighbours, least
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 
@@ -33,13 +32,7 @@ def act(r, i, u, nbrs, pos, open_mask, choosing, ask, memory):
             ask[k] = -1
             continue
         c = pos[r, k]
-        m = memory[r, k]
-        score = (
-            np.float64(m[max(nbrs[c, 0], 0)]),
-            np.float64(m[max(nbrs[c, 1], 0)]),
-            np.float64(m[max(nbrs[c, 2], 0)]),
-            np.float64(m[max(nbrs[c, 3], 0)]),
-        )
+        score = at_neighbours(memory[r, k], nbrs, c)
         ask[k] = least(score, open_mask, k, u[r, i, k, 1])
 
 

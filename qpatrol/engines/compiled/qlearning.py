@@ -14,11 +14,8 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from qpatrol.engines.compiled.choice import pick
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
-from qpatrol.learner import _NTH
-
-#: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
-NTH = _NTH.astype(np.int64)
 
 
 def pack(strategy) -> Pack:
@@ -49,6 +46,8 @@ def act(r, i, u, pos, head, open_mask, choosing, ask, fpar, ipar, q):
             continue
         c = pos[r, k]
         h = head[r, k] if use_heading else 0
+        # choice.greatest with the Q row read in place: through a tuple of the four
+        # values the whole loop ran about 12 % slower (2,000,000 steps, one robot)
         best = -np.inf
         for d in range(4):
             if open_mask[k, d] and q[r, k, c, h, d] > best:
@@ -60,10 +59,7 @@ def act(r, i, u, pos, head, open_mask, choosing, ask, fpar, ipar, q):
             if open_mask[k, d] and (explore or q[r, k, c, h, d] == best):
                 bits |= 1 << d
                 count += 1
-        if count == 0:
-            ask[k] = -1
-        else:
-            ask[k] = NTH[bits, min(np.int64(u[r, i, k, 1] * count), count - 1)]
+        ask[k] = pick(bits, count, u[r, i, k, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

@@ -29,11 +29,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
+from qpatrol.engines.compiled.choice import greatest
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
-from qpatrol.learner import _NTH
 
-#: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
-NTH = _NTH.astype(np.int64)
 GAMMA, ALPHA, EPSILON, CAP, SCALE = range(5)
 EXPLORE_STEPS, DOT, KNOWN, USE_HEADING, USE_IDLE, SHARED, N_FEAT = range(7)
 
@@ -109,14 +107,24 @@ def _reward(sp, dot_value, r, g, c, t):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _score(sp, dot_value, nbrs, r, g, pk, c, slot, d, t):
+    """``Q(s, d) + r(s, d)`` (the reward only with ``qidle.known_reward``) of robot state
+    ``(c, slot)`` on table ``pk``, map ``g`` (a wall reads cell 0; it is never chosen,
+    as in ``Strategy.known_rewards``)."""
+    q = sp.q[r, pk, c, slot, d]
+    if sp.ipar[KNOWN] == 0:
+        return q + 0.0
+    return q + _reward(sp, dot_value, r, g, max(nbrs[c, d], 0), t)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp):
     """``ask[k]`` for every choosing robot of run ``r`` at team step ``t`` (step ``i``
     of the block, ``u`` float ``[R, T, K, 2]``): the open move of greatest ``r(s, a) +
     Q(s, a)`` (ties by ``u[r, i, k, 1]``; with probability ``epsilon(t)`` (``u[r, i, k,
     0]``) any open move), -1 where there is none. Every robot's idlest slot goes to
     ``robot_i[r, k, 0]``."""
-    q, feat, ipar = sp.q, sp.robot_i, sp.ipar
-    known = ipar[KNOWN] != 0
+    feat, ipar = sp.robot_i, sp.ipar
     use_heading = ipar[USE_HEADING] != 0
     use_idle = ipar[USE_IDLE] != 0
     shared = ipar[SHARED] != 0
@@ -135,32 +143,14 @@ def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosi
             continue
         pk = 0 if shared else k
         slot = (head[r, k] if use_heading else 0) * n_feat + f
-        best = -np.inf
-        for d in range(4):
-            if open_mask[k, d]:
-                score = q[r, pk, c, slot, d] + (
-                    _reward(sp, dot_value, r, g, nbrs[c, d], t) if known else 0.0
-                )
-                if score > best:
-                    best = score
+        score = (
+            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 0, t),
+            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 1, t),
+            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 2, t),
+            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 3, t),
+        )
         explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
-        bits = 0
-        count = 0
-        for d in range(4):
-            if not open_mask[k, d]:
-                continue
-            if not explore:
-                score = q[r, pk, c, slot, d] + (
-                    _reward(sp, dot_value, r, g, nbrs[c, d], t) if known else 0.0
-                )
-                if score != best:
-                    continue
-            bits |= 1 << d
-            count += 1
-        if count == 0:
-            ask[k] = -1
-        else:
-            ask[k] = NTH[bits, min(np.int64(u[r, i, k, 1] * count), count - 1)]
+        ask[k] = greatest(score, open_mask, k, explore, u[r, i, k, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -217,11 +207,10 @@ def learn(
         for k in range(n_agents):
             g = 0 if communication else k
             feat[r, k, 1] = _idlest(nbrs, last, r, g, pos[r, k]) if use_idle else 0
-    known = ipar[KNOWN] != 0
     shared = ipar[SHARED] != 0
     n_feat = ipar[N_FEAT]
     gamma, alpha_par = fpar[GAMMA], fpar[ALPHA]
-    paid = 0.0 if known else 1.0
+    paid = 0.0 if ipar[KNOWN] != 0 else 1.0
     for k in range(n_agents):  # a shared entry sees every update
         if not as_asked[k] or not choosing[k]:
             continue
@@ -237,9 +226,7 @@ def learn(
         top = -np.inf
         for d in range(4):
             if wall_legal[cb, d]:
-                v = q[r, pk, cb, sb, d] + (
-                    _reward(sp, dot_value, r, g, nbrs[cb, d], t + 1) if known else 0.0
-                )
+                v = _score(sp, dot_value, nbrs, r, g, pk, cb, sb, d, t + 1)
                 if v > top:
                     top = v
         bootstrap = gamma * top

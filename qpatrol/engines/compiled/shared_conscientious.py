@@ -8,10 +8,9 @@ nothing: the pack is all dummies, and it reads the world's ``last`` int ``[R, G,
 
 from __future__ import annotations
 
-import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import least
+from qpatrol.engines.compiled.choice import at_neighbours, least
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 
@@ -33,11 +32,5 @@ def act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask):
             ask[k] = -1
             continue
         c = pos[r, k]
-        m = last[r, 0 if communication else k]
-        score = (
-            np.float64(m[max(nbrs[c, 0], 0)]),
-            np.float64(m[max(nbrs[c, 1], 0)]),
-            np.float64(m[max(nbrs[c, 2], 0)]),
-            np.float64(m[max(nbrs[c, 3], 0)]),
-        )
+        score = at_neighbours(last[r, 0 if communication else k], nbrs, c)
         ask[k] = least(score, open_mask, k, u[r, i, k, 1])
