@@ -166,6 +166,14 @@ def test_recorders(rooms_map, tmp_path, record, battery):
     assert both(flat, tmp_path) == ("numba", "")
 
 
+def test_the_compiled_strategies_are_the_ones_the_engine_choice_names():
+    """``engines.COMPILED_POLICIES`` (read without numba) lists the strategy files of
+    ``engines.compiled``; every strategy is compiled."""
+    from qpatrol.engines import compiled
+
+    assert set(engines.COMPILED_POLICIES) == set(compiled.MODULES) == set(NAMES)
+
+
 def test_engine_choice(monkeypatch):
     cfg = from_flat({"battery.enabled": False, "engine": "numpy", "runs": 16})
     assert engines.choose(cfg) == ("numpy", "")
@@ -205,6 +213,31 @@ def test_compiled_timeline(rooms_map, tmp_path, agents, battery, window):
     assert both(flat, tmp_path) == ("numba", "")
     assert (tmp_path / "numba" / "timeline.csv").is_file()
     assert both({**flat, "episodes": 2}, tmp_path) == ("numba", "")
+
+
+@pytest.mark.parametrize("policy", ["cyclic", "partition", "evap"])
+def test_compiled_groups_slice_only_the_strategys_per_run_arrays(
+    rooms_map, tmp_path, monkeypatch, policy
+):
+    """As many runs as the map has cells (30): a strategy's constant arrays (distances
+    [C, C], walks, evap's powers) have as many rows as there are runs, and must not be
+    cut into groups with the per-run ones."""
+    from qpatrol import run
+    from qpatrol.maps import get_map
+
+    monkeypatch.setattr(run, "COMPILED_BLOCK", 256)
+    monkeypatch.setattr(run, "COMPILED_GROUP_STEPS", 64)
+    n_cells = get_map(str(rooms_map)).distances().shape[0]
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "policy": policy,
+        "runs": n_cells,
+        "agents": 2,
+        "steps": 150,
+        "battery.enabled": False,
+    }
+    assert both(flat, tmp_path) == ("numba", "")
 
 
 @pytest.mark.parametrize("battery", [True, False])

@@ -30,6 +30,7 @@ import numpy as np
 from numba import njit
 
 from qpatrol.engines import compiled
+from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
 
 #: Columns of the episode buffer: run, group, episode, start, dots, cells, states,
@@ -918,9 +919,14 @@ class Loop:
             for v in vars(o).values()
             if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n_runs
         }
-        if n_runs > 1:
-            ids |= {id(v) for v in self.pack if v.shape[0] == n_runs}
         self.per_run = [j for j, a in enumerate(self.args) if id(a) in ids]
+        # the strategy's per-run arrays (not its constants, however many rows they have;
+        # nor a one-row placeholder)
+        self.pack_per_run = [
+            f
+            for f, name in enumerate(Pack._fields)
+            if name in PER_RUN and n_runs > 1 and self.pack[f].shape[0] == n_runs
+        ]
         self.n_runs = n_runs
         self.pack_at = next(j for j, a in enumerate(self.args) if a is self.pack)
 
@@ -949,11 +955,10 @@ class Loop:
             args = list(args)
             for j in self.per_run:
                 args[j] = args[j][lo:hi]
-            pack = list(args[self.pack_at])
-            for f, v in enumerate(self.pack):
-                if self.n_runs > 1 and v.shape[0] == self.n_runs:
-                    pack[f] = v[lo:hi]
-            args[self.pack_at] = type(self.pack)(*pack)
+            pack = list(self.pack)
+            for f in self.pack_per_run:
+                pack[f] = pack[f][lo:hi]
+            args[self.pack_at] = Pack(*pack)
         t_end, n_ep, n_up, n_tl = run_block(self.t0, u, *args)
         if lo:
             self.ep_buf[:n_ep, 0] += lo

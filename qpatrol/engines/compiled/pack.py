@@ -42,6 +42,10 @@ class Pack(NamedTuple):
     dist: np.ndarray
 
 
+#: The fields with a leading runs axis (a strategy's state); the others are constants
+#: of the batch. A placeholder of a per-run field has one row whatever the runs.
+PER_RUN = ("q", "n", "cell_i", "cell_f", "cell_b", "robot_i")
+
 #: Each field's dtype and rank: every pack has the same, so the loop compiles once.
 LAYOUT = {
     "fpar": (np.float64, 1),
