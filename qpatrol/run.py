@@ -171,36 +171,10 @@ def _simulate_batch(
         (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload
         first = resumed.position
     total = cfg["steps"]
-    if engine == "numba":
-        _compiled_loop(
-            state,
-            p,
-            strategy,
-            watch,
-            streams,
-            rec,
-            tail,
-            timeline,
-            first,
-            total,
-            progress,
-            checkpoint,
-        )
-    else:
-        numpy_loop.run(
-            state,
-            p,
-            strategy,
-            watch,
-            streams,
-            rec,
-            tail,
-            timeline,
-            first,
-            total,
-            progress,
-            checkpoint,
-        )
+    loop = _compiled_loop if engine == "numba" else numpy_loop.run
+    loop(
+        state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress, checkpoint
+    )
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -301,8 +275,9 @@ def _compiled_loop(
     checkpoint: Checkpointer | None,
 ) -> None:
     """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
-    results as the numpy loop). With a checkpointer the blocks are one team step long,
-    so that it may save or stop after any step, as in the numpy loop."""
+    results as :func:`qpatrol.engines.numpy_loop.run`). A checkpointer is ticked after
+    each block (of at most COMPILED_BLOCK agent-steps then), or after every team step
+    when it asks for that (``every_step``)."""
     from qpatrol.engines import numba_core
 
     R, K = state.n_runs, p.n_agents

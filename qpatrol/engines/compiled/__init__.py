@@ -5,7 +5,8 @@ and ``learn``, dispatched by a code from the one compiled loop
 A strategy's file mirrors its numpy twin in :mod:`qpatrol.strategies`, operation for
 operation, so both engines give the same files to the bit (``tests/test_engines.py``).
 To compile one more strategy: write its file, add it to :data:`MODULES` under a new
-code and call it from :func:`act` and :func:`learn`.
+code (and its name to :data:`qpatrol.engines.COMPILED_POLICIES`, which names them
+without importing numba) and call it from :func:`act` and :func:`learn`.
 """
 
 from __future__ import annotations
@@ -57,11 +58,6 @@ def key_cache(dispatcher, *files: str) -> None:
     for path in [*map(Path, files), *sorted(Path(__file__).parent.glob("*.py"))]:
         digest.update(path.name.encode() + b"\0" + path.read_bytes())
     cache_file._source_stamp = ("qpatrol", digest.hexdigest())
-
-
-def covers(name: str) -> bool:
-    """True when the strategy ``name`` is compiled."""
-    return name in MODULES
 
 
 def pack(strategy) -> tuple[int, Pack]:
