@@ -124,6 +124,66 @@ def test_compiled_qlearning_settings(tmp_path, extra):
     assert both(flat, tmp_path) == ("numba", "")
 
 
+LONE = [
+    {},
+    {"team.avoid_collisions": False, "runs": 3},
+    {"team.communication": False, "learning.epsilon": 0.3, "learning.state_space": "cell"},
+    {"record.warmup": 20, "record.trajectory": 0, "learning.q_init.east": 2.0},
+    {"episodes": 2, "max_episode_steps": None, "steps": 900},
+    {"learning.gamma": 0.9, "reward.lambda": 0.5, "reward.idle_horizon": 7},
+]
+
+
+@pytest.mark.parametrize("extra", LONE)
+def test_compiled_lone_qlearner(rooms_map, tmp_path, monkeypatch, extra):
+    """A lone Q-learning robot without battery runs in the compiled loop's own kernel
+    for it (numba_core._solo_qlearning): the numpy engine's files, to the bit."""
+    from qpatrol.engines import numba_core
+
+    specs = []
+    init = numba_core.Loop.__init__
+
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        specs.append(self.spec)
+
+    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
+    flat = {**BASE, "map": str(rooms_map), "agents": 1, "battery.enabled": False, **extra}
+    assert both(flat, tmp_path) == ("numba", "")
+    assert specs == [numba_core.SPEC_QLEARNING_SOLO]
+
+
+def test_compiled_loop_specializations():
+    """Which compiled loop a batch runs: the lone Q-learner's kernel, the Q-learning
+    team's loop, or the loop for any strategy (battery, timeline, other strategies)."""
+    from qpatrol import bench
+    from qpatrol.engines import numba_core
+    from qpatrol.run import simulate
+
+    cases = [
+        ({}, 1, numba_core.SPEC_QLEARNING_SOLO),
+        ({}, 4, numba_core.SPEC_QLEARNING),
+        ({"record.transitions": True}, 1, numba_core.SPEC_QLEARNING),
+        ({"record.timeline": 10}, 1, numba_core.SPEC_ANY),
+        ({"battery.enabled": True}, 1, numba_core.SPEC_ANY),
+        ({"policy": "random"}, 1, numba_core.SPEC_ANY),
+    ]
+    for extra, agents, spec in cases:
+        specs = []
+        init = numba_core.Loop.__init__
+
+        def spy(self, *args, _init=init, _specs=specs, **kwargs):
+            _init(self, *args, **kwargs)
+            _specs.append(self.spec)
+
+        numba_core.Loop.__init__ = spy
+        try:
+            simulate(bench.workload(2, agents, 20, engine="numba", extra=extra))
+        finally:
+            numba_core.Loop.__init__ = init
+        assert specs == [spec], (extra, agents)
+
+
 @pytest.mark.parametrize("policy", NAMES)
 @pytest.mark.parametrize("battery", [True, False])
 def test_every_strategy_and_battery(rooms_map, tmp_path, policy, battery):
