@@ -23,9 +23,9 @@ from __future__ import annotations
 
 import copy
 import json
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Hashable, Sequence
 from dataclasses import dataclass, fields, replace
-from typing import Any, TypeVar
+from typing import Any
 
 import numpy as np
 import pandas as pd
@@ -45,8 +45,6 @@ PER_RUN_KEYS: tuple[str, ...] = (
     *world.RUN_VALUE_FIELDS,
 )
 
-T = TypeVar("T")
-
 
 def group_key(cfg: Config) -> str | None:
     """What points must share to run in one batch: every config value but the per-run
@@ -59,29 +57,36 @@ def group_key(cfg: Config) -> str | None:
     return json.dumps(rest, sort_keys=True, default=str)
 
 
-def groups(items: Sequence[tuple[Any, Config]]) -> list[list[tuple[Any, Config]]]:
-    """``(point, config)`` items grouped by :func:`group_key`, in order of first
-    appearance (an item that cannot be grouped is a group of its own)."""
-    out: dict[Any, list[tuple[Any, Config]]] = {}
-    for i, (point, cfg) in enumerate(items):
+def groups(configs: Sequence[Config], tags: Sequence[Hashable] | None = None) -> list[list[int]]:
+    """Indices of ``configs`` grouped by :func:`group_key` (and ``tags``: configs of
+    different tags are never grouped), in order of first appearance; a config that
+    cannot be grouped is a group of its own."""
+    out: dict[Hashable, list[int]] = {}
+    for i, cfg in enumerate(configs):
         key = group_key(cfg)
-        out.setdefault(i if key is None else key, []).append((point, cfg))
+        tag = None if tags is None else tags[i]
+        out.setdefault(("alone", i) if key is None else (tag, key), []).append(i)
     return list(out.values())
 
 
-def tasks(grouped: list[list[T]], workers: int, cost: Callable[[T], float]) -> list[list[T]]:
-    """The groups cut, by points, into tasks for ``workers`` workers: while a task of
-    more than one point costs more than ``total / workers``, the costliest such task is
-    cut in two halves (the first one the larger). One worker: the groups as they are."""
+def tasks(grouped: list[list[int]], workers: int, cost: Sequence[float]) -> list[list[int]]:
+    """The groups (indices, ``cost[i]`` each) cut, by points, into tasks for ``workers``
+    workers: while a task of more than one point costs more than the fair share
+    ``total / workers``, the costliest such task is cut in two halves (the first one
+    the larger). One worker: the groups as they are."""
     out = [list(g) for g in grouped if g]
     if workers <= 1:
         return out
-    fair = sum(cost(x) for g in out for x in g) / workers
+    fair = sum(cost[i] for g in out for i in g) / workers
+
+    def total(t: list[int]) -> float:
+        return sum(cost[i] for i in t)
+
     while True:
-        big = [t for t in out if len(t) > 1 and sum(map(cost, t)) > fair]
+        big = [t for t in out if len(t) > 1 and total(t) > fair]
         if not big:
             return out
-        t = max(big, key=lambda g: sum(map(cost, g)))
+        t = max(big, key=total)
         i = out.index(t)
         half = (len(t) + 1) // 2
         out[i : i + 1] = [t[:half], t[half:]]
