@@ -323,3 +323,17 @@ def test_cli_no_batch_points(maps, tmp_path, monkeypatch):
     assert (tmp_path / "a" / "results.csv").read_bytes() == (
         tmp_path / "b" / "results.csv"
     ).read_bytes()
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_qlearning_idleness_points_share_batches(maps, tmp_path, monkeypatch, engine):
+    if engine == "numba":
+        pytest.importorskip("numba")
+    base = make_base(maps[4], 4, engine, policy="qlearning-idleness")
+    pts = listed_points([{"seed": 1}, {"seed": 2, "reward.lambda": 3.0}, {"learning.gamma": 0.2}])
+    count = Count(qpatrol.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    run_sweep(base, pts, tmp_path / "batched", meta={})
+    assert count.rows == [6]
+    run_sweep(base, pts, tmp_path / "alone", meta={}, batch_points=False)
+    assert_same_sweeps(tmp_path / "batched", tmp_path / "alone")
