@@ -349,6 +349,16 @@ def sweep(
     force: Annotated[
         bool, typer.Option("--force", metavar="", help="Discard an existing sweep in --out.")
     ] = False,
+    no_batch_points: Annotated[
+        bool,
+        typer.Option(
+            "--no-batch-points",
+            metavar="",
+            help="Run each point's runs as batches of their own (default: points that "
+            "differ only in per-run values, e.g. gamma or the seed, share batches; the "
+            "files are the same).",
+        ),
+    ] = False,
     quiet: QuietOpt = False,
 ) -> None:
     """Run a config at many parameter values, each point's runs in batches, in parallel.
@@ -412,6 +422,7 @@ def sweep(
                 progress=bar,
                 force=force,
                 meta=meta,
+                batch_points=not no_batch_points,
             )
         except KeyboardInterrupt:
             bar.close()

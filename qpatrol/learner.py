@@ -28,7 +28,7 @@ def choose(
     legal: np.ndarray,
     u_explore: np.ndarray,
     u_pick: np.ndarray,
-    epsilon: float,
+    epsilon: float | np.ndarray,
 ) -> tuple[np.ndarray, np.ndarray]:
     """Greedy action with random tie-breaks, or a random legal one with probability epsilon.
 
@@ -37,7 +37,8 @@ def choose(
         legal: bool ``[B, 4]``, the actions that may be taken.
         u_explore: float ``[B]`` in [0, 1): explore when ``u_explore < epsilon``.
         u_pick: float ``[B]`` in [0, 1): picks among the candidates, in N, E, S, W order.
-        epsilon: probability of choosing uniformly among legal actions.
+        epsilon: probability of choosing uniformly among legal actions (a float, or
+            float ``[B]``, one per row).
 
     Returns:
         ``(action [B] int, has_move [B] bool)``; action is 0 where there is no legal move.
@@ -45,7 +46,7 @@ def choose(
     masked = np.where(legal, q_row, -np.inf)
     best = masked.max(axis=1)
     cand = legal & (masked == best[:, None])
-    if epsilon > 0.0:
+    if np.any(epsilon > 0.0):
         cand = np.where((u_explore < epsilon)[:, None], legal, cand)
     return pick(cand, u_pick)
 
@@ -72,7 +73,7 @@ def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def td_target(
-    reward: np.ndarray, q_next: np.ndarray, legal_next: np.ndarray, gamma: float
+    reward: np.ndarray, q_next: np.ndarray, legal_next: np.ndarray, gamma: float | np.ndarray
 ) -> tuple[np.ndarray, np.ndarray]:
     """``(r + gamma * max_a' Q(s', a'), gamma * max_a' Q(s', a'))`` over legal ``a'``.
 
@@ -80,6 +81,7 @@ def td_target(
         reward: float ``[B]``.
         q_next: float ``[B, 4]``, Q(s', .).
         legal_next: bool ``[B, 4]``, the non-wall moves out of s'.
+        gamma: a float, or float ``[B]``, one per row.
     """
     bootstrap = gamma * np.where(legal_next, q_next, -np.inf).max(axis=1)
     return reward + bootstrap, bootstrap

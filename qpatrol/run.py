@@ -150,20 +150,59 @@ def _simulate_batch(
     checkpoint: Checkpointer | None,
 ) -> RunResult:
     """The runs ``idx`` of ``cfg`` as one batch (see :func:`simulate`)."""
+    seeds = run_seeds(cfg["seed"], idx, point)
+    return _batch(cfg, seeds, np.array(list(idx)), None, progress, prepared, checkpoint)
+
+
+def simulate_rows(
+    cfg: Config,
+    seeds: list[np.random.SeedSequence],
+    run_ids: np.ndarray,
+    values: dict[str, np.ndarray] | None,
+    prepared: tuple[Map, world.Params],
+    progress: Progress | None = None,
+) -> RunResult:
+    """One batch whose rows may differ in per-run values (:mod:`qpatrol.batching`).
+
+    Args:
+        cfg: the config of every row, but for ``values``.
+        seeds: each row's SeedSequence (its random stream).
+        run_ids: int ``[R]``, the run number written for each row in the tables.
+        values: config key -> float64 ``[R]``, each row's value of the per-run keys that
+            differ between rows (reward weights, and the keys the strategy names in
+            ``RUN_KEYS``); None when they are all ``cfg``'s.
+        prepared: the map and ``cfg``'s parameters.
+
+    A row's numbers are those it would have in a batch of its own config and seed.
+    """
+    return _batch(cfg, seeds, np.asarray(run_ids), values, progress, prepared, None)
+
+
+def _batch(
+    cfg: Config,
+    seeds: list[np.random.SeedSequence],
+    run_ids: np.ndarray,
+    values: dict[str, np.ndarray] | None,
+    progress: Progress | None,
+    prepared: tuple[Map, world.Params],
+    checkpoint: Checkpointer | None,
+) -> RunResult:
+    """One batch of rows (see :func:`simulate` and :func:`simulate_rows`)."""
     m, p = prepared
+    p = world.with_run_values(p, values)
     engine, note = engines.choose(cfg)
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
         # blocks of uniforms no longer than the run (the same numbers for any block)
         block = max(1, min(Streams.BLOCK, cfg["steps"]))
-        streams = Streams(run_seeds(cfg["seed"], idx, point), p.n_agents, block)
+        streams = Streams(seeds, p.n_agents, block)
         starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
         state = world.init_state(p, starts)
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
+        if values:
+            strategy.use_run_values(values)
         watch = measures.Measures(state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"])
-        rec = Recorder(
-            np.array(list(idx)), transitions=cfg["record.transitions"], watch=cfg["record.watch"]
-        )
+        rec = Recorder(run_ids, transitions=cfg["record.transitions"], watch=cfg["record.watch"])
         tail = Tail(cfg["record.trajectory"], state)
         timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"])
         first = 0

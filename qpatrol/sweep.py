@@ -1,9 +1,12 @@
 """Parallel, resumable parameter sweeps.
 
 A sweep runs one base config at several *points*, each a set of overridden keys.
-Every point runs all its ``runs`` as one batch (run r of point p draws from
-``SeedSequence(seed, spawn_key=(p, r))``) and writes its own run folder, so the
-numbers never depend on ``jobs``, on the backend or on which points ran earlier::
+Run r of point p draws from ``SeedSequence(seed, spawn_key=(p, r))`` and every point
+writes its own run folder, so the numbers never depend on ``jobs``, on the backend, on
+batching or on which points ran earlier. Points that differ only in per-run values
+(seed, gamma, epsilon, multiplier, initial Q, reward weights) run their runs together
+in shared batches (:mod:`qpatrol.batching`; ``batch_points=False``: each point's runs
+as a batch of their own); the files are the same either way::
 
     from qpatrol.config import load_config
     from qpatrol.sweep import points_for, run_sweep, load_results
@@ -343,6 +346,7 @@ def run_sweep(
     progress: Progress | None = None,
     force: bool = False,
     meta: dict[str, Any] | None = None,
+    batch_points: bool = True,
 ) -> SweepResult:
     """Run every point of a sweep not yet complete in ``out``, then write ``results.csv``.
 
@@ -362,6 +366,8 @@ def run_sweep(
             a different sweep (only in a sweep folder or an empty one).
         meta: provenance fields for ``meta.json`` (:func:`qpatrol.provenance.collect`),
             written to ``out`` and, per point, into each point folder.
+        batch_points: run points that differ only in per-run values as shared batches
+            (:mod:`qpatrol.batching`); False: one point per batch. Same files either way.
 
     Raises:
         ConfigError: a bad override, option, or ``out`` holding a different sweep
@@ -381,7 +387,9 @@ def run_sweep(
         runs_of = {p.id: c["runs"] for p, c in sw.todo}
         tracker = _Tracker(sw.pdir, runs_of, sw.done_runs, sw.total, progress)
         try:
-            for pid, error in _execute(sw.todo, sw.pdir, jobs, backend, scheduler, sw.maps, meta):
+            for pid, error in _execute(
+                sw.todo, sw.pdir, jobs, backend, scheduler, sw.maps, meta, batch_points
+            ):
                 sw.record(pid, error)
                 tracker.finished(pid)
         finally:
@@ -398,25 +406,27 @@ def run_sweeps(
     sweeps: Sequence[tuple[Config, list[Point], str | Path]],
     jobs: int = 1,
     meta: dict[str, Any] | None = None,
+    batch_points: bool = True,
 ) -> list[SweepResult]:
     """Run several sweeps' points in one pool of ``jobs`` workers (joblib).
 
     As :func:`run_sweep` for each ``(base, points, out)``, but the points of all of them
     share the workers, the costliest first (:func:`point_cost`), so that a large sweep
     never runs on one core while the others idle. Each sweep folder is the same as
-    :func:`run_sweep` would write, and resumes the same way.
+    :func:`run_sweep` would write, and resumes the same way; ``batch_points`` as there
+    (points of different sweeps never share a batch).
     """
     limits.check_jobs(jobs)
     meta = dict(meta) if meta is not None else provenance.collect()
     with contextlib.ExitStack() as stack:
         opened = [_open(stack, base, points, out, False, meta) for base, points, out in sweeps]
-        tasks: list[tuple[Any, Point, Config, Any, Path]] = []
+        items: list[tuple[Any, Point, Config, Any, Path]] = []
         for i, sw in enumerate(opened):
             ready, failed = _with_maps(sw.todo, sw.maps, sw.pdir)
             for pid, error in failed:
                 sw.record(pid, error)
-            tasks += [(i, point, cfg, m, sw.pdir) for point, cfg, m in ready]
-        for i, (pid, error) in _pool(tasks, jobs, meta):
+            items += [(i, point, cfg, m, sw.pdir) for point, cfg, m in ready]
+        for i, (pid, error) in _pool(_tasks(items, jobs, batch_points), jobs, meta):
             opened[i].record(pid, error)
         return [sw.close(meta) for sw in opened]
 
@@ -438,33 +448,66 @@ def _with_maps(
     return ready, failed
 
 
+#: A task of the pool: ``(tag, [(point, config), ...], map, points folder)``; its points
+#: run as shared batches when there are several (:mod:`qpatrol.batching`).
+Task = tuple[Any, list[tuple[Point, Config]], Any, Path]
+
+
+def _tasks(items: list[tuple[Any, Point, Config, Any, Path]], jobs: int, batch: bool) -> list[Task]:
+    """``(tag, point, config, map, points folder)`` items as tasks: with ``batch``, the
+    points of one tag that may share batches are one task, cut by points into smaller
+    ones while it costs more than its fair share of the ``jobs`` workers
+    (:func:`qpatrol.batching.tasks`); else one task per point."""
+    if not batch:
+        return [(tag, [(point, cfg)], m, pdir) for tag, point, cfg, m, pdir in items]
+    from joblib import effective_n_jobs
+
+    from qpatrol import batching
+
+    grouped = batching.groups([it[2] for it in items], [it[0] for it in items])
+    cost = [point_cost(it[2]) for it in items]
+    out: list[Task] = []
+    for idx in batching.tasks(grouped, effective_n_jobs(jobs), cost):
+        tag, _, _, m, pdir = items[idx[0]]
+        out.append((tag, [(items[i][1], items[i][2]) for i in idx], m, pdir))
+    return out
+
+
+def _task_cost(task: Task) -> float:
+    return sum(point_cost(cfg) for _, cfg in task[1])
+
+
 def _pool(
-    tasks: list[tuple[Any, Point, Config, Any, Path]], jobs: int, meta: dict[str, Any]
+    tasks: list[Task], jobs: int, meta: dict[str, Any]
 ) -> Iterator[tuple[Any, tuple[str, str | None]]]:
-    """Run ``(tag, point, config, map, points folder)`` tasks on ``jobs`` joblib workers,
-    yielding ``(tag, (point id, None or one-line error))`` as each finishes. With more
-    than one worker the costliest points go first (longest-processing-time order), so
-    that no worker is left with a long point at the end while the others idle."""
+    """Run tasks (:data:`Task`) on ``jobs`` joblib workers, yielding ``(tag, (point id,
+    None or one-line error))`` for each point of a task as it finishes. With more than
+    one worker the costliest tasks go first (longest-processing-time order, by
+    :func:`point_cost`), so that no worker is left with a long task at the end while
+    the others idle."""
     if not tasks:
         return
     from joblib import Parallel, delayed, effective_n_jobs
 
     n = min(effective_n_jobs(jobs), len(tasks))
     if n == 1:
-        for tag, point, cfg, m, pdir in tasks:
-            yield tag, _run_point(point, cfg, m, pdir, meta)
+        for tag, pts, m, pdir in tasks:
+            for outcome in _run_points(pts, m, pdir, meta):
+                yield tag, outcome
         return
-    ordered = sorted(tasks, key=lambda t: -point_cost(t[2]))
+    ordered = sorted(tasks, key=lambda t: -_task_cost(t))
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
-    yield from parallel(
-        delayed(_run_tagged)(tag, point, cfg, m, pdir, meta) for tag, point, cfg, m, pdir in ordered
-    )
+    for tag, outcomes in parallel(
+        delayed(_run_tagged)(tag, pts, m, pdir, meta) for tag, pts, m, pdir in ordered
+    ):
+        for outcome in outcomes:
+            yield tag, outcome
 
 
 def _run_tagged(
-    tag: Any, point: Point, cfg: Config, m: Any, pdir: Path, meta: dict[str, Any]
-) -> tuple[Any, tuple[str, str | None]]:
-    return tag, _run_point(point, cfg, m, pdir, meta)
+    tag: Any, pts: list[tuple[Point, Config]], m: Any, pdir: Path, meta: dict[str, Any]
+) -> tuple[Any, list[tuple[str, str | None]]]:
+    return tag, _run_points(pts, m, pdir, meta)
 
 
 @dataclass
@@ -815,6 +858,7 @@ def _execute(
     scheduler: str | None,
     maps: dict[str, Any] | None = None,
     meta: dict[str, Any] | None = None,
+    batch: bool = True,
 ) -> Iterator[tuple[str, str | None]]:
     """Run the points, yielding ``(point id, None or one-line error)`` as each finishes."""
     if not todo:
@@ -823,16 +867,16 @@ def _execute(
     yield from failed
     if not ready:
         return
+    tasks = _tasks([(None, point, cfg, m, pdir) for point, cfg, m in ready], jobs, batch)
     if backend == "dask":
-        yield from _execute_dask(ready, pdir, jobs, scheduler, meta or {})
+        yield from _execute_dask(tasks, pdir, jobs, scheduler, meta or {})
         return
-    tasks = [(None, point, cfg, m, pdir) for point, cfg, m in ready]
     for _, outcome in _pool(tasks, jobs, meta or {}):
         yield outcome
 
 
 def _execute_dask(
-    tasks: list[tuple[Point, Config, Any]],
+    tasks: list[Task],
     pdir: Path,
     jobs: int,
     scheduler: str | None,
@@ -862,15 +906,15 @@ def _execute_dask(
             raise ConfigError(f"scheduler: cannot connect to {scheduler} ({e})") from None
     try:
         futures = {
-            client.submit(_run_point, point, cfg, m, pdir, meta, pure=False): point
-            for point, cfg, m in tasks
+            client.submit(_run_points, pts, m, pdir, meta, pure=False): pts
+            for _, pts, m, _ in sorted(tasks, key=lambda t: -_task_cost(t))
         }
         for fut in as_completed(futures):
-            point = futures[fut]
             try:
-                yield fut.result()
+                yield from fut.result()
             except Exception as e:  # the worker died (KilledWorker, ...), not the run
-                yield point.id, _record_failure(pdir, point, e)
+                for point, _ in futures[fut]:
+                    yield point.id, _record_failure(pdir, point, e)
     finally:
         client.close()
         if cluster is not None:
@@ -932,6 +976,48 @@ def _run_point(
         tick.remove()
     (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
     return point.id, None
+
+
+def _run_points(
+    pts: list[tuple[Point, Config]], m: Any, pdir: Path, meta: dict[str, Any] | None = None
+) -> list[tuple[str, str | None]]:
+    """Run a task's points and write their folders (in a worker): one point as
+    :func:`_run_point`, several as shared batches (:func:`qpatrol.batching.run_group`).
+    Returns ``(point id, None or one-line error)`` per point; a batch that raises fails
+    every point of the task not yet written (each gets its ``<id>.failed.json``)."""
+    if len(pts) == 1:
+        return [_run_point(pts[0][0], pts[0][1], m, pdir, meta)]
+    from qpatrol import batching
+    from qpatrol.run import write_run
+
+    started = provenance.now()
+    ticks = {p.id: _ProgressFile(pdir / f".{p.id}{PROGRESS_SUFFIX}") for p, _ in pts}
+    outcome: dict[str, str | None] = {}
+
+    def write(point: Point, result: Any) -> None:
+        info = {**(meta or {}), "started": started, "ended": None, "point": point.describe()}
+        try:
+            write_run(result, pdir / point.id, meta=info)
+        except Exception as e:  # e.g. Q-values not finite: this point fails alone
+            outcome[point.id] = _record_failure(pdir, point, e)
+        else:
+            (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
+            outcome[point.id] = None
+        ticks[point.id](1, 1)  # done: counted as complete until the task returns
+
+    def progress(point: Point, done: int, total: int) -> None:
+        ticks[point.id](done, total)
+
+    try:
+        batching.run_group([(p, p.index, cfg) for p, cfg in pts], m, write, progress)
+    except Exception as e:
+        for p, _ in pts:
+            if p.id not in outcome:
+                outcome[p.id] = _record_failure(pdir, p, e)
+    finally:
+        for tick in ticks.values():
+            tick.remove()
+    return [(p.id, outcome[p.id]) for p, _ in pts]
 
 
 def _record_failure(pdir: Path, point: Point, e: BaseException) -> str:

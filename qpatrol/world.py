@@ -33,7 +33,7 @@ step, in place, with Python loops only over the robots of a team.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -69,9 +69,11 @@ class Params:
     starts: np.ndarray  # int [n], start cells given by the map's digits
     diameter: int  # longest shortest path between two cells
     initial_heading: int
-    incremental_value: float
-    idle_horizon: float
-    lambda_weight: float
+    # the reward's weights: a float, or float64 [R] when the rows of a batch differ
+    # (:func:`with_run_values`; read a row's value with :func:`per_row`)
+    incremental_value: float | np.ndarray
+    idle_horizon: float | np.ndarray
+    lambda_weight: float | np.ndarray
     communication: bool
     avoid_collisions: bool
     battery: bool
@@ -177,6 +179,35 @@ def make_params(cfg: Config, m: Map) -> Params:
         max_episode_steps=int(cfg["max_episode_steps"] or 0),
         episodes=int(cfg["episodes"] or 0),
     )
+
+
+#: Config key of each reward weight of :class:`Params` that may differ between the rows
+#: of one batch (:func:`with_run_values`).
+RUN_VALUE_FIELDS = {
+    "reward.incremental_value": "incremental_value",
+    "reward.idle_horizon": "idle_horizon",
+    "reward.lambda": "lambda_weight",
+}
+
+
+def with_run_values(p: Params, values: dict[str, np.ndarray] | None) -> Params:
+    """``p`` with the reward weights that differ between the rows of a batch as float64
+    ``[R]`` arrays (``values``: config key -> one value per row, for the keys that
+    differ; keys of :data:`RUN_VALUE_FIELDS` only are read)."""
+    if not values:
+        return p
+    changes = {
+        name: np.asarray(values[key], dtype=np.float64)
+        for key, name in RUN_VALUE_FIELDS.items()
+        if key in values
+    }
+    return replace(p, **changes) if changes else p
+
+
+def per_row(v: float | np.ndarray, rows: np.ndarray) -> float | np.ndarray:
+    """A per-run value at batch rows ``rows``: ``v`` itself if it is one number for
+    every row, else ``v[rows]`` (the same bits either way in the arithmetic)."""
+    return v if np.ndim(v) == 0 else v[rows]
 
 
 @dataclass
@@ -464,8 +495,9 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         s.ep_seen_state[rows, g, c1, a] = True
         reward[rows, k] = (
             np.where(ate, p.dot_value[c1], 0.0)
-            + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
-            + p.lambda_weight * s.ep_dots[rows, g] / s.ep_visits[rows, g]
+            + per_row(p.incremental_value, rows)
+            * np.minimum(1.0, idle / per_row(p.idle_horizon, rows))
+            + per_row(p.lambda_weight, rows) * s.ep_dots[rows, g] / s.ep_visits[rows, g]
         )
         eaten[rows, k] = ate
         s.head[rows, k] = a

@@ -282,7 +282,8 @@ def test_failed_point_is_retried_and_record_removed(base, tmp_path, monkeypatch)
     pts = points_for("learning.gamma", GAMMAS)
     out = tmp_path / "retry"
     monkeypatch.setattr(qpatrol.run, "simulate", flaky)
-    r = run_sweep(base, pts, out, jobs=1)
+    # one point per batch (a failing shared batch: test_batch_points.py)
+    r = run_sweep(base, pts, out, jobs=1, batch_points=False)
     assert r.failed == [pts[1].id] and r.done == [pts[0].id, pts[2].id]
     failed = out / "points" / f"{pts[1].id}.failed.json"
     info = json.loads(failed.read_text())

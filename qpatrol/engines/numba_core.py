@@ -280,9 +280,7 @@ def _solo_qlearning(
     dot_value,
     has_dot,
     n_dots,
-    inc,
-    horizon,
-    lam,
+    reward_w,
     avoid,
     max_ep,
     quota,
@@ -328,7 +326,8 @@ def _solo_qlearning(
     robot's cell and heading kept in registers. The same arithmetic, operation for
     operation, as :func:`qpatrol.engines.compiled.qlearning.act` and ``learn`` and the
     world's steps. Returns ``(last team step taken, episode rows written)``."""
-    gamma, epsilon = sp.fpar[0], sp.fpar[1]
+    gamma, epsilon = sp.row_f[r, 0], sp.row_f[r, 1]
+    inc, horizon, lam = reward_w[r, 0], reward_w[r, 1], reward_w[r, 2]
     use_heading = sp.ipar[0] != 0
     q, n = sp.q, sp.n
     c = pos[r, 0]
@@ -452,9 +451,7 @@ def run_block(
     wall_legal,
     dot_value,
     has_dot,
-    inc,
-    horizon,
-    lam,
+    reward_w,
     communication,
     avoid,
     diameter,
@@ -539,6 +536,8 @@ def run_block(
     With ``tl_window`` > 0 the idleness timeline (:class:`qpatrol.timeline.Timeline`,
     its arrays ``tl_*``) is kept too, each closed window a row of ``tl_buf`` ``[W, 6]``
     (run row, window, first step, last step, idleness sum, worst).
+    ``reward_w``: float64 ``[R, 3]``, each run's reward weights (incremental value,
+    idle horizon, lambda).
     Returns ``(last team step taken by any run, episode rows, update rows written,
     timeline rows written)``.
     """
@@ -595,9 +594,7 @@ def run_block(
                 dot_value,
                 has_dot,
                 n_dots,
-                inc,
-                horizon,
-                lam,
+                reward_w,
                 avoid,
                 max_ep,
                 quota,
@@ -920,8 +917,8 @@ def run_block(
                 ep_seen_state[r, g, c1, a] = True
                 reward[k] = (
                     (dot_value[c1] if ate else 0.0)
-                    + inc * min(1.0, idle / horizon)
-                    + lam * ep_dots[r, g] / ep_visits[r, g]
+                    + reward_w[r, 0] * min(1.0, idle / reward_w[r, 1])
+                    + reward_w[r, 2] * ep_dots[r, g] / ep_visits[r, g]
                 )
                 head[r, k] = a
             if battery:
@@ -1168,14 +1165,18 @@ class Loop:
         rows = n_runs * k * max_steps if rec.wants_updates else 1
         self.up_int = np.empty((rows, UP_INT), dtype=np.int64)
         self.up_float = np.empty((rows, UP_FLOAT), dtype=np.float64)
+        # float64 [R, 3]: each run's reward weights (incremental value, idle horizon,
+        # lambda), the same in every row unless the batch's rows differ
+        self.reward_w = np.empty((n_runs, 3), dtype=np.float64)
+        self.reward_w[:, 0] = p.incremental_value
+        self.reward_w[:, 1] = p.idle_horizon
+        self.reward_w[:, 2] = p.lambda_weight
         self.args = (
             p.neighbors,
             p.wall_legal,
             p.dot_value,
             p.has_dot,
-            p.incremental_value,
-            p.idle_horizon,
-            p.lambda_weight,
+            self.reward_w,
             p.communication,
             p.avoid_collisions,
             p.diameter,
@@ -1251,7 +1252,7 @@ class Loop:
             for o in owners
             for v in vars(o).values()
             if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n_runs
-        }
+        } | {id(self.reward_w)}
         self.per_run = [j for j, a in enumerate(self.args) if id(a) in ids]
         # the strategy's per-run arrays (not its constants, however many rows they have;
         # nor a one-row placeholder)

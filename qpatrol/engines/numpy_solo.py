@@ -99,7 +99,7 @@ class Solo:
             best = max4(masked)
         # --- choose (learner.choose) --------------------------------------------------------
         cand = legal & (masked == best[:, None])
-        if strategy.epsilon > 0.0:
+        if np.any(strategy.epsilon > 0.0):  # epsilon: a float, or float [R] per run
             cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
         a, count = pick(cand, u[:, 0, 1])
         if np.count_nonzero(count) < count.size:  # a robot without a move

@@ -40,7 +40,7 @@ from qpatrol.engines.flat import FIRST_OF_CODE, any4, code, max4, pick, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
 from qpatrol.timeline import Timeline
-from qpatrol.world import Params, State, _end_episodes
+from qpatrol.world import Params, State, _end_episodes, per_row
 
 
 def covers(p: Params, strategy: object) -> bool:
@@ -123,8 +123,9 @@ class Team:
         row = self.q_row0 + (pos * 4 + (s.head if strategy.use_heading else 0))
         masked = np.where(prefer, self.q2.take(row, axis=0), -np.inf)
         cand = prefer & (masked == max4(masked)[..., None])
-        if strategy.epsilon > 0.0:
-            cand = np.where((u[..., 0] < strategy.epsilon)[..., None], prefer, cand)
+        if np.any(strategy.epsilon > 0.0):  # epsilon: a float, or float [R] per run
+            eps = strategy.epsilon if np.ndim(strategy.epsilon) == 0 else strategy.epsilon[:, None]
+            cand = np.where((u[..., 0] < eps)[..., None], prefer, cand)
         a, count = pick(cand.reshape(-1, 4), u[..., 1].reshape(-1))
         if np.count_nonzero(count) < count.size:  # a robot without a move
             return False
@@ -168,10 +169,12 @@ class Team:
         self.ep_seen[gc] = True
         self.ep_seen_state[gc * 4 + d] = True
         ep_dots, ep_visits = self._episode_counts(mv, ate, res.moved)
+        run = mv // k  # the batch row of each robot that moved (per-run reward weights)
         reward = (
             np.where(ate, p.dot_value.take(c1), 0.0)
-            + p.incremental_value * np.minimum(1.0, idle / p.idle_horizon)
-            + p.lambda_weight * ep_dots / ep_visits
+            + per_row(p.incremental_value, run)
+            * np.minimum(1.0, idle / per_row(p.idle_horizon, run))
+            + per_row(p.lambda_weight, run) * ep_dots / ep_visits
         )
         self.head1[mv] = d
         # --- waits, the right of way, episodes ------------------------------------------------
@@ -387,7 +390,8 @@ class Team:
         cb = self.pos1.take(done)  # the cell each entered, as asked
         first = self.q_row0.reshape(-1).take(done)
         q_next = self.q2.take(first + cb * 4 + hb, axis=0)
-        bootstrap = strategy.gamma * max4(np.where(self.legal.take(cb, axis=0), q_next, -np.inf))
+        gamma = per_row(strategy.gamma, done // self.s.pos.shape[1])  # float, or [B] per run
+        bootstrap = gamma * max4(np.where(self.legal.take(cb, axis=0), q_next, -np.inf))
         target = reward + bootstrap
         idx = (first + ca * 4 + ha) * 4 + aa
         q_before = self.q1.take(idx)

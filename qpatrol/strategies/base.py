@@ -39,6 +39,13 @@ class Strategy:
     name: ClassVar[str] = "base"
     #: True for a strategy that learns as it patrols (it needs a warm-up to settle).
     learns: ClassVar[bool] = False
+    #: Names of its array attributes with a leading runs axis ``R`` (the others are
+    #: constants of the batch), or None where not declared: :mod:`qpatrol.batching` runs
+    #: several sweep points in one batch only for a strategy that declares them.
+    per_run: ClassVar[tuple[str, ...] | None] = None
+    #: Config keys it reads that may differ between the rows of one batch
+    #: (:meth:`use_run_values`); it ignores the other per-run keys.
+    RUN_KEYS: ClassVar[tuple[str, ...]] = ()
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         self.cfg = cfg
@@ -52,6 +59,12 @@ class Strategy:
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         """Learn from what happened in a step (default: nothing)."""
+
+    def use_run_values(self, values: dict[str, np.ndarray] | None, table: bool = True) -> None:
+        """Take per-row values of :data:`RUN_KEYS` (config key -> ``[R]``, the keys whose
+        value differs between the batch's rows; None: ``cfg``'s values for every row),
+        before the first step; ``table``: also set the initial tables from them.
+        Default: nothing (it reads none)."""
 
     def tables(self) -> dict[str, np.ndarray]:
         """Arrays worth saving with the run (e.g. a Q-table); empty by default."""

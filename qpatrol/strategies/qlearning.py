@@ -23,6 +23,7 @@ import numpy as np
 from qpatrol import learner
 from qpatrol.maps import DIRECTIONS
 from qpatrol.strategies import base
+from qpatrol.world import per_row
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -41,16 +42,50 @@ class Strategy(base.Strategy):
     name = "qlearning"
     learns = True
 
+    #: The arrays with a leading runs axis (:mod:`qpatrol.batching` cuts them per point).
+    per_run = ("q", "n")
+    #: The config keys this strategy reads that may differ between a batch's rows.
+    RUN_KEYS = (
+        "learning.gamma",
+        "learning.epsilon",
+        "learning.multiplier",
+        *(f"learning.q_init.{d}" for d in DIRECTIONS),
+    )
+
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)
+        self.use_heading = cfg["learning.state_space"] == "cell_heading"
+        self.use_run_values(None)
+        self.n = np.zeros(self.q.shape, dtype=np.int32)
+
+    def use_run_values(self, values: dict[str, np.ndarray] | None, table: bool = True) -> None:
+        """Take the values of :data:`RUN_KEYS` that differ between the batch's rows
+        (config key -> float64 ``[R]``; the others from the config) and, with ``table``,
+        set the initial table ``q`` from them. ``gamma`` and ``epsilon`` are then
+        floats, or float64 ``[R]`` where the rows differ; ``q_init`` is ``[4]`` or
+        ``[R, 4]``."""
+        cfg, values = self.cfg, values or {}
         q_init = np.array([cfg[f"learning.q_init.{d}"] for d in DIRECTIONS], dtype=np.float64)
         self.q_init = q_init * cfg["learning.multiplier"]
         self.gamma = float(cfg["learning.gamma"])
         self.epsilon = float(cfg["learning.epsilon"])
-        self.use_heading = cfg["learning.state_space"] == "cell_heading"
-        shape = (self.n_runs, self.n_agents, p.n_cells, 4, 4)
-        self.q = np.broadcast_to(self.q_init, shape).copy()
-        self.n = np.zeros(shape, dtype=np.int32)
+        shape = (self.n_runs, self.n_agents, self.params.n_cells, 4, 4)
+        if any(f"learning.q_init.{d}" in values for d in DIRECTIONS) or (
+            "learning.multiplier" in values
+        ):
+            rows = np.empty((self.n_runs, 4))
+            for i, d in enumerate(DIRECTIONS):
+                rows[:, i] = values.get(f"learning.q_init.{d}", cfg[f"learning.q_init.{d}"])
+            mult = values.get("learning.multiplier", cfg["learning.multiplier"])
+            self.q_init = rows * np.asarray(mult, dtype=np.float64).reshape(-1, 1)
+            if table:
+                self.q = np.broadcast_to(self.q_init[:, None, None, None, :], shape).copy()
+        elif table:
+            self.q = np.broadcast_to(self.q_init, shape).copy()
+        if "learning.gamma" in values:
+            self.gamma = np.asarray(values["learning.gamma"], dtype=np.float64)
+        if "learning.epsilon" in values:
+            self.epsilon = np.asarray(values["learning.epsilon"], dtype=np.float64)
 
     def _heading(self, head: np.ndarray) -> np.ndarray:
         return head if self.use_heading else np.zeros_like(head)
@@ -66,7 +101,7 @@ class Strategy(base.Strategy):
             base.prefer_open(obs).reshape(-1, 4),
             u[..., 0].reshape(-1),
             u[..., 1].reshape(-1),
-            self.epsilon,
+            self.epsilon if np.ndim(self.epsilon) == 0 else np.repeat(self.epsilon, K),
         )
         return np.where(can, action, -1).reshape(R, K)
 
@@ -82,7 +117,7 @@ class Strategy(base.Strategy):
         hb = self._heading(aa)
         reward = out.reward[rr, kk]
         target, bootstrap = learner.td_target(
-            reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], self.gamma
+            reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], per_row(self.gamma, rr)
         )
         q_before = self.q[rr, kk, ca, ha, aa]
         q_after, n_after, alpha = learner.update(q_before, self.n[rr, kk, ca, ha, aa], target)

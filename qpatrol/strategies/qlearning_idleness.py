@@ -107,6 +107,7 @@ class Strategy(base.Strategy):
 
     name = "qlearning-idleness"
     learns = True
+    per_run = ("q", "n", "last", "dots", "feat")
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)

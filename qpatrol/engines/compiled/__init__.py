@@ -109,7 +109,7 @@ def act(
     holders); ``open_mask``: bool ``[K, 4]``, the world's open moves (every legal move
     where none is open); ``sp``: the strategy's :class:`Pack`."""
     if code == QLEARNING:
-        qlearning.act(r, i, u, pos, head, open_mask, choosing, ask, sp.fpar, sp.ipar, sp.q)
+        qlearning.act(r, i, u, pos, head, open_mask, choosing, ask, sp.row_f, sp.ipar, sp.q)
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp
@@ -206,7 +206,7 @@ def learn(
             choosing,
             reward,
             eaten,
-            sp.fpar,
+            sp.row_f,
             sp.ipar,
             sp.q,
             sp.n,

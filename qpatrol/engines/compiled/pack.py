@@ -16,7 +16,9 @@ class Pack(NamedTuple):
     """A compiled strategy's arrays (``R`` runs, ``K`` robots, ``C`` cells).
 
     Attributes:
-        fpar: float64 ``[F]``, scalar parameters (e.g. gamma, epsilon).
+        fpar: float64 ``[F]``, scalar parameters (e.g. evaporation powers).
+        row_f: float64 ``[R, F]``, parameters that may differ between runs (e.g. gamma,
+            epsilon).
         ipar: int64 ``[I]``, integer parameters and flags.
         q: float64 ``[R, P, C, S, 4]``, a value per (table, cell, state slot, move).
         n: int32 ``[R, P, C, S, 4]``, visit counts of the same entries.
@@ -30,6 +32,7 @@ class Pack(NamedTuple):
     """
 
     fpar: np.ndarray
+    row_f: np.ndarray
     ipar: np.ndarray
     q: np.ndarray
     n: np.ndarray
@@ -44,11 +47,12 @@ class Pack(NamedTuple):
 
 #: The fields with a leading runs axis (a strategy's state); the others are constants
 #: of the batch. A placeholder of a per-run field has one row whatever the runs.
-PER_RUN = ("q", "n", "cell_i", "cell_f", "cell_b", "robot_i")
+PER_RUN = ("row_f", "q", "n", "cell_i", "cell_f", "cell_b", "robot_i")
 
 #: Each field's dtype and rank: every pack has the same, so the loop compiles once.
 LAYOUT = {
     "fpar": (np.float64, 1),
+    "row_f": (np.float64, 2),
     "ipar": (np.int64, 1),
     "q": (np.float64, 5),
     "n": (np.int32, 5),

@@ -5,7 +5,8 @@ operation: greedy over the open moves, ties and epsilon from the run's uniforms;
 ``Q(s,a) <- Q(s,a) + (1/N) (r + gamma max_{a' legal} Q(s',a') - Q(s,a))``).
 
 Pack (see :mod:`qpatrol.engines.compiled`): ``q`` float64 and ``n`` int32
-``[R, K, C, H, 4]`` (``H`` = 4 headings); ``fpar = [gamma, epsilon]``,
+``[R, K, C, H, 4]`` (``H`` = 4 headings); ``row_f`` float64 ``[R, 2]``: each run's
+``[gamma, epsilon]`` (they may differ between the runs of a batch);
 ``ipar = [use_heading]``.
 """
 
@@ -22,11 +23,19 @@ def pack(strategy) -> Pack:
     """The compiled arrays of a :class:`qpatrol.strategies.qlearning.Strategy` (its own
     ``q`` and ``n``, updated in place)."""
     return dummy_pack(
-        fpar=np.array([strategy.gamma, strategy.epsilon], dtype=np.float64),
+        row_f=_row_f(strategy),
         ipar=np.array([1 if strategy.use_heading else 0], dtype=np.int64),
         q=strategy.q,
         n=strategy.n,
     )
+
+
+def _row_f(strategy) -> np.ndarray:
+    """float64 ``[R, 2]``: each run's gamma and epsilon (floats, or ``[R]`` per run)."""
+    out = np.empty((strategy.n_runs, 2), dtype=np.float64)
+    out[:, 0] = strategy.gamma
+    out[:, 1] = strategy.epsilon
+    return out
 
 
 def unpack(p: Pack, strategy) -> None:
@@ -34,11 +43,11 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, u, pos, head, open_mask, choosing, ask, fpar, ipar, q):
+def act(r, i, u, pos, head, open_mask, choosing, ask, row_f, ipar, q):
     """``ask[k]`` for every choosing robot of run ``r``: the greedy open move (ties by
     ``u[r, i, k, 1]``; with probability epsilon (``u[r, i, k, 0] < epsilon``) any open
     move), -1 where there is none."""
-    epsilon = fpar[1]
+    epsilon = row_f[r, 1]
     use_heading = ipar[0] != 0
     for k in range(pos.shape[1]):
         if not choosing[k]:
@@ -75,7 +84,7 @@ def learn(
     choosing,
     reward,
     eaten,
-    fpar,
+    row_f,
     ipar,
     q,
     n,
@@ -88,7 +97,7 @@ def learn(
     """The update of every robot of run ``r`` that made the move it chose, in robot
     order; Q-updates recorded as :meth:`qpatrol.records.Recorder.updates` wants them.
     Returns the number of update rows now written."""
-    gamma = fpar[0]
+    gamma = row_f[r, 0]
     use_heading = ipar[0] != 0
     for k in range(prev_pos.shape[0]):
         if not as_asked[k] or not choosing[k]:
