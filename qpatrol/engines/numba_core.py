@@ -318,6 +318,7 @@ def _solo_qlearning(
     ep_buf,
     n_ep,
     ended,
+    sink,
 ):
     """Run ``r`` of a batch of lone Q-learning robots (no battery, no recorder but the
     trajectory), advanced by up to ``u.shape[1]`` steps after ``t0``: the steps of
@@ -330,6 +331,14 @@ def _solo_qlearning(
     inc, horizon, lam = reward_w[r, 0], reward_w[r, 1], reward_w[r, 2]
     use_heading = sp.ipar[0] != 0
     q, n = sp.q, sp.n
+    # read the run's tables once, in order, before its steps: at thousands of runs they
+    # come from memory, and a miss inside the steps waits on the choice of the next move
+    warm = 0.0
+    for cc in range(q.shape[2]):
+        for hh in range(q.shape[3]):
+            warm += q[r, 0, cc, hh, 0] + n[r, 0, cc, hh, 0]
+        warm += last[r, 0, cc] + m_last[r, cc]
+    sink[0] = warm
     c = pos[r, 0]
     h = head[r, 0]
     t_end = t0
@@ -632,6 +641,7 @@ def run_block(
                 ep_buf,
                 n_ep,
                 ended,
+                reward,
             )
             t_end = max(t_end, t_r)
             continue
