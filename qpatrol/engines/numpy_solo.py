@@ -80,6 +80,8 @@ class Solo:
         # [R], its cell's legal moves bool [R, 4], the masked row float [R, 4] and its max
         self.t = -1
         self.row = self.legal_row = self.masked = self.best = None
+        # epsilon: a float, or float [R] per run (np.any once, not every step)
+        self.explores = bool(np.any(np.asarray(strategy.epsilon) > 0.0))
 
     def step(self, u: np.ndarray, rec: Recorder, tail: Tail, timeline: Timeline) -> bool:
         """One team step of every run (all active), in place; False if it does not
@@ -99,7 +101,7 @@ class Solo:
             best = max4(masked)
         # --- choose (learner.choose) --------------------------------------------------------
         cand = legal & (masked == best[:, None])
-        if np.any(strategy.epsilon > 0.0):  # epsilon: a float, or float [R] per run
+        if self.explores:
             cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
         a, count = pick(cand, u[:, 0, 1])
         if np.count_nonzero(count) < count.size:  # a robot without a move

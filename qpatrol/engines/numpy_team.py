@@ -61,6 +61,8 @@ class Team:
     """
 
     def __init__(self, p: Params, s: State, strategy: object, m: Measures, defer: bool = True):
+        # epsilon: a float, or float [R] per run (np.any once, not every step)
+        self.explores = bool(np.any(np.asarray(strategy.epsilon) > 0.0))
         n_runs, k, c, g = s.n_runs, p.n_agents, p.n_cells, p.n_groups
         self.p, self.s, self.strategy, self.m = p, s, strategy, m
         self.taken = 0  # fast steps taken (for tests)
@@ -123,7 +125,7 @@ class Team:
         row = self.q_row0 + (pos * 4 + (s.head if strategy.use_heading else 0))
         masked = np.where(prefer, self.q2.take(row, axis=0), -np.inf)
         cand = prefer & (masked == max4(masked)[..., None])
-        if np.any(strategy.epsilon > 0.0):  # epsilon: a float, or float [R] per run
+        if self.explores:
             eps = strategy.epsilon if np.ndim(strategy.epsilon) == 0 else strategy.epsilon[:, None]
             cand = np.where((u[..., 0] < eps)[..., None], prefer, cand)
         a, count = pick(cand.reshape(-1, 4), u[..., 1].reshape(-1))
