@@ -237,37 +237,18 @@ def _end_episodes(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _visit(
-    r,
-    k,
-    c,
-    t,
-    warmup,
-    m_last,
-    m_last_sum,
-    visits,
-    window_visits,
-    worst,
-    gap_sum,
-    gap_count,
-    gap_max,
-):
-    """Measures.observe for robot ``k`` of run ``r`` entering cell ``c`` at step ``t``:
-    last visits and their sum, visit counts, and inside the window (after ``warmup``)
-    the visit gaps and the worst idleness."""
-    prev = m_last[r, c]
-    m_last[r, c] = t
-    m_last_sum[r] += t - prev
-    visits[r, k, c] += 1
-    if t > warmup:
-        window_visits[r, k, c] += 1
-        gap = t - prev if prev > 0 else 0
-        gap_sum[r] += gap
-        if prev > 0:
-            gap_count[r] += 1
-        gap_max[r] = max(gap_max[r], gap)
-        if t - 1 > warmup:
-            worst[r] = max(worst[r], t - 1 - prev)
+def _gap(prev, t, warmup, gap_sum, gap_count, gap_max, worst):
+    """Measures.observe of a visit inside the window (step ``t`` > ``warmup``) to a cell
+    last visited at ``prev`` (0: never): ``(gap_sum, gap_count, gap_max, worst)``
+    updated with the visit's gap and the worst idleness it ends."""
+    gap = t - prev if prev > 0 else 0
+    gap_sum += gap
+    if prev > 0:
+        gap_count += 1
+    gap_max = max(gap_max, gap)
+    if t - 1 > warmup:
+        worst = max(worst, t - 1 - prev)
+    return gap_sum, gap_count, gap_max, worst
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -339,115 +320,134 @@ def _solo_qlearning(
             warm += q[r, 0, cc, hh, 0] + n[r, 0, cc, hh, 0]
         warm += last[r, 0, cc] + m_last[r, cc]
     sink[0] = warm
-    c = pos[r, 0]
+    # the run's rows (views), and what nothing inside the kernel reads kept in
+    # registers and stored once at the end: cell, heading, occupancy, wait, steps done
+    q_r, n_r, u_r = q[r, 0], n[r, 0], u[r]
+    dots_r, last_r, seen_r, seen_state_r = (
+        dots[r, 0],
+        last[r, 0],
+        ep_seen[r, 0],
+        ep_seen_state[r, 0],
+    )
+    c0 = c = pos[r, 0]
     h = head[r, 0]
+    # the episode's counters, stored before an episode ends and at the end
+    left, eaten, entered, start = dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0], ep_start[r, 0]
+    going = active[r]
+    # the run's measures (Measures), stored at the end
+    m_last_r, visits_r, window_visits_r = m_last[r], visits[r, 0], window_visits[r, 0]
+    last_sum, idle_sum, n_measured = m_last_sum[r], idle_total[r], measured[r]
+    g_sum, g_count, g_max, worst_r = gap_sum[r], gap_count[r], gap_max[r], worst[r]
     t_end = t0
     for i in range(u.shape[1]):
-        if not active[r]:
+        if not going:
             break
         t = t0 + i + 1
         # --- the robot chooses: greedy over its legal moves (qlearning.act) -----------
         hs = h if use_heading else 0
         best = -np.inf
         for d in range(4):
-            if nbrs[c, d] >= 0 and q[r, 0, c, hs, d] > best:
-                best = q[r, 0, c, hs, d]
-        explore = epsilon > 0.0 and u[r, i, 0, 0] < epsilon
+            if nbrs[c, d] >= 0 and q_r[c, hs, d] > best:
+                best = q_r[c, hs, d]
+        explore = epsilon > 0.0 and u_r[i, 0, 0] < epsilon
         bits = 0
         count = 0
         for d in range(4):
-            if nbrs[c, d] >= 0 and (explore or q[r, 0, c, hs, d] == best):
+            if nbrs[c, d] >= 0 and (explore or q_r[c, hs, d] == best):
                 bits |= 1 << d
                 count += 1
-        aa = pick(bits, count, u[r, i, 0, 1])
+        aa = pick(bits, count, u_r[i, 0, 1])
         if aa >= 0:
             # --- it moves and enters c1: dots, visits, reward, heading ----------------
             c1 = nbrs[c, aa]
-            if avoid:
-                occ[r, c] = -1
-                occ[r, c1] = 0
-            pos[r, 0] = c1
             a = 0
             for d in range(4):
                 if nbrs[c, d] == c1:
                     a = d
                     break
-            ate = dots[r, 0, c1]
-            dots[r, 0, c1] = False
+            ate = dots_r[c1]
+            dots_r[c1] = False
             if ate:
-                dots_left[r, 0] -= 1
-                ep_dots[r, 0] += 1
-            ep_visits[r, 0] += 1
-            idle = t - last[r, 0, c1]
-            last[r, 0, c1] = t
-            ep_seen[r, 0, c1] = True
-            ep_seen_state[r, 0, c1, a] = True
+                left -= 1
+                eaten += 1
+            entered += 1
+            idle = t - last_r[c1]
+            last_r[c1] = t
+            seen_r[c1] = True
+            seen_state_r[c1, a] = True
             reward = (
                 (dot_value[c1] if ate else 0.0)
                 + inc * min(1.0, idle / horizon)
-                + lam * ep_dots[r, 0] / ep_visits[r, 0]
+                + lam * eaten / entered
             )
-            head[r, 0] = a
-        wait[r, 0] = 0
-        steps_done[r] = t
-        n_ep = _end_episodes(
-            r,
-            t,
-            has_dot,
-            n_dots,
-            max_ep,
-            quota,
-            dots,
-            dots_left,
-            ep_dots,
-            ep_visits,
-            ep_start,
-            ep_count,
-            ep_seen,
-            ep_seen_state,
-            active,
-            ep_buf,
-            n_ep,
-            ended,
-        )
+        if left == 0 or (max_ep > 0 and t - start >= max_ep):
+            dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0] = left, eaten, entered
+            n_ep = _end_episodes(
+                r,
+                t,
+                has_dot,
+                n_dots,
+                max_ep,
+                quota,
+                dots,
+                dots_left,
+                ep_dots,
+                ep_visits,
+                ep_start,
+                ep_count,
+                ep_seen,
+                ep_seen_state,
+                active,
+                ep_buf,
+                n_ep,
+                ended,
+            )
+            left, eaten, entered = dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0]
+            start, going = ep_start[r, 0], active[r]
         if aa >= 0:
             # --- it learns (qlearning.learn) ------------------------------------------
             cb = nbrs[c, aa]
             hb = aa if use_heading else 0
             top = -np.inf
             for d in range(4):
-                if wall_legal[cb, d] and q[r, 0, cb, hb, d] > top:
-                    top = q[r, 0, cb, hb, d]
+                if wall_legal[cb, d] and q_r[cb, hb, d] > top:
+                    top = q_r[cb, hb, d]
             target = reward + gamma * top
-            q_sa = q[r, 0, c, hs, aa]
-            n_after = n[r, 0, c, hs, aa] + 1
+            q_sa = q_r[c, hs, aa]
+            n_after = n_r[c, hs, aa] + 1
             alpha = 1.0 / n_after
-            q[r, 0, c, hs, aa] = q_sa + alpha * (target - q_sa)
-            n[r, 0, c, hs, aa] = n_after
-            _visit(
-                r,
-                0,
-                c1,
-                t,
-                warmup,
-                m_last,
-                m_last_sum,
-                visits,
-                window_visits,
-                worst,
-                gap_sum,
-                gap_count,
-                gap_max,
-            )
+            q_r[c, hs, aa] = q_sa + alpha * (target - q_sa)
+            n_r[c, hs, aa] = n_after
+            prev = m_last_r[c1]  # Measures.observe
+            m_last_r[c1] = t
+            last_sum += t - prev
+            visits_r[c1] += 1
+            if t > warmup:
+                window_visits_r[c1] += 1
+                g_sum, g_count, g_max, worst_r = _gap(
+                    prev, t, warmup, g_sum, g_count, g_max, worst_r
+                )
             c = c1
             h = a
         if t > warmup:
-            idle_total[r] += nbrs.shape[0] * t - m_last_sum[r]
-            measured[r] += 1
-            max_wait[r] = max(max_wait[r], 0)
+            idle_sum += nbrs.shape[0] * t - last_sum
+            n_measured += 1
         if tail_n > 0:
             tail_pos[r, (t - 1) % tail_n, 0] = c
         t_end = t
+    dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0] = left, eaten, entered
+    m_last_sum[r], idle_total[r], measured[r] = last_sum, idle_sum, n_measured
+    gap_sum[r], gap_count[r], gap_max[r], worst[r] = g_sum, g_count, g_max, worst_r
+    if t_end > t0:  # the stores the steps left out
+        pos[r, 0] = c
+        head[r, 0] = h
+        if avoid:
+            occ[r, c0] = -1
+            occ[r, c] = 0
+        wait[r, 0] = 0
+        steps_done[r] = t_end
+        if t_end > warmup:
+            max_wait[r] = max(max_wait[r], 0)
     return t_end, n_ep
 
 
@@ -1052,21 +1052,16 @@ def run_block(
             for k in range(n_agents):
                 if not moved[k]:
                     continue
-                _visit(
-                    r,
-                    k,
-                    pos[r, k],
-                    t,
-                    warmup,
-                    m_last,
-                    m_last_sum,
-                    visits,
-                    window_visits,
-                    worst,
-                    gap_sum,
-                    gap_count,
-                    gap_max,
-                )
+                c = pos[r, k]
+                prev = m_last[r, c]
+                m_last[r, c] = t
+                m_last_sum[r] += t - prev
+                visits[r, k, c] += 1
+                if in_window:
+                    window_visits[r, k, c] += 1
+                    gap_sum[r], gap_count[r], gap_max[r], worst[r] = _gap(
+                        prev, t, warmup, gap_sum[r], gap_count[r], gap_max[r], worst[r]
+                    )
             if tl_window > 0:
                 # Timeline.observe: its own last visits, peaks inside t's window
                 start = ((t - 1) // tl_window) * tl_window + 1
