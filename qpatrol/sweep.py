@@ -496,7 +496,9 @@ def _pool(
                 yield tag, outcome
         return
     ordered = sorted(tasks, key=lambda t: -_task_cost(t))
-    parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered")
+    # one task at a time (joblib's automatic batching may hand a worker several of the
+    # short tasks at the end at once, and the other worker then idles)
+    parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered", batch_size=1)
     for tag, outcomes in parallel(
         delayed(_run_tagged)(tag, pts, m, pdir, meta) for tag, pts, m, pdir in ordered
     ):
