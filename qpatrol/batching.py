@@ -24,7 +24,7 @@ from __future__ import annotations
 import copy
 import json
 from collections.abc import Callable, Hashable, Sequence
-from dataclasses import dataclass, fields, replace
+from dataclasses import dataclass, replace
 from typing import Any
 
 import numpy as np
@@ -32,16 +32,15 @@ import pandas as pd
 
 from qpatrol import limits, world
 from qpatrol.config import Config
-from qpatrol.maps import DIRECTIONS, Map
+from qpatrol.maps import Map
+from qpatrol.rng import run_seed
 from qpatrol.run import RunResult, join, simulate_rows
+from qpatrol.strategies import qlearning
 
 #: Config keys whose value may differ between the rows of one batch.
 PER_RUN_KEYS: tuple[str, ...] = (
     "seed",
-    "learning.gamma",
-    "learning.epsilon",
-    "learning.multiplier",
-    *(f"learning.q_init.{d}" for d in DIRECTIONS),
+    *qlearning.Strategy.RUN_KEYS,
     *world.RUN_VALUE_FIELDS,
 )
 
@@ -123,17 +122,12 @@ def split(result: RunResult, pieces: Sequence[Piece]) -> list[RunResult]:
     out = []
     for pc in pieces:
         rows = slice(pc.lo, pc.hi)
-        state = copy.copy(result.state)
-        for f in fields(state):
-            v = getattr(state, f.name)
-            if isinstance(v, np.ndarray):
-                setattr(state, f.name, v[rows])
         out.append(
             RunResult(
                 config=pc.cfg,
                 map=result.map,
                 params=_own_params(result.params, pc.cfg),
-                state=state,
+                state=_cut(result.state, n, rows),
                 strategy=_cut_strategy(result.strategy, n, rows, pc.cfg),
                 measures=_cut(result.measures, n, rows),
                 run_ids=pc.runs.copy(),
@@ -161,7 +155,8 @@ def _own_params(p: world.Params, cfg: Config) -> world.Params:
 
 def _cut(obj: Any, n: int, rows: slice) -> Any:
     """A shallow copy of ``obj`` with rows ``rows`` of each array attribute whose first
-    axis is the batch's ``n`` runs (every array of the measures is per run)."""
+    axis is the batch's ``n`` runs (every array of the world state and of the measures
+    is per run)."""
     out = copy.copy(obj)
     for name, v in vars(obj).items():
         if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n:
@@ -224,10 +219,7 @@ def run_group(
     for lo in range(0, len(rows), size):
         chunk = rows[lo : lo + size]
         cfgs = [items[j][2] for j, _ in chunk]
-        seeds = [
-            np.random.SeedSequence(items[j][2]["seed"], spawn_key=(items[j][1], r))
-            for j, r in chunk
-        ]
+        seeds = [run_seed(items[j][2]["seed"], items[j][1], r) for j, r in chunk]
         pieces, owners = [], []
         for i, (j, r) in enumerate(chunk):
             if not owners or owners[-1] != j:

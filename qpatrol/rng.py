@@ -12,10 +12,16 @@ from __future__ import annotations
 import numpy as np
 
 
+def run_seed(seed: int, point: int, r: int) -> np.random.SeedSequence:
+    """The stream of run ``r`` of sweep point ``point``: ``SeedSequence(seed,
+    spawn_key=(point, r))``."""
+    return np.random.SeedSequence(seed, spawn_key=(point, r))
+
+
 def run_seeds(seed: int, runs: int | range, point: int = 0) -> list[np.random.SeedSequence]:
-    """``SeedSequence(seed, spawn_key=(point, r))`` for each run index r."""
+    """:func:`run_seed` of each run index r."""
     idx = range(runs) if isinstance(runs, int) else runs
-    return [np.random.SeedSequence(seed, spawn_key=(point, r)) for r in idx]
+    return [run_seed(seed, point, r) for r in idx]
 
 
 class Streams:

@@ -24,8 +24,8 @@ strategy's ``act``/``learn`` would otherwise pay an atomic increment and decreme
 array argument, which made the loop several times slower. It is compiled three times
 (``SPEC_*``): for any strategy; for Q-learning without battery or timeline, with the
 rest left out; and for a lone Q-learning robot, whose steps run in a kernel of their
-own (:func:`_solo_qlearning`, the cell and heading in registers): 1.5 times the
-speed of the general loop for one robot.
+own (:func:`_solo_qlearning`, its state in registers): twice the speed of the
+general loop for one robot.
 """
 
 from __future__ import annotations
@@ -292,7 +292,6 @@ def _solo_qlearning(
     gap_count,
     gap_max,
     max_wait,
-    wait_total,
     warmup,
     tail_pos,
     tail_n,
@@ -406,12 +405,11 @@ def _solo_qlearning(
             start, going = ep_start[r, 0], active[r]
         if aa >= 0:
             # --- it learns (qlearning.learn) ------------------------------------------
-            cb = nbrs[c, aa]
-            hb = aa if use_heading else 0
+            hb = aa if use_heading else 0  # the state reached: (c1, hb)
             top = -np.inf
             for d in range(4):
-                if wall_legal[cb, d] and q_r[cb, hb, d] > top:
-                    top = q_r[cb, hb, d]
+                if wall_legal[c1, d] and q_r[c1, hb, d] > top:
+                    top = q_r[c1, hb, d]
             target = reward + gamma * top
             q_sa = q_r[c, hs, aa]
             n_after = n_r[c, hs, aa] + 1
@@ -634,7 +632,6 @@ def run_block(
                 gap_count,
                 gap_max,
                 max_wait,
-                wait_total,
                 warmup,
                 tail_pos,
                 tail_n,
@@ -1268,7 +1265,7 @@ class Loop:
         ]
         self.n_runs = n_runs
         self.spec = SPEC_ANY
-        if self.code == compiled.QLEARNING and not p.battery and self.timeline_off:
+        if self.code == compiled.QLEARNING and not p.battery and self.timeline is None:
             solo = k == 1 and not rec.wants_updates
             self.spec = SPEC_QLEARNING_SOLO if solo else SPEC_QLEARNING
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
@@ -1276,7 +1273,6 @@ class Loop:
 
     def _timeline_args(self, tl, n_runs: int, n_cells: int, max_steps: int) -> tuple:
         """The timeline's arrays (tiny dummies when it is off) and its row buffer."""
-        self.timeline_off = tl is None or not tl.window
         if tl is None or not tl.window:
             one, row = np.zeros(1, dtype=np.int64), np.zeros((1, 1), dtype=np.int64)
             self.tl_buf = np.zeros((1, 6), dtype=np.int64)
