@@ -153,17 +153,62 @@ def test_compiled_lone_qlearner(rooms_map, tmp_path, monkeypatch, extra):
     assert specs == [numba_core.SPEC_QLEARNING_SOLO]
 
 
+TEAM = [  # (settings, team size, the right of way pushes robots aside in these runs)
+    ({}, 4, True),
+    ({"team.avoid_collisions": False, "runs": 3}, 3, False),
+    (
+        {"team.communication": False, "learning.epsilon": 0.3, "learning.state_space": "cell"},
+        4,
+        False,
+    ),
+    ({"record.warmup": 20, "record.trajectory": 0, "learning.q_init.east": 2.0}, 2, False),
+    ({"episodes": 2, "max_episode_steps": None, "steps": 900}, 3, False),
+    ({"learning.gamma": 0.9, "reward.lambda": 0.5, "reward.idle_horizon": 7}, 8, True),
+]
+
+
+@pytest.mark.parametrize("extra, agents, pushing", TEAM)
+def test_compiled_qlearning_team_kernel(rooms_map, tmp_path, monkeypatch, extra, agents, pushing):
+    """Q-learning teams without battery run in the compiled loop's team kernel
+    (numba_core._team_qlearning): the numpy engine's files and Q-tables, to the bit,
+    in runs with and without the right of way's pushes."""
+    from qpatrol import traffic
+    from qpatrol.engines import numba_core
+
+    specs, pushes = [], []
+    init, push = numba_core.Loop.__init__, traffic._push_path
+
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        specs.append(self.spec)
+
+    def counted(*args, **kwargs):
+        path = push(*args, **kwargs)
+        pushes.append(path is not None and len(path) > 1)
+        return path
+
+    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
+    monkeypatch.setattr(traffic, "_push_path", counted)
+    flat = {**BASE, "map": str(rooms_map), "agents": agents, "battery.enabled": False, **extra}
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+    assert specs == [numba_core.SPEC_QLEARNING_TEAM]
+    if pushing:
+        assert any(pushes)
+
+
 def test_compiled_loop_specializations():
     """Which compiled loop a batch runs: the lone Q-learner's kernel, the Q-learning
-    team's loop, or the loop for any strategy (battery, timeline, other strategies)."""
+    team's kernel, the Q-learning loop (Q-update recorders), or the loop for any
+    strategy (battery, timeline, other strategies)."""
     from qpatrol import bench
     from qpatrol.engines import numba_core
     from qpatrol.run import simulate
 
     cases = [
         ({}, 1, numba_core.SPEC_QLEARNING_SOLO),
-        ({}, 4, numba_core.SPEC_QLEARNING),
+        ({}, 4, numba_core.SPEC_QLEARNING_TEAM),
         ({"record.transitions": True}, 1, numba_core.SPEC_QLEARNING),
+        ({"record.watch": [3]}, 4, numba_core.SPEC_QLEARNING),
         ({"record.timeline": 10}, 1, numba_core.SPEC_ANY),
         ({"battery.enabled": True}, 1, numba_core.SPEC_ANY),
         ({"policy": "random"}, 1, numba_core.SPEC_ANY),

@@ -50,6 +50,7 @@ EP_COLS = 9
 SPEC_ANY = 1
 SPEC_QLEARNING = 2
 SPEC_QLEARNING_SOLO = 3
+SPEC_QLEARNING_TEAM = 4
 #: Columns of the Q-update buffers: ints run, step, agent, cell, heading, action,
 #: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
 #: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
@@ -450,6 +451,377 @@ def _solo_qlearning(
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def _team_qlearning(
+    r,
+    t0,
+    u,
+    nbrs,
+    wall_legal,
+    dot_value,
+    has_dot,
+    n_dots,
+    reward_w,
+    communication,
+    avoid,
+    diameter,
+    max_ep,
+    quota,
+    sp,
+    pos,
+    head,
+    occ,
+    dots,
+    last,
+    dots_left,
+    ep_dots,
+    ep_visits,
+    ep_start,
+    ep_count,
+    ep_seen,
+    ep_seen_state,
+    wait,
+    token,
+    token_held,
+    active,
+    steps_done,
+    m_last,
+    m_last_sum,
+    visits,
+    window_visits,
+    idle_total,
+    worst,
+    measured,
+    gap_sum,
+    gap_count,
+    gap_max,
+    max_wait,
+    wait_total,
+    warmup,
+    tail_pos,
+    tail_n,
+    ep_buf,
+    n_ep,
+    mode,
+    pocket_of,
+    reserved,
+    scratch,
+):
+    """Run ``r`` of a batch of Q-learning teams (no battery, no recorder but the
+    trajectory), advanced by up to ``u.shape[1]`` team steps after ``t0``: the steps of
+    :func:`run_block` with the battery's rules left out (every robot patrols and
+    chooses; right of way by wait and turn alone), the run's rows read through views,
+    and its right of way and measures' sums kept in registers. The same arithmetic,
+    operation for operation, as :func:`qpatrol.engines.compiled.qlearning.act` and
+    ``learn``, :mod:`qpatrol.traffic` and the world's steps. Returns ``(last team step
+    taken, episode rows written)``."""
+    (
+        want,
+        ask,
+        prev_pos,
+        prev_head,
+        moved,
+        as_asked,
+        reward,
+        blocked_by,
+        order,
+        key,
+        _choosing,
+        _eaten,
+        _yielding,
+        _held_back,
+        _open_mask,
+        ended,
+        parent,
+        seen,
+        queue,
+        path,
+    ) = scratch
+    n_agents, n_cells = u.shape[2], nbrs.shape[0]
+    gamma, epsilon = sp.row_f[r, 0], sp.row_f[r, 1]
+    inc, horizon, lam = reward_w[r, 0], reward_w[r, 1], reward_w[r, 2]
+    use_heading = sp.ipar[0] != 0
+    # the run's rows (views)
+    q_r, n_r, u_r = sp.q[r], sp.n[r], u[r]
+    pos_r, head_r, occ_r, wait_r = pos[r], head[r], occ[r], wait[r]
+    dots_r, last_r, seen_r, seen_state_r = dots[r], last[r], ep_seen[r], ep_seen_state[r]
+    left_r, eaten_r, entered_r = dots_left[r], ep_dots[r], ep_visits[r]
+    m_last_r, visits_r, window_visits_r = m_last[r], visits[r], window_visits[r]
+    mode_r, reserved_r = mode[r], reserved[r]
+    # what only this kernel reads, in registers and stored at the end: the right of
+    # way, the measures' sums
+    tok, held = token[r], token_held[r]
+    last_sum, idle_sum, n_measured = m_last_sum[r], idle_total[r], measured[r]
+    g_sum, g_count, g_max, worst_r = gap_sum[r], gap_count[r], gap_max[r], worst[r]
+    top_wait, wait_sum = max_wait[r], wait_total[r]
+    going = active[r]
+    t_end = t0
+    t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
+    for i in range(u.shape[1]):
+        if not going:
+            break
+        t = t0 + i + 1
+        t_mod = t_next_mod
+        t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
+        # --- each robot's open moves and its choice (world.begin_step, qlearning.act)
+        for k in range(n_agents):
+            c = pos_r[k]
+            hk = head_r[k]
+            prev_pos[k] = c
+            prev_head[k] = hk
+            moved[k] = False
+            as_asked[k] = False
+            legal = 0
+            free = 0
+            for d in range(4):
+                nb = nbrs[c, d]
+                if nb >= 0:
+                    legal |= 1 << d
+                    if not (avoid and k != tok and occ_r[nb] >= 0):
+                        free |= 1 << d
+            if free == 0:  # base.prefer_open: every legal move where none is open
+                free = legal
+            hs = hk if use_heading else 0
+            best = -np.inf
+            for d in range(4):
+                if (free >> d) & 1 and q_r[k, c, hs, d] > best:
+                    best = q_r[k, c, hs, d]
+            explore = epsilon > 0.0 and u_r[i, k, 0] < epsilon
+            bits = 0
+            count = 0
+            for d in range(4):
+                if (free >> d) & 1 and (explore or q_r[k, c, hs, d] == best):
+                    bits |= 1 << d
+                    count += 1
+            aa = pick(bits, count, u_r[i, k, 1])
+            ask[k] = aa
+            want[k] = nbrs[c, aa] if aa >= 0 else -1
+        # --- move (traffic.resolve) -------------------------------------------------
+        push_failed = False
+        if not avoid:
+            for k in range(n_agents):
+                if want[k] >= 0:
+                    pos_r[k] = want[k]
+                    moved[k] = True
+                    as_asked[k] = True
+        else:
+            if tok >= 0 and want[tok] >= 0:
+                # 1. the holder takes its cell, pushing robots aside, or steps aside
+                own = pos_r[tok]
+                dest = -1
+                m = 0
+                for ci in range(5):
+                    if ci == 0:
+                        cell = want[tok]
+                    else:
+                        cell = nbrs[own, ci - 1]
+                        if cell < 0 or cell == want[tok]:
+                            continue
+                    if occ_r[cell] < 0:
+                        dest = cell
+                        m = 0
+                        break
+                    m = _push_path(
+                        nbrs,
+                        occ_r,
+                        own,
+                        cell,
+                        parent,
+                        seen,
+                        queue,
+                        path,
+                        False,
+                        mode_r,
+                        pocket_of,
+                        reserved_r,
+                    )
+                    if m > 0:
+                        dest = cell
+                        break
+                if dest < 0:
+                    push_failed = True
+                else:
+                    for x in range(m - 2, -1, -1):
+                        jr = occ_r[path[x]]
+                        occ_r[pos_r[jr]] = -1
+                        occ_r[path[x + 1]] = jr
+                        pos_r[jr] = path[x + 1]
+                        moved[jr] = True
+                        as_asked[jr] = want[jr] == path[x + 1]
+                    occ_r[pos_r[tok]] = -1
+                    occ_r[dest] = tok
+                    pos_r[tok] = dest
+                    moved[tok] = True
+                    as_asked[tok] = dest == want[tok]
+                    push_failed = not as_asked[tok]
+            # 2. everyone else, in priority order, into cells empty at that moment (the
+            # order of traffic.priority: every robot patrols, so wait, then turn)
+            waits = False
+            for k in range(n_agents):
+                waits = waits or wait_r[k] > 0
+            if not waits:  # by turn alone: robot t % n_agents first, then the next ones
+                for a in range(n_agents):
+                    k = t_mod + a
+                    order[a] = k if k < n_agents else k - n_agents
+            else:
+                for k in range(n_agents):
+                    back = k - t_mod  # (k - t) % n_agents, without a division
+                    if back < 0:
+                        back += n_agents
+                    key[k] = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
+                    order[k] = k
+                for a in range(1, n_agents):  # insertion sort, largest key first
+                    x = order[a]
+                    b = a - 1
+                    while b >= 0 and key[order[b]] < key[x]:
+                        order[b + 1] = order[b]
+                        b -= 1
+                    order[b + 1] = x
+            progress = True
+            while progress:
+                progress = False
+                for a in range(n_agents):
+                    k = order[a]
+                    w = want[k]
+                    if w >= 0 and not moved[k] and occ_r[w] < 0:
+                        occ_r[pos_r[k]] = -1
+                        occ_r[w] = k
+                        pos_r[k] = w
+                        moved[k] = True
+                        as_asked[k] = True
+                        progress = True
+        # --- each robot that moved enters its cell (dots, visits, reward, heading); one
+        # that made the move it chose learns (qlearning.learn); the measures see the
+        # visit (Measures.observe). Robot after robot: each touches only its group's
+        # dots and its own Q-table, and the measures their own arrays, in robot order
+        in_window = t > warmup
+        for k in range(n_agents):
+            if not moved[k]:
+                continue
+            g = 0 if communication else k
+            c0 = prev_pos[k]
+            c1 = pos_r[k]
+            a = 0
+            for d in range(4):
+                if nbrs[c0, d] == c1:
+                    a = d
+                    break
+            ate = dots_r[g, c1]
+            dots_r[g, c1] = False
+            if ate:
+                left_r[g] -= 1
+                eaten_r[g] += 1
+            entered_r[g] += 1
+            idle = t - last_r[g, c1]
+            last_r[g, c1] = t
+            seen_r[g, c1] = True
+            seen_state_r[g, c1, a] = True
+            rew = (
+                (dot_value[c1] if ate else 0.0)
+                + inc * min(1.0, idle / horizon)
+                + lam * eaten_r[g] / entered_r[g]
+            )
+            head_r[k] = a
+            if as_asked[k]:
+                ha = prev_head[k] if use_heading else 0
+                aa = ask[k]
+                hb = aa if use_heading else 0  # the state reached: (c1, hb)
+                top = -np.inf
+                for d in range(4):
+                    if wall_legal[c1, d] and q_r[k, c1, hb, d] > top:
+                        top = q_r[k, c1, hb, d]
+                target = rew + gamma * top
+                q_sa = q_r[k, c0, ha, aa]
+                n_after = n_r[k, c0, ha, aa] + 1
+                alpha = 1.0 / n_after
+                q_r[k, c0, ha, aa] = q_sa + alpha * (target - q_sa)
+                n_r[k, c0, ha, aa] = n_after
+            prev = m_last_r[c1]
+            m_last_r[c1] = t
+            last_sum += t - prev
+            visits_r[k, c1] += 1
+            if in_window:
+                window_visits_r[k, c1] += 1
+                g_sum, g_count, g_max, worst_r = _gap(
+                    prev, t, warmup, g_sum, g_count, g_max, worst_r
+                )
+        # --- waits, who blocked whom, the right of way ---------------------------------
+        for k in range(n_agents):
+            failed = ask[k] >= 0 and not as_asked[k]
+            blocked_by[k] = occ_r[want[k]] if failed else -1
+            wait_r[k] = wait_r[k] + 1 if failed else 0
+        if avoid:
+            best_k = -1
+            best_key = -1
+            for k in range(n_agents):
+                kk = -1
+                if want[k] >= 0 and not as_asked[k]:
+                    back = k - t_next_mod
+                    if back < 0:
+                        back += n_agents
+                    kk = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
+                if tok >= 0 and push_failed and k == tok:
+                    kk = -1
+                if kk > best_key:
+                    best_key = kk
+                    best_k = k
+            new = best_k
+            if tok >= 0:
+                blocker = blocked_by[tok]
+                blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
+                if as_asked[tok] and held < diameter:
+                    new = tok
+                elif push_failed and blocker_waits:
+                    new = blocker
+            held = held + 1 if (new == tok and new >= 0) else 0
+            tok = new
+        # --- episodes: all dots eaten, or too long -------------------------------------
+        n_ep = _end_episodes(
+            r,
+            t,
+            has_dot,
+            n_dots,
+            max_ep,
+            quota,
+            dots,
+            dots_left,
+            ep_dots,
+            ep_visits,
+            ep_start,
+            ep_count,
+            ep_seen,
+            ep_seen_state,
+            active,
+            ep_buf,
+            n_ep,
+            ended,
+        )
+        going = active[r]
+        if in_window:
+            idle_sum += n_cells * t - last_sum
+            n_measured += 1
+            top = wait_r[0]
+            waiting = 0
+            for k in range(n_agents):
+                top = max(top, wait_r[k])
+                if wait_r[k] > 0:
+                    waiting += 1
+            top_wait = max(top_wait, top)
+            wait_sum += waiting
+        if tail_n > 0:
+            slot = (t - 1) % tail_n
+            for k in range(n_agents):
+                tail_pos[r, slot, k] = pos_r[k]
+        t_end = t
+    token[r], token_held[r] = tok, held
+    m_last_sum[r], idle_total[r], measured[r] = last_sum, idle_sum, n_measured
+    gap_sum[r], gap_count[r], gap_max[r], worst[r] = g_sum, g_count, g_max, worst_r
+    max_wait[r], wait_total[r] = top_wait, wait_sum
+    if t_end > t0:
+        steps_done[r] = t_end
+    return t_end, n_ep
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def run_block(
     spec_marker,
     t0,
@@ -639,6 +1011,64 @@ def run_block(
                 n_ep,
                 ended,
                 reward,
+            )
+            t_end = max(t_end, t_r)
+            continue
+        if spec == SPEC_QLEARNING_TEAM:
+            t_r, n_ep = _team_qlearning(
+                r,
+                t0,
+                u,
+                nbrs,
+                wall_legal,
+                dot_value,
+                has_dot,
+                n_dots,
+                reward_w,
+                communication,
+                avoid,
+                diameter,
+                max_ep,
+                quota,
+                sp,
+                pos,
+                head,
+                occ,
+                dots,
+                last,
+                dots_left,
+                ep_dots,
+                ep_visits,
+                ep_start,
+                ep_count,
+                ep_seen,
+                ep_seen_state,
+                wait,
+                token,
+                token_held,
+                active,
+                steps_done,
+                m_last,
+                m_last_sum,
+                visits,
+                window_visits,
+                idle_total,
+                worst,
+                measured,
+                gap_sum,
+                gap_count,
+                gap_max,
+                max_wait,
+                wait_total,
+                warmup,
+                tail_pos,
+                tail_n,
+                ep_buf,
+                n_ep,
+                mode,
+                pocket_of,
+                reserved,
+                scratch,
             )
             t_end = max(t_end, t_r)
             continue
@@ -1266,8 +1696,9 @@ class Loop:
         self.n_runs = n_runs
         self.spec = SPEC_ANY
         if self.code == compiled.QLEARNING and not p.battery and self.timeline is None:
-            solo = k == 1 and not rec.wants_updates
-            self.spec = SPEC_QLEARNING_SOLO if solo else SPEC_QLEARNING
+            self.spec = SPEC_QLEARNING
+            if not rec.wants_updates:
+                self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self.pack_at = next(j for j, a in enumerate(self.args) if a is self.pack)
 
