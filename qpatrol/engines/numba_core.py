@@ -55,6 +55,8 @@ SPEC_QLEARNING_TEAM = 4
 #: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
 #: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
 UP_INT, UP_FLOAT = 9, 9
+#: Set bits of a 4-bit mask of directions.
+POPCOUNT = np.array([bin(b).count("1") for b in range(16)], dtype=np.int64)
 
 
 PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
@@ -553,6 +555,10 @@ def _team_qlearning(
     last_sum, idle_sum, n_measured = m_last_sum[r], idle_total[r], measured[r]
     g_sum, g_count, g_max, worst_r = gap_sum[r], gap_count[r], gap_max[r], worst[r]
     top_wait, wait_sum = max_wait[r], wait_total[r]
+    waiting = 0  # robots waiting after the last step
+    for k in range(n_agents):
+        if wait_r[k] > 0:
+            waiting += 1
     going = active[r]
     t_end = t0
     t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
@@ -581,18 +587,24 @@ def _team_qlearning(
             if free == 0:  # base.prefer_open: every legal move where none is open
                 free = legal
             hs = hk if use_heading else 0
-            best = -np.inf
-            for d in range(4):
-                if (free >> d) & 1 and q_r[k, c, hs, d] > best:
-                    best = q_r[k, c, hs, d]
+            # the greatest Q of the open moves, without a branch per move
+            row = q_r[k, c, hs]
+            v0 = row[0] if free & 1 else -np.inf
+            v1 = row[1] if free & 2 else -np.inf
+            v2 = row[2] if free & 4 else -np.inf
+            v3 = row[3] if free & 8 else -np.inf
+            best = max(max(v0, v1), max(v2, v3))
             explore = epsilon > 0.0 and u_r[i, k, 0] < epsilon
-            bits = 0
-            count = 0
-            for d in range(4):
-                if (free >> d) & 1 and (explore or q_r[k, c, hs, d] == best):
-                    bits |= 1 << d
-                    count += 1
-            aa = pick(bits, count, u_r[i, k, 1])
+            if explore:
+                bits = free
+            else:
+                bits = (
+                    (1 if v0 == best else 0)
+                    | (2 if v1 == best else 0)
+                    | (4 if v2 == best else 0)
+                    | (8 if v3 == best else 0)
+                ) & free
+            aa = pick(bits, POPCOUNT[bits], u_r[i, k, 1])
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
         # --- move (traffic.resolve) -------------------------------------------------
@@ -655,10 +667,7 @@ def _team_qlearning(
                     push_failed = not as_asked[tok]
             # 2. everyone else, in priority order, into cells empty at that moment (the
             # order of traffic.priority: every robot patrols, so wait, then turn)
-            waits = False
-            for k in range(n_agents):
-                waits = waits or wait_r[k] > 0
-            if not waits:  # by turn alone: robot t % n_agents first, then the next ones
+            if waiting == 0:  # by turn alone: robot t % n_agents first, then the next ones
                 for a in range(n_agents):
                     k = t_mod + a
                     order[a] = k if k < n_agents else k - n_agents
@@ -677,18 +686,23 @@ def _team_qlearning(
                         b -= 1
                     order[b + 1] = x
             progress = True
-            while progress:
+            while progress:  # passes until one moves no one (or leaves no one behind)
                 progress = False
+                behind = False
                 for a in range(n_agents):
                     k = order[a]
                     w = want[k]
-                    if w >= 0 and not moved[k] and occ_r[w] < 0:
-                        occ_r[pos_r[k]] = -1
-                        occ_r[w] = k
-                        pos_r[k] = w
-                        moved[k] = True
-                        as_asked[k] = True
-                        progress = True
+                    if w >= 0 and not moved[k]:
+                        if occ_r[w] < 0:
+                            occ_r[pos_r[k]] = -1
+                            occ_r[w] = k
+                            pos_r[k] = w
+                            moved[k] = True
+                            as_asked[k] = True
+                            progress = True
+                        else:
+                            behind = True
+                progress = progress and behind
         # --- each robot that moved enters its cell (dots, visits, reward, heading); one
         # that made the move it chose learns (qlearning.learn); the measures see the
         # visit (Measures.observe). Robot after robot: each touches only its group's
@@ -725,10 +739,12 @@ def _team_qlearning(
                 ha = prev_head[k] if use_heading else 0
                 aa = ask[k]
                 hb = aa if use_heading else 0  # the state reached: (c1, hb)
-                top = -np.inf
-                for d in range(4):
-                    if wall_legal[c1, d] and q_r[k, c1, hb, d] > top:
-                        top = q_r[k, c1, hb, d]
+                nxt = q_r[k, c1, hb]  # its greatest Q over the legal moves, as above
+                legal1 = wall_legal[c1]
+                top = max(
+                    max(nxt[0] if legal1[0] else -np.inf, nxt[1] if legal1[1] else -np.inf),
+                    max(nxt[2] if legal1[2] else -np.inf, nxt[3] if legal1[3] else -np.inf),
+                )
                 target = rew + gamma * top
                 q_sa = q_r[k, c0, ha, aa]
                 n_after = n_r[k, c0, ha, aa] + 1
@@ -745,10 +761,16 @@ def _team_qlearning(
                     prev, t, warmup, g_sum, g_count, g_max, worst_r
                 )
         # --- waits, who blocked whom, the right of way ---------------------------------
+        waiting = 0  # robots waiting now, and the longest wait
+        longest = 0
         for k in range(n_agents):
             failed = ask[k] >= 0 and not as_asked[k]
             blocked_by[k] = occ_r[want[k]] if failed else -1
-            wait_r[k] = wait_r[k] + 1 if failed else 0
+            wk = wait_r[k] + 1 if failed else 0
+            wait_r[k] = wk
+            if wk > 0:
+                waiting += 1
+            longest = max(longest, wk)
         if avoid:
             best_k = -1
             best_key = -1
@@ -799,13 +821,7 @@ def _team_qlearning(
         if in_window:
             idle_sum += n_cells * t - last_sum
             n_measured += 1
-            top = wait_r[0]
-            waiting = 0
-            for k in range(n_agents):
-                top = max(top, wait_r[k])
-                if wait_r[k] > 0:
-                    waiting += 1
-            top_wait = max(top_wait, top)
+            top_wait = max(top_wait, longest)
             wait_sum += waiting
         if tail_n > 0:
             slot = (t - 1) % tail_n
