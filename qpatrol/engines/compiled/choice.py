@@ -16,6 +16,8 @@ from qpatrol.learner import _NTH
 
 #: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
 NTH = _NTH.astype(np.int64)
+#: The number of set bits of a 4-bit mask of directions.
+POPCOUNT = np.array([bin(b).count("1") for b in range(16)], dtype=np.int64)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
