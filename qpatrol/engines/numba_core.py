@@ -170,6 +170,146 @@ def _push_path(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _holder_moves(
+    tok,
+    nbrs,
+    occ_r,
+    pos_r,
+    want,
+    moved,
+    as_asked,
+    parent,
+    seen,
+    queue,
+    path,
+    battery,
+    mode_r,
+    pocket_of,
+    reserved_r,
+):
+    """:func:`qpatrol.traffic.holder_step` of the right-of-way holder ``tok`` of a run
+    (``want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
+    else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
+    along :func:`_push_path`. Returns whether the push failed (it did not move as
+    asked)."""
+    own = pos_r[tok]
+    dest = -1
+    m = 0
+    for ci in range(5):
+        if ci == 0:
+            cell = want[tok]
+        else:
+            cell = nbrs[own, ci - 1]
+            if cell < 0 or cell == want[tok]:
+                continue
+            if battery and _kept_out(cell, pocket_of, reserved_r):
+                continue
+        if occ_r[cell] < 0:
+            dest = cell
+            m = 0
+            break
+        m = _push_path(
+            nbrs,
+            occ_r,
+            own,
+            cell,
+            parent,
+            seen,
+            queue,
+            path,
+            battery,
+            mode_r,
+            pocket_of,
+            reserved_r,
+        )
+        if m > 0:
+            dest = cell
+            break
+    if dest < 0:
+        return True
+    for x in range(m - 2, -1, -1):
+        jr = occ_r[path[x]]
+        occ_r[pos_r[jr]] = -1
+        occ_r[path[x + 1]] = jr
+        pos_r[jr] = path[x + 1]
+        moved[jr] = True
+        as_asked[jr] = want[jr] == path[x + 1]
+    occ_r[pos_r[tok]] = -1
+    occ_r[dest] = tok
+    pos_r[tok] = dest
+    moved[tok] = True
+    as_asked[tok] = dest == want[tok]
+    return not as_asked[tok]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
+    """Step 2 of :func:`qpatrol.traffic.resolve`: the robots that have not moved, in
+    ``order``, each into the cell it wants if that cell is empty at that moment, pass
+    after pass until a pass moves no one or leaves no one behind."""
+    progress = True
+    while progress:
+        progress = False
+        behind = False
+        for a in range(order.shape[0]):
+            k = order[a]
+            w = want[k]
+            if w >= 0 and not moved[k]:
+                if occ_r[w] < 0:
+                    occ_r[pos_r[k]] = -1
+                    occ_r[w] = k
+                    pos_r[k] = w
+                    moved[k] = True
+                    as_asked[k] = True
+                    progress = True
+                else:
+                    behind = True
+        progress = progress and behind
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _pass_token(
+    tok,
+    held,
+    push_failed,
+    want,
+    as_asked,
+    blocked_by,
+    wait_r,
+    mode_r,
+    depart_left_r,
+    t_next_mod,
+    diameter,
+):
+    """:func:`qpatrol.traffic.pass_token` of a run after its moves: the holder keeps the
+    right of way while it moves as asked (at most ``diameter`` steps); a holder whose
+    push failed hands it to the robot that blocked it, if that one waits; else it goes
+    to the waiting robot of highest priority at the next step (none: -1). Returns
+    ``(holder, steps it has held it)``."""
+    n_agents = want.shape[0]
+    best_k = -1
+    best_key = -1
+    for k in range(n_agents):
+        kk = -1
+        if want[k] >= 0 and not as_asked[k]:
+            kk = _priority(wait_r[k], mode_r[k], depart_left_r[k], k, n_agents, t_next_mod)
+        if tok >= 0 and push_failed and k == tok:
+            kk = -1
+        if kk > best_key:
+            best_key = kk
+            best_k = k
+    new = best_k
+    if tok >= 0:
+        blocker = blocked_by[tok]
+        blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
+        if as_asked[tok] and held < diameter:
+            new = tok
+        elif push_failed and blocker_waits:
+            new = blocker
+    return new, (held + 1 if (new == tok and new >= 0) else 0)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _end_episodes(
     r,
     t,
@@ -503,6 +643,7 @@ def _team_qlearning(
     ep_buf,
     n_ep,
     mode,
+    depart_left,
     pocket_of,
     reserved,
     scratch,
@@ -547,7 +688,7 @@ def _team_qlearning(
     dots_r, last_r, seen_r, seen_state_r = dots[r], last[r], ep_seen[r], ep_seen_state[r]
     left_r, eaten_r, entered_r = dots_left[r], ep_dots[r], ep_visits[r]
     m_last_r, visits_r, window_visits_r = m_last[r], visits[r], window_visits[r]
-    mode_r, reserved_r = mode[r], reserved[r]
+    mode_r, depart_left_r, reserved_r = mode[r], depart_left[r], reserved[r]
     # what only this kernel reads, in registers and stored at the end: the right of
     # way, the measures' sums
     tok, held = token[r], token_held[r]
@@ -617,53 +758,23 @@ def _team_qlearning(
         else:
             if tok >= 0 and want[tok] >= 0:
                 # 1. the holder takes its cell, pushing robots aside, or steps aside
-                own = pos_r[tok]
-                dest = -1
-                m = 0
-                for ci in range(5):
-                    if ci == 0:
-                        cell = want[tok]
-                    else:
-                        cell = nbrs[own, ci - 1]
-                        if cell < 0 or cell == want[tok]:
-                            continue
-                    if occ_r[cell] < 0:
-                        dest = cell
-                        m = 0
-                        break
-                    m = _push_path(
-                        nbrs,
-                        occ_r,
-                        own,
-                        cell,
-                        parent,
-                        seen,
-                        queue,
-                        path,
-                        False,
-                        mode_r,
-                        pocket_of,
-                        reserved_r,
-                    )
-                    if m > 0:
-                        dest = cell
-                        break
-                if dest < 0:
-                    push_failed = True
-                else:
-                    for x in range(m - 2, -1, -1):
-                        jr = occ_r[path[x]]
-                        occ_r[pos_r[jr]] = -1
-                        occ_r[path[x + 1]] = jr
-                        pos_r[jr] = path[x + 1]
-                        moved[jr] = True
-                        as_asked[jr] = want[jr] == path[x + 1]
-                    occ_r[pos_r[tok]] = -1
-                    occ_r[dest] = tok
-                    pos_r[tok] = dest
-                    moved[tok] = True
-                    as_asked[tok] = dest == want[tok]
-                    push_failed = not as_asked[tok]
+                push_failed = _holder_moves(
+                    tok,
+                    nbrs,
+                    occ_r,
+                    pos_r,
+                    want,
+                    moved,
+                    as_asked,
+                    parent,
+                    seen,
+                    queue,
+                    path,
+                    False,
+                    mode_r,
+                    pocket_of,
+                    reserved_r,
+                )
             # 2. everyone else, in priority order, into cells empty at that moment (the
             # order of traffic.priority: every robot patrols, so wait, then turn)
             if waiting == 0:  # by turn alone: robot t % n_agents first, then the next ones
@@ -684,24 +795,7 @@ def _team_qlearning(
                         order[b + 1] = order[b]
                         b -= 1
                     order[b + 1] = x
-            progress = True
-            while progress:  # passes until one moves no one (or leaves no one behind)
-                progress = False
-                behind = False
-                for a in range(n_agents):
-                    k = order[a]
-                    w = want[k]
-                    if w >= 0 and not moved[k]:
-                        if occ_r[w] < 0:
-                            occ_r[pos_r[k]] = -1
-                            occ_r[w] = k
-                            pos_r[k] = w
-                            moved[k] = True
-                            as_asked[k] = True
-                            progress = True
-                        else:
-                            behind = True
-                progress = progress and behind
+            _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
         # --- each robot that moved enters its cell (dots, visits, reward, heading); one
         # that made the move it chose learns (qlearning.learn); the measures see the
         # visit (Measures.observe). Robot after robot: each touches only its group's
@@ -771,30 +865,19 @@ def _team_qlearning(
                 waiting += 1
             longest = max(longest, wk)
         if avoid:
-            best_k = -1
-            best_key = -1
-            for k in range(n_agents):
-                kk = -1
-                if want[k] >= 0 and not as_asked[k]:
-                    back = k - t_next_mod
-                    if back < 0:
-                        back += n_agents
-                    kk = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
-                if tok >= 0 and push_failed and k == tok:
-                    kk = -1
-                if kk > best_key:
-                    best_key = kk
-                    best_k = k
-            new = best_k
-            if tok >= 0:
-                blocker = blocked_by[tok]
-                blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
-                if as_asked[tok] and held < diameter:
-                    new = tok
-                elif push_failed and blocker_waits:
-                    new = blocker
-            held = held + 1 if (new == tok and new >= 0) else 0
-            tok = new
+            tok, held = _pass_token(
+                tok,
+                held,
+                push_failed,
+                want,
+                as_asked,
+                blocked_by,
+                wait_r,
+                mode_r,
+                depart_left_r,
+                t_next_mod,
+                diameter,
+            )
         # --- episodes: all dots eaten, or too long -------------------------------------
         n_ep = _end_episodes(
             r,
@@ -1081,6 +1164,7 @@ def run_block(
                 ep_buf,
                 n_ep,
                 mode,
+                depart_left,
                 pocket_of,
                 reserved,
                 scratch,
@@ -1259,55 +1343,23 @@ def run_block(
             else:
                 if tok >= 0 and want[tok] >= 0:
                     # 1. the holder takes its cell, pushing robots aside, or steps aside
-                    own = pos[r, tok]
-                    dest = -1
-                    m = 0
-                    for ci in range(5):
-                        if ci == 0:
-                            cell = want[tok]
-                        else:
-                            cell = nbrs[own, ci - 1]
-                            if cell < 0 or cell == want[tok]:
-                                continue
-                            if battery and _kept_out(cell, pocket_of, reserved[r]):
-                                continue
-                        if occ[r, cell] < 0:
-                            dest = cell
-                            m = 0
-                            break
-                        m = _push_path(
-                            nbrs,
-                            occ[r],
-                            own,
-                            cell,
-                            parent,
-                            seen,
-                            queue,
-                            path,
-                            battery,
-                            mode[r],
-                            pocket_of,
-                            reserved[r],
-                        )
-                        if m > 0:
-                            dest = cell
-                            break
-                    if dest < 0:
-                        push_failed = True
-                    else:
-                        for x in range(m - 2, -1, -1):
-                            jr = occ[r, path[x]]
-                            occ[r, pos[r, jr]] = -1
-                            occ[r, path[x + 1]] = jr
-                            pos[r, jr] = path[x + 1]
-                            moved[jr] = True
-                            as_asked[jr] = want[jr] == path[x + 1]
-                        occ[r, pos[r, tok]] = -1
-                        occ[r, dest] = tok
-                        pos[r, tok] = dest
-                        moved[tok] = True
-                        as_asked[tok] = dest == want[tok]
-                        push_failed = not as_asked[tok]
+                    push_failed = _holder_moves(
+                        tok,
+                        nbrs,
+                        occ[r],
+                        pos[r],
+                        want,
+                        moved,
+                        as_asked,
+                        parent,
+                        seen,
+                        queue,
+                        path,
+                        battery,
+                        mode[r],
+                        pocket_of,
+                        reserved[r],
+                    )
                 # 2. everyone else, in priority order, into cells empty at that moment
                 if n_agents == 1:  # alone: the priority order is trivial
                     w = want[0]
@@ -1329,19 +1381,8 @@ def run_block(
                         order[b + 1] = order[b]
                         b -= 1
                     order[b + 1] = x
-                progress = n_agents > 1
-                while progress:
-                    progress = False
-                    for a in range(n_agents):
-                        k = order[a]
-                        w = want[k]
-                        if w >= 0 and not moved[k] and occ[r, w] < 0:
-                            occ[r, pos[r, k]] = -1
-                            occ[r, w] = k
-                            pos[r, k] = w
-                            moved[k] = True
-                            as_asked[k] = True
-                            progress = True
+                if n_agents > 1:
+                    _move_in_order(order, want, moved, as_asked, occ[r], pos[r])
             # --- entering a cell: dots, visits, reward, heading -------------------------
             for k in range(n_agents):
                 reward[k] = 0.0
@@ -1415,29 +1456,19 @@ def run_block(
                     failed = True
                 wait[r, k] = wait[r, k] + 1 if failed else 0
             if avoid and n_agents > 1:
-                best_k = -1
-                best_key = -1
-                for k in range(n_agents):
-                    kk = -1
-                    if want[k] >= 0 and not as_asked[k]:
-                        kk = _priority(
-                            wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t_next_mod
-                        )
-                    if tok >= 0 and push_failed and k == tok:
-                        kk = -1
-                    if kk > best_key:
-                        best_key = kk
-                        best_k = k
-                new = best_k
-                if tok >= 0:
-                    blocker = blocked_by[tok]
-                    blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
-                    if as_asked[tok] and token_held[r] < diameter:
-                        new = tok
-                    elif push_failed and blocker_waits:
-                        new = blocker
-                token_held[r] = token_held[r] + 1 if (new == tok and new >= 0) else 0
-                token[r] = new
+                token[r], token_held[r] = _pass_token(
+                    tok,
+                    token_held[r],
+                    push_failed,
+                    want,
+                    as_asked,
+                    blocked_by,
+                    wait[r],
+                    mode[r],
+                    depart_left[r],
+                    t_next_mod,
+                    diameter,
+                )
             steps_done[r] = t
             # --- episodes: all dots eaten, or too long ---------------------------------
             n_ep = _end_episodes(
