@@ -663,7 +663,7 @@ def _team_qlearning(
         prev_head,
         moved,
         as_asked,
-        reward,
+        _reward,
         blocked_by,
         order,
         key,
