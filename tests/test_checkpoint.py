@@ -104,6 +104,54 @@ def test_simulate_resumed_equals_uninterrupted(tmp_path: Path):
     assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)
 
 
+@pytest.mark.parametrize("agents", [1, 4])
+def test_compiled_kernels_stop_at_any_step_and_resume_the_same(tmp_path, monkeypatch, agents):
+    """The lone learner's and the team's kernels keep a run's state in registers within
+    a call and store it at its end: one step per call up to step 333, a stop there and
+    a resume from the checkpoint give the tables and rows of one uninterrupted run."""
+    pytest.importorskip("numba")
+    from qpatrol.engines import numba_core
+
+    flat = {
+        **CONFIG,
+        "steps": 700,
+        "agents": agents,
+        "engine": "numba",
+        "battery": {"enabled": False},
+        "record": {"trajectory": 50, "warmup": 100},
+    }
+    cfg = from_mapping(flat)
+    specs = []
+    init = numba_core.Loop.__init__
+
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        specs.append(self.spec)
+
+    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
+    whole = simulate(cfg)
+
+    class StopAt(ck.Checkpointer):
+        every_step = True  # one step per call of the compiled loop
+
+        def tick(self, position, payload):
+            if position == 333:
+                self.request_stop()
+            super().tick(position, payload)
+
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(tmp_path / "cp", every=0))
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    assert resumed.load().position == 333
+    rest = simulate(cfg, checkpoint=resumed)
+    kernel = numba_core.SPEC_QLEARNING_SOLO if agents == 1 else numba_core.SPEC_QLEARNING_TEAM
+    assert specs == [kernel] * 3
+    assert np.array_equal(rest.strategy.q, whole.strategy.q)
+    assert np.array_equal(rest.strategy.n, whole.strategy.n)
+    assert rest.summary == whole.summary
+    assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)
+
+
 def test_compiled_engine_ticks_after_blocks_and_resumes_the_same(tmp_path: Path):
     """On the compiled engine a stock checkpointer is ticked after each block of steps
     (not after every step, which cost ~30 us a step); a stop at the end of a block
