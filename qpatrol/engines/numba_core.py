@@ -379,18 +379,83 @@ def _end_episodes(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _gap(prev, t, warmup, gap_sum, gap_count, gap_max, worst):
-    """Measures.observe of a visit inside the window (step ``t`` > ``warmup``) to a cell
-    last visited at ``prev`` (0: never): ``(gap_sum, gap_count, gap_max, worst)``
-    updated with the visit's gap and the worst idleness it ends."""
-    gap = t - prev if prev > 0 else 0
-    gap_sum += gap
-    if prev > 0:
-        gap_count += 1
-    gap_max = max(gap_max, gap)
-    if t - 1 > warmup:
-        worst = max(worst, t - 1 - prev)
-    return gap_sum, gap_count, gap_max, worst
+def _enter(
+    c0,
+    c1,
+    t,
+    nbrs,
+    dot_value,
+    dots_g,
+    last_g,
+    seen_g,
+    seen_state_g,
+    left,
+    eaten,
+    entered,
+    inc,
+    horizon,
+    lam,
+):
+    """A robot of a dot group moves from cell ``c0`` into ``c1`` at step ``t``: the
+    group's dots (``dots_g`` ``[C]``), last visits (``last_g`` ``[C]``), cells and states
+    seen this episode (``seen_g`` ``[C]``, ``seen_state_g`` ``[C, 4]``) and its
+    episode's counters (dots ``left``, ``eaten``, cells ``entered``) take the visit.
+    Returns ``(heading entered, dot eaten, left, eaten, entered, reward)``, the reward
+    ``dot + inc min(1, idle / horizon) + lam eaten / entered``."""
+    a = 0
+    for d in range(4):
+        if nbrs[c0, d] == c1:
+            a = d
+            break
+    ate = dots_g[c1]
+    dots_g[c1] = False
+    if ate:
+        left -= 1
+        eaten += 1
+    entered += 1
+    idle = t - last_g[c1]
+    last_g[c1] = t
+    seen_g[c1] = True
+    seen_state_g[c1, a] = True
+    reward = (
+        (dot_value[c1] if ate else 0.0) + inc * min(1.0, idle / horizon) + lam * eaten / entered
+    )
+    return a, ate, left, eaten, entered, reward
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _observe(
+    c,
+    t,
+    warmup,
+    m_last_r,
+    visits_k,
+    window_visits_k,
+    last_sum,
+    gap_sum,
+    gap_count,
+    gap_max,
+    worst,
+):
+    """Measures.observe of a robot's visit to cell ``c`` at step ``t``: the run's last
+    visits (``m_last_r`` ``[C]``) and the robot's visit counts (``visits_k``,
+    ``window_visits_k`` ``[C]``) take it; returns the run's ``(last_sum, gap_sum,
+    gap_count, gap_max, worst)`` updated (inside the window, step ``t`` > ``warmup``,
+    with the visit's gap and the worst idleness it ends)."""
+    prev = m_last_r[c]
+    m_last_r[c] = t
+    last_sum += t - prev
+    visits_k[c] += 1
+    if t > warmup:
+        window_visits_k[c] += 1
+        gap = t - prev if prev > 0 else 0
+        gap_sum += gap
+        if prev > 0:
+            gap_count += 1
+        gap_max = max(gap_max, gap)
+        if t - 1 > warmup:
+            worst = max(worst, t - 1 - prev)
+    return last_sum, gap_sum, gap_count, gap_max, worst
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -501,25 +566,22 @@ def _solo_qlearning(
         if aa >= 0:
             # --- it moves and enters c1: dots, visits, reward, heading ----------------
             c1 = nbrs[c, aa]
-            a = 0
-            for d in range(4):
-                if nbrs[c, d] == c1:
-                    a = d
-                    break
-            ate = dots_r[c1]
-            dots_r[c1] = False
-            if ate:
-                left -= 1
-                eaten += 1
-            entered += 1
-            idle = t - last_r[c1]
-            last_r[c1] = t
-            seen_r[c1] = True
-            seen_state_r[c1, a] = True
-            reward = (
-                (dot_value[c1] if ate else 0.0)
-                + inc * min(1.0, idle / horizon)
-                + lam * eaten / entered
+            a, _, left, eaten, entered, reward = _enter(
+                c,
+                c1,
+                t,
+                nbrs,
+                dot_value,
+                dots_r,
+                last_r,
+                seen_r,
+                seen_state_r,
+                left,
+                eaten,
+                entered,
+                inc,
+                horizon,
+                lam,
             )
         if left == 0 or (max_ep > 0 and t - start >= max_ep):
             dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0] = left, eaten, entered
@@ -558,15 +620,19 @@ def _solo_qlearning(
             alpha = 1.0 / n_after
             q_r[c, hs, aa] = q_sa + alpha * (target - q_sa)
             n_r[c, hs, aa] = n_after
-            prev = m_last_r[c1]  # Measures.observe
-            m_last_r[c1] = t
-            last_sum += t - prev
-            visits_r[c1] += 1
-            if t > warmup:
-                window_visits_r[c1] += 1
-                g_sum, g_count, g_max, worst_r = _gap(
-                    prev, t, warmup, g_sum, g_count, g_max, worst_r
-                )
+            last_sum, g_sum, g_count, g_max, worst_r = _observe(
+                c1,
+                t,
+                warmup,
+                m_last_r,
+                visits_r,
+                window_visits_r,
+                last_sum,
+                g_sum,
+                g_count,
+                g_max,
+                worst_r,
+            )
             c = c1
             h = a
         if t > warmup:
@@ -807,25 +873,22 @@ def _team_qlearning(
             g = 0 if communication else k
             c0 = prev_pos[k]
             c1 = pos_r[k]
-            a = 0
-            for d in range(4):
-                if nbrs[c0, d] == c1:
-                    a = d
-                    break
-            ate = dots_r[g, c1]
-            dots_r[g, c1] = False
-            if ate:
-                left_r[g] -= 1
-                eaten_r[g] += 1
-            entered_r[g] += 1
-            idle = t - last_r[g, c1]
-            last_r[g, c1] = t
-            seen_r[g, c1] = True
-            seen_state_r[g, c1, a] = True
-            rew = (
-                (dot_value[c1] if ate else 0.0)
-                + inc * min(1.0, idle / horizon)
-                + lam * eaten_r[g] / entered_r[g]
+            a, _, left_r[g], eaten_r[g], entered_r[g], rew = _enter(
+                c0,
+                c1,
+                t,
+                nbrs,
+                dot_value,
+                dots_r[g],
+                last_r[g],
+                seen_r[g],
+                seen_state_r[g],
+                left_r[g],
+                eaten_r[g],
+                entered_r[g],
+                inc,
+                horizon,
+                lam,
             )
             head_r[k] = a
             if as_asked[k]:
@@ -844,15 +907,19 @@ def _team_qlearning(
                 alpha = 1.0 / n_after
                 q_r[k, c0, ha, aa] = q_sa + alpha * (target - q_sa)
                 n_r[k, c0, ha, aa] = n_after
-            prev = m_last_r[c1]
-            m_last_r[c1] = t
-            last_sum += t - prev
-            visits_r[k, c1] += 1
-            if in_window:
-                window_visits_r[k, c1] += 1
-                g_sum, g_count, g_max, worst_r = _gap(
-                    prev, t, warmup, g_sum, g_count, g_max, worst_r
-                )
+            last_sum, g_sum, g_count, g_max, worst_r = _observe(
+                c1,
+                t,
+                warmup,
+                m_last_r,
+                visits_r[k],
+                window_visits_r[k],
+                last_sum,
+                g_sum,
+                g_count,
+                g_max,
+                worst_r,
+            )
         # --- waits, who blocked whom, the right of way ---------------------------------
         waiting = 0  # robots waiting now, and the longest wait
         longest = 0
@@ -1024,8 +1091,6 @@ def run_block(
         code = compiled.QLEARNING
         battery = False
         tl_window = 0
-    if spec == SPEC_QLEARNING_SOLO:
-        n_agents = 1
     n_cells = nbrs.shape[0]
     n_dots = 0
     for c in range(n_cells):
@@ -1390,30 +1455,30 @@ def run_block(
                 if not moved[k]:
                     continue
                 g = 0 if communication else k
-                c0 = prev_pos[k]
-                c1 = pos[r, k]
-                a = 0
-                for d in range(4):
-                    if nbrs[c0, d] == c1:
-                        a = d
-                        break
-                ate = dots[r, g, c1]
-                eaten[k] = ate
-                dots[r, g, c1] = False
-                if ate:
-                    dots_left[r, g] -= 1
-                    ep_dots[r, g] += 1
-                ep_visits[r, g] += 1
-                idle = t - last[r, g, c1]
-                last[r, g, c1] = t
-                ep_seen[r, g, c1] = True
-                ep_seen_state[r, g, c1, a] = True
-                reward[k] = (
-                    (dot_value[c1] if ate else 0.0)
-                    + reward_w[r, 0] * min(1.0, idle / reward_w[r, 1])
-                    + reward_w[r, 2] * ep_dots[r, g] / ep_visits[r, g]
+                (
+                    head[r, k],
+                    eaten[k],
+                    dots_left[r, g],
+                    ep_dots[r, g],
+                    ep_visits[r, g],
+                    reward[k],
+                ) = _enter(
+                    prev_pos[k],
+                    pos[r, k],
+                    t,
+                    nbrs,
+                    dot_value,
+                    dots[r, g],
+                    last[r, g],
+                    ep_seen[r, g],
+                    ep_seen_state[r, g],
+                    dots_left[r, g],
+                    ep_dots[r, g],
+                    ep_visits[r, g],
+                    reward_w[r, 0],
+                    reward_w[r, 1],
+                    reward_w[r, 2],
                 )
-                head[r, k] = a
             if battery:
                 # a move costs one unit; yielding (pushed aside, or out of a pocket) is free
                 for k in range(n_agents):
@@ -1525,16 +1590,19 @@ def run_block(
             for k in range(n_agents):
                 if not moved[k]:
                     continue
-                c = pos[r, k]
-                prev = m_last[r, c]
-                m_last[r, c] = t
-                m_last_sum[r] += t - prev
-                visits[r, k, c] += 1
-                if in_window:
-                    window_visits[r, k, c] += 1
-                    gap_sum[r], gap_count[r], gap_max[r], worst[r] = _gap(
-                        prev, t, warmup, gap_sum[r], gap_count[r], gap_max[r], worst[r]
-                    )
+                m_last_sum[r], gap_sum[r], gap_count[r], gap_max[r], worst[r] = _observe(
+                    pos[r, k],
+                    t,
+                    warmup,
+                    m_last[r],
+                    visits[r, k],
+                    window_visits[r, k],
+                    m_last_sum[r],
+                    gap_sum[r],
+                    gap_count[r],
+                    gap_max[r],
+                    worst[r],
+                )
             if tl_window > 0:
                 # Timeline.observe: its own last visits, peaks inside t's window
                 start = ((t - 1) // tl_window) * tl_window + 1
