@@ -38,3 +38,21 @@ def rooms_map(tmp_path: Path) -> Path:
     p = tmp_path / "rooms.txt"
     p.write_text(ROOMS)
     return p
+
+
+@pytest.fixture
+def loop_specs(monkeypatch) -> list[int]:
+    """The compiled loop (``numba_core.SPEC_*``) each ``numba_core.Loop`` built during
+    the test runs, in order."""
+    pytest.importorskip("numba")
+    from qpatrol.engines import numba_core
+
+    specs: list[int] = []
+    init = numba_core.Loop.__init__
+
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        specs.append(self.spec)
+
+    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
+    return specs

@@ -135,22 +135,14 @@ LONE = [
 
 
 @pytest.mark.parametrize("extra", LONE)
-def test_compiled_lone_qlearner(rooms_map, tmp_path, monkeypatch, extra):
+def test_compiled_lone_qlearner(rooms_map, tmp_path, loop_specs, extra):
     """A lone Q-learning robot without battery runs in the compiled loop's own kernel
     for it (numba_core._solo_qlearning): the numpy engine's files, to the bit."""
     from qpatrol.engines import numba_core
 
-    specs = []
-    init = numba_core.Loop.__init__
-
-    def spy(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        specs.append(self.spec)
-
-    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
     flat = {**BASE, "map": str(rooms_map), "agents": 1, "battery.enabled": False, **extra}
     assert both(flat, tmp_path) == ("numba", "")
-    assert specs == [numba_core.SPEC_QLEARNING_SOLO]
+    assert loop_specs == [numba_core.SPEC_QLEARNING_SOLO]
 
 
 TEAM = [  # (settings, team size, the right of way pushes robots aside in these runs)
@@ -168,35 +160,32 @@ TEAM = [  # (settings, team size, the right of way pushes robots aside in these 
 
 
 @pytest.mark.parametrize("extra, agents, pushing", TEAM)
-def test_compiled_qlearning_team_kernel(rooms_map, tmp_path, monkeypatch, extra, agents, pushing):
+def test_compiled_qlearning_team_kernel(
+    rooms_map, tmp_path, monkeypatch, loop_specs, extra, agents, pushing
+):
     """Q-learning teams without battery run in the compiled loop's team kernel
     (numba_core._team_qlearning): the numpy engine's files and Q-tables, to the bit,
     in runs with and without the right of way's pushes."""
     from qpatrol import traffic
     from qpatrol.engines import numba_core
 
-    specs, pushes = [], []
-    init, push = numba_core.Loop.__init__, traffic._push_path
-
-    def spy(self, *args, **kwargs):
-        init(self, *args, **kwargs)
-        specs.append(self.spec)
+    pushes = []
+    push = traffic._push_path
 
     def counted(*args, **kwargs):
         path = push(*args, **kwargs)
         pushes.append(path is not None and len(path) > 1)
         return path
 
-    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
     monkeypatch.setattr(traffic, "_push_path", counted)
     flat = {**BASE, "map": str(rooms_map), "agents": agents, "battery.enabled": False, **extra}
     assert both(flat, tmp_path, strategy=True) == ("numba", "")
-    assert specs == [numba_core.SPEC_QLEARNING_TEAM]
+    assert loop_specs == [numba_core.SPEC_QLEARNING_TEAM]
     if pushing:
         assert any(pushes)
 
 
-def test_compiled_loop_specializations():
+def test_compiled_loop_specializations(loop_specs):
     """Which compiled loop a batch runs: the lone Q-learner's kernel, the Q-learning
     team's kernel, the Q-learning loop (Q-update recorders), or the loop for any
     strategy (battery, timeline, other strategies)."""
@@ -214,19 +203,9 @@ def test_compiled_loop_specializations():
         ({"policy": "random"}, 1, numba_core.SPEC_ANY),
     ]
     for extra, agents, spec in cases:
-        specs = []
-        init = numba_core.Loop.__init__
-
-        def spy(self, *args, _init=init, _specs=specs, **kwargs):
-            _init(self, *args, **kwargs)
-            _specs.append(self.spec)
-
-        numba_core.Loop.__init__ = spy
-        try:
-            simulate(bench.workload(2, agents, 20, engine="numba", extra=extra))
-        finally:
-            numba_core.Loop.__init__ = init
-        assert specs == [spec], (extra, agents)
+        loop_specs.clear()
+        simulate(bench.workload(2, agents, 20, engine="numba", extra=extra))
+        assert loop_specs == [spec], (extra, agents)
 
 
 @pytest.mark.parametrize("policy", NAMES)
