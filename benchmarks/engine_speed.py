@@ -2,10 +2,11 @@
 
     .venv/bin/python benchmarks/engine_speed.py [--out docs/performance] [--quick]
 
-Runs ``qpatrol bench --json`` once per (engine, runs, agents) point, each in a fresh
-process (so peak memory is per point), and writes ``<out>.json`` (every bench result)
-and ``<out>.png`` (agent-steps/s against runs, log-log, both engines and the
-reference loop measured next to each point).
+Runs ``qpatrol bench --json`` once per (engine, runs, agents, threads) point, each in a
+fresh process (so peak memory is per point), and writes ``<out>.json`` (every bench
+result) and ``<out>.png`` (agent-steps/s against runs, log-log, both engines, the
+compiled engine in one thread and on every core, and the reference loop measured next
+to each point).
 """
 
 from __future__ import annotations
@@ -16,25 +17,35 @@ import subprocess
 import sys
 from pathlib import Path
 
-#: (engine, agents, runs, steps): about the same work per point, a few seconds each.
+#: (engine, agents, runs, steps, threads): about the same work per point, a few seconds
+#: each; the compiled engine in one thread (``--threads 1``) and on every core (0), the
+#: numpy engine in one thread whatever it is told. 2,048 runs also at 20,000 steps, where
+#: setting up the runs (streams, tables) weighs less than at 3,000.
 POINTS = [
-    ("numpy", 1, 1, 4000),
-    ("numpy", 1, 16, 3000),
-    ("numpy", 1, 256, 1500),
-    ("numpy", 1, 2048, 400),
-    ("numpy", 4, 16, 800),
-    ("numpy", 4, 256, 300),
-    ("numba", 1, 1, 2_000_000),
-    ("numba", 1, 16, 200_000),
-    ("numba", 1, 256, 20_000),
-    ("numba", 1, 2048, 3_000),
-    ("numba", 4, 1, 500_000),
-    ("numba", 4, 16, 50_000),
-    ("numba", 4, 256, 5_000),
+    ("numpy", 1, 1, 4000, 1),
+    ("numpy", 1, 16, 3000, 1),
+    ("numpy", 1, 256, 1500, 1),
+    ("numpy", 1, 2048, 400, 1),
+    ("numpy", 4, 16, 800, 1),
+    ("numpy", 4, 256, 300, 1),
+    ("numba", 1, 1, 2_000_000, 1),
+    ("numba", 1, 16, 200_000, 1),
+    ("numba", 1, 256, 20_000, 1),
+    ("numba", 1, 2048, 3_000, 1),
+    ("numba", 1, 2048, 20_000, 1),
+    ("numba", 4, 1, 500_000, 1),
+    ("numba", 4, 16, 50_000, 1),
+    ("numba", 4, 256, 5_000, 1),
+    ("numba", 1, 16, 200_000, 0),
+    ("numba", 1, 256, 20_000, 0),
+    ("numba", 1, 2048, 3_000, 0),
+    ("numba", 1, 2048, 20_000, 0),
+    ("numba", 4, 16, 50_000, 0),
+    ("numba", 4, 256, 5_000, 0),
 ]
 
 
-def run_point(engine: str, agents: int, runs: int, steps: int) -> dict:
+def run_point(engine: str, agents: int, runs: int, steps: int, threads: int) -> dict:
     cmd = [
         sys.executable,
         "-m",
@@ -48,12 +59,15 @@ def run_point(engine: str, agents: int, runs: int, steps: int) -> dict:
         str(runs),
         "--steps",
         str(steps),
+        "--threads",
+        str(threads),
         "--json",
     ]
     out = subprocess.run(cmd, check=True, capture_output=True, text=True).stdout
     b = json.loads(out)
     b["command"] = (
-        f"qpatrol bench --engine {engine} --agents {agents} --runs {runs} --steps {steps} --json"
+        f"qpatrol bench --engine {engine} --agents {agents} --runs {runs} --steps {steps} "
+        f"--threads {threads} --json"
     )
     return b
 
@@ -65,19 +79,28 @@ def plot(results: list[dict], path: Path) -> None:
     matplotlib.use("Agg")
     import matplotlib.pyplot as plt
 
-    fig, ax = plt.subplots(figsize=(7.5, 4.8))
-    styles = {"numpy": ("tab:blue", "o"), "numba": ("tab:red", "s")}
+    fig, ax = plt.subplots(figsize=(8, 5.2))
+    cores = max((b.get("threads", 1) for b in results), default=1)
+    styles = {
+        ("numpy", False): ("tab:blue", "o", "numpy"),
+        ("numba", False): ("tab:red", "s", "numba, 1 thread"),
+        ("numba", True): ("tab:purple", "^", f"numba, {cores} threads"),
+    }
     team = {1: "1 agent", 4: "teams of 4"}
-    for engine, (color, marker) in styles.items():
+    for (engine, many), (color, marker, name) in styles.items():
         for agents, line in ((1, "-"), (4, "--")):
-            pts = sorted(
-                (b["runs"], b["agent_steps_per_s"])
-                for b in results
-                if b["engine"] == engine and b["agents"] == agents
-            )
+            # one point per batch size: the longest run of it (2,048 runs: 20,000 steps);
+            # a batch of one run has one thread whatever it asks, and is in both lines
+            best: dict[int, dict] = {}
+            for b in results:
+                threaded = b.get("threads", 1) > 1 or (b["runs"] == 1 and many)
+                if b["engine"] == engine and b["agents"] == agents and threaded == many:
+                    if b["runs"] not in best or b["steps"] > best[b["runs"]]["steps"]:
+                        best[b["runs"]] = b
+            pts = sorted((r, b["agent_steps_per_s"]) for r, b in best.items())
             if pts:
                 xs, ys = zip(*pts, strict=True)
-                ax.plot(xs, ys, line, color=color, marker=marker, label=f"{engine}, {team[agents]}")
+                ax.plot(xs, ys, line, color=color, marker=marker, label=f"{name}, {team[agents]}")
     for agents, line in ((1, ":"), (4, "-.")):
         refs = [b["reference_agent_steps_per_s"] for b in results if b["agents"] == agents]
         if refs:
@@ -93,7 +116,7 @@ def plot(results: list[dict], path: Path) -> None:
     ax.set_ylabel("agent-steps per second")
     ax.set_title("qpatrol bench: Q-learning, battery off, map_a (2 cores, noisy)")
     ax.grid(True, which="both", alpha=0.3)
-    ax.legend(fontsize=8, loc="lower right")
+    ax.legend(fontsize=7.5, loc="lower right", ncol=2)
     fig.tight_layout()
     fig.savefig(path, dpi=120)
 
@@ -112,7 +135,7 @@ def main() -> None:
             b = run_point(*point)
             results.append(b)
             print(
-                f"{b['engine']:6} K={b['agents']} runs={b['runs']:5d} "
+                f"{b['engine']:6} K={b['agents']} runs={b['runs']:5d} threads={b['threads']} "
                 f"{b['agent_steps_per_s'] / 1e6:9.3f} M/s  ref "
                 f"{b['reference_agent_steps_per_s'] / 1e6:6.3f} M/s  ratio {b['ratio']:8.2f}  "
                 f"{b['bytes_per_run']:,} B/run",

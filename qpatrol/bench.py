@@ -18,6 +18,7 @@ import numpy as np
 
 from qpatrol import engines, limits, reference, world
 from qpatrol.config import Config, from_flat
+from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import DIRECTIONS
 from qpatrol.rng import Streams, run_seeds
 from qpatrol.run import RunResult, prepare, simulate
@@ -33,6 +34,7 @@ def workload(
     engine: str = "auto",
     map_name: str = "map_a",
     extra: dict[str, Any] | None = None,
+    threads: int = 0,
 ) -> Config:
     """The config a bench runs (qlearning, battery off, no episode limit)."""
     flat = {
@@ -43,6 +45,7 @@ def workload(
         "policy": "qlearning",
         "battery.enabled": False,
         "engine": engine,
+        "threads": threads,
         "seed": 0,
     }
     flat.update(extra or {})
@@ -106,6 +109,7 @@ def bench(cfg: Config) -> dict[str, Any]:
         "map": result.map.name,
         "engine": result.engine,
         "engine_note": result.engine_note,
+        "threads": used_threads(cfg, result),
         "seconds": seconds,
         "agent_steps": agent_steps,
         "agent_steps_per_s": rate,
@@ -119,13 +123,22 @@ def bench(cfg: Config) -> dict[str, Any]:
     }
 
 
+def used_threads(cfg: Config, result: RunResult) -> int:
+    """Threads the workload's batches could use: the compiled engine's lanes
+    (:func:`qpatrol.engines.threads.resolve`, at most one per run), 1 on numpy."""
+    if result.engine != "numba":
+        return 1
+    batch = min(cfg["runs"], limits.batch_runs(cfg, result.map))
+    return min(engine_threads.resolve(cfg["threads"]), batch)
+
+
 def report(b: dict[str, Any]) -> str:
     """The human-readable lines of a :func:`bench` result."""
     path = b["engine"] + (f" ({b['engine_note']})" if b["engine_note"] else "")
     return "\n".join(
         [
             f"workload   {b['runs']} runs x {b['agents']} agents x {b['steps']} steps on "
-            f"{b['map']}, engine {path}",
+            f"{b['map']}, engine {path}, {b['threads']} thread{'s' if b['threads'] > 1 else ''}",
             f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "

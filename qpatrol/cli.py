@@ -665,6 +665,15 @@ def bench(
     map_: Annotated[str, typer.Option("--map", "-m", metavar="M", help="Map name or file.")] = (
         "map_a"
     ),
+    threads: Annotated[
+        int,
+        typer.Option(
+            "--threads",
+            metavar="N",
+            help="Threads of the compiled engine (0: every core of this process); "
+            "the reference loop runs in one.",
+        ),
+    ] = 0,
     set_: SetOpt = None,
     as_json: Annotated[
         bool, typer.Option("--json", metavar="", help="One JSON object instead of text.")
@@ -672,13 +681,15 @@ def bench(
 ) -> None:
     """Measure agent-steps per second of a Q-learning workload (battery off) and of a
     plain-Python reference loop (qpatrol/reference.py) in the same process, with their
-    ratio, bytes per run and peak memory. Says which engine ran, and why if it fell back.
+    ratio, bytes per run and peak memory. Says which engine ran, and why if it fell back,
+    and how many threads it had (the runs of a batch are shared among them: use
+    --threads 1 for the speed of one core).
     """
     from qpatrol import bench as bench_mod
 
     try:
         extra = dict(config_mod.parse_assignment(a) for a in set_ or [])
-        cfg = bench_mod.workload(runs, agents, steps, engine, map_, extra)
+        cfg = bench_mod.workload(runs, agents, steps, engine, map_, extra, threads)
         result = bench_mod.bench(cfg)
     except (ConfigError, MapError) as e:
         fail(str(e))

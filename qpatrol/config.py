@@ -341,6 +341,16 @@ SCHEMA: tuple[Field, ...] = (
         choices=("auto", "numpy", "numba"),
     ),
     F(
+        "threads",
+        "int",
+        0,
+        "threads of the compiled engine for one batch, each advancing its share of the runs "
+        "(0: this process's share of the cores: all of them, or one each for two --jobs on "
+        "two cores); every number of threads gives the same files to the bit",
+        low=0,
+        high=1024,
+    ),
+    F(
         "memory.limit_gib",
         "float",
         2.0,
@@ -354,7 +364,7 @@ SCHEMA: tuple[Field, ...] = (
 )
 #: Keys that choose how a result is computed, never what it is: left out of
 #: ``config.yaml`` and of :meth:`Config.digest` (the engine that ran is in ``meta.json``).
-EXECUTION_KEYS: tuple[str, ...] = ("engine", "memory.limit_gib")
+EXECUTION_KEYS: tuple[str, ...] = ("engine", "threads", "memory.limit_gib")
 FIELDS: dict[str, Field] = {f.key: f for f in SCHEMA}
 KEYS: tuple[str, ...] = tuple(FIELDS)
 

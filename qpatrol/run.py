@@ -27,6 +27,7 @@ from qpatrol import atomic, engines, limits, measures, provenance, strategies, w
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
 from qpatrol.engines import numpy_loop
+from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
 from qpatrol.rng import Streams, run_seeds
@@ -210,10 +211,11 @@ def _batch(
         (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload
         first = resumed.position
     total = cfg["steps"]
-    loop = _compiled_loop if engine == "numba" else numpy_loop.run
-    loop(
-        state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress, checkpoint
-    )
+    args = (state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress)
+    if engine == "numba":
+        _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
+    else:
+        numpy_loop.run(*args, checkpoint)
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -312,11 +314,14 @@ def _compiled_loop(
     total: int,
     progress: Progress | None,
     checkpoint: Checkpointer | None,
+    threads: int = 1,
 ) -> None:
     """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
     results as :func:`qpatrol.engines.numpy_loop.run`). A checkpointer is ticked after
     each block (of at most COMPILED_BLOCK agent-steps then), or after every team step
-    when it asks for that (``every_step``)."""
+    when it asks for that (``every_step``). With ``threads`` > 1 the runs of a block
+    are cut into that many lanes, each advanced by its own thread
+    (:mod:`qpatrol.engines.threads`): the same numbers."""
     from qpatrol.engines import numba_core
 
     R, K = state.n_runs, p.n_agents
@@ -333,19 +338,19 @@ def _compiled_loop(
     loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
     every = max(1, total // 200)
     i = first
-    buf = None
+    bufs: dict[int, np.ndarray] = {}  # the uniforms' buffers, one per lane, refilled per call
     while i < total and state.active.any():
         n = min(block, total - i)
         if streams.pending():  # uniforms drawn for every run by the numpy engine first
-            n, width = min(n, streams.pending()), R
-        else:
-            width = min(group, R)
-        if buf is None or buf.shape[:2] != (width, n):  # one buffer, refilled per call
-            buf = np.empty((width, n, K, 2))
-        if width == R:
-            taken, ends, up_int, up_float = loop.run(streams.take(n, out=buf))
-        else:
-            taken, ends, up_int, up_float = loop.run(None, rows=_row_groups(streams, n, buf))
+            n = min(n, streams.pending())
+            u = streams.take(n, out=_buffer(bufs, -1, (R, n, K, 2)))
+            lanes = [[(lo, hi, u[lo:hi])] for lo, hi in engine_threads.lanes(R, threads, R * K * n)]
+        else:  # each lane draws its runs' uniforms, group of runs after group
+            lanes = [
+                _row_groups(streams, n, _buffer(bufs, j, (min(group, hi - lo), n, K, 2)), lo, hi)
+                for j, (lo, hi) in enumerate(engine_threads.lanes(R, threads, R * K * n))
+            ]
+        taken, ends, up_int, up_float = loop.run(None, lanes=lanes)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken
@@ -357,13 +362,21 @@ def _compiled_loop(
             break
 
 
-def _row_groups(streams: Streams, n: int, buf: np.ndarray):
-    """``(lo, hi, u)`` for consecutive groups of ``buf.shape[0]`` runs: each group's
-    uniforms for the next ``n`` steps, drawn into ``buf`` when the group is reached."""
-    R, width = len(streams.generators), buf.shape[0]
-    for lo in range(0, R, width):
-        hi = min(lo + width, R)
-        yield lo, hi, streams.draw(n, lo, hi, buf[: hi - lo])
+def _buffer(bufs: dict[int, np.ndarray], key: int, shape: tuple[int, ...]) -> np.ndarray:
+    """``bufs[key]``, replaced by a new float64 array when its shape is not ``shape``."""
+    if key not in bufs or bufs[key].shape != shape:
+        bufs[key] = np.empty(shape)
+    return bufs[key]
+
+
+def _row_groups(streams: Streams, n: int, buf: np.ndarray, lo: int, hi: int):
+    """``(a, b, u)`` for consecutive groups of ``buf.shape[0]`` runs of rows ``lo..hi-1``:
+    each group's uniforms for the next ``n`` steps, drawn into ``buf`` when the group is
+    reached (by the thread that runs it: each run has its own stream)."""
+    width = buf.shape[0]
+    for a in range(lo, hi, width):
+        b = min(a + width, hi)
+        yield a, b, streams.draw(n, a, b, buf[: b - a])
 
 
 def advance(

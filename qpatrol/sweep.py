@@ -50,6 +50,7 @@ import pandas as pd
 from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
 from qpatrol.csvio import read_csv
+from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
 from qpatrol.strategies import NAMES as STRATEGY_NAMES
@@ -499,16 +500,23 @@ def _pool(
     # one task at a time (joblib's automatic batching may hand a worker several of the
     # short tasks at the end at once, and the other worker then idles)
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered", batch_size=1)
+    share = engine_threads.share_of(n)  # the compiled engine's threads of each worker
     for tag, outcomes in parallel(
-        delayed(_run_tagged)(tag, pts, m, pdir, meta) for tag, pts, m, pdir in ordered
+        delayed(_run_tagged)(tag, pts, m, pdir, meta, share) for tag, pts, m, pdir in ordered
     ):
         for outcome in outcomes:
             yield tag, outcome
 
 
 def _run_tagged(
-    tag: Any, pts: list[tuple[Point, Config]], m: Any, pdir: Path, meta: dict[str, Any]
+    tag: Any,
+    pts: list[tuple[Point, Config]],
+    m: Any,
+    pdir: Path,
+    meta: dict[str, Any],
+    share: int | None = None,
 ) -> tuple[Any, list[tuple[str, str | None]]]:
+    engine_threads.set_share(share)
     return tag, _run_points(pts, m, pdir, meta)
 
 
@@ -907,13 +915,14 @@ def _execute_dask(
         except (OSError, TimeoutError, ValueError) as e:
             raise ConfigError(f"scheduler: cannot connect to {scheduler} ({e})") from None
     try:
+        # one thread per task: a dask worker may share its machine with others
         futures = {
-            client.submit(_run_points, pts, m, pdir, meta, pure=False): pts
+            client.submit(_run_tagged, None, pts, m, pdir, meta, 1, pure=False): pts
             for _, pts, m, _ in sorted(tasks, key=lambda t: -_task_cost(t))
         }
         for fut in as_completed(futures):
             try:
-                yield from fut.result()
+                yield from fut.result()[1]
             except Exception as e:  # the worker died (KilledWorker, ...), not the run
                 for point, _ in futures[fut]:
                     yield point.id, _record_failure(pdir, point, e)

@@ -56,3 +56,31 @@ def loop_specs(monkeypatch) -> list[int]:
 
     monkeypatch.setattr(numba_core.Loop, "__init__", spy)
     return specs
+
+
+def stopped_and_resumed(cfg, folder: Path, at: int):
+    """``simulate(cfg)`` stopped at step ``at`` by a checkpointer ticked after every
+    step (on the compiled engine: one step per call), then resumed from its checkpoint
+    in ``folder``: the resumed run's result."""
+    from qpatrol import checkpoint as ck
+    from qpatrol.run import simulate
+
+    class StopAt(ck.Checkpointer):
+        every_step = True
+
+        def tick(self, position, payload):
+            if position == at:
+                self.request_stop()
+            super().tick(position, payload)
+
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(folder, every=0))
+    resumed = ck.Checkpointer(folder, every=0)
+    assert resumed.load().position == at
+    return simulate(cfg, checkpoint=resumed)
+
+
+@pytest.fixture
+def stop_and_resume():
+    """:func:`stopped_and_resumed`, for tests in any file."""
+    return stopped_and_resumed

@@ -80,30 +80,10 @@ def test_save_load_and_when(tmp_path: Path):
     assert not (tmp_path / "cp").exists()
 
 
-def stopped_and_resumed(cfg, folder: Path, at: int):
-    """``simulate(cfg)`` stopped at step ``at`` by a checkpointer ticked after every
-    step (on the compiled engine: one step per call), then resumed from its checkpoint
-    in ``folder``: the resumed run's result."""
-
-    class StopAt(ck.Checkpointer):
-        every_step = True
-
-        def tick(self, position, payload):
-            if position == at:
-                self.request_stop()
-            super().tick(position, payload)
-
-    with pytest.raises(ck.Interrupted):
-        simulate(cfg, checkpoint=StopAt(folder, every=0))
-    resumed = ck.Checkpointer(folder, every=0)
-    assert resumed.load().position == at
-    return simulate(cfg, checkpoint=resumed)
-
-
-def test_simulate_resumed_equals_uninterrupted(tmp_path: Path):
+def test_simulate_resumed_equals_uninterrupted(tmp_path: Path, stop_and_resume):
     cfg = from_mapping({**CONFIG, "steps": 700})
     whole = simulate(cfg)
-    rest = stopped_and_resumed(cfg, tmp_path / "cp", 333)
+    rest = stop_and_resume(cfg, tmp_path / "cp", 333)
     assert np.array_equal(rest.strategy.q, whole.strategy.q)
     assert np.array_equal(rest.strategy.n, whole.strategy.n)
     assert rest.summary == whole.summary
@@ -112,7 +92,9 @@ def test_simulate_resumed_equals_uninterrupted(tmp_path: Path):
 
 
 @pytest.mark.parametrize("agents", [1, 4])
-def test_compiled_kernels_stop_at_any_step_and_resume_the_same(tmp_path, loop_specs, agents):
+def test_compiled_kernels_stop_at_any_step_and_resume_the_same(
+    tmp_path, loop_specs, stop_and_resume, agents
+):
     """The lone learner's and the team's kernels keep a run's state in registers within
     a call and store it at its end: one step per call up to step 333, a stop there and
     a resume from the checkpoint give the tables and rows of one uninterrupted run."""
@@ -128,7 +110,7 @@ def test_compiled_kernels_stop_at_any_step_and_resume_the_same(tmp_path, loop_sp
     }
     cfg = from_mapping(flat)
     whole = simulate(cfg)
-    rest = stopped_and_resumed(cfg, tmp_path / "cp", 333)
+    rest = stop_and_resume(cfg, tmp_path / "cp", 333)
     kernel = numba_core.SPEC_QLEARNING_SOLO if agents == 1 else numba_core.SPEC_QLEARNING_TEAM
     assert loop_specs == [kernel] * 3
     assert np.array_equal(rest.strategy.q, whole.strategy.q)

@@ -31,6 +31,9 @@ state in registers: twice the speed of the general loop) and one for teams
 
 from __future__ import annotations
 
+from collections.abc import Iterable
+from concurrent.futures import ThreadPoolExecutor, wait
+
 import numpy as np
 from numba import njit
 
@@ -1815,6 +1818,12 @@ class Loop:
                 self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self.pack_at = next(j for j, a in enumerate(self.args) if a is self.pack)
+        # each lane's own arrays: output buffers and working arrays (see _lane_args)
+        at = {id(a): j for j, a in enumerate(self.args)}
+        self.ep_at, self.tl_at = at[id(self.ep_buf)], at[id(self.tl_buf)]
+        self.up_at, self.up_f_at = at[id(self.up_int)], at[id(self.up_float)]
+        self._own = (self.ep_at, self.up_at, self.up_f_at, self.tl_at, len(self.args) - 1)
+        self._lanes = [self.args]
 
     def _timeline_args(self, tl, n_runs: int, n_cells: int, max_steps: int) -> tuple:
         """The timeline's arrays (tiny dummies when it is off) and its row buffer."""
@@ -1833,10 +1842,22 @@ class Loop:
             self.tl_buf,
         )
 
-    def _call(self, u: np.ndarray, lo: int, hi: int) -> tuple[int, int, int, int]:
-        """``run_block`` on batch rows ``lo..hi-1`` (``u``: their uniforms ``[hi - lo, T,
-        K, 2]``), with the rows of its output buffers renumbered to batch rows."""
-        args = self.args
+    def _lane_args(self, lane: int) -> tuple:
+        """The arguments of lane ``lane``: lane 0's are :attr:`args`; another lane has
+        its own working arrays and output buffers (episode, Q-update and timeline rows),
+        so that lanes may run at once (:meth:`run`)."""
+        while len(self._lanes) <= lane:
+            args = list(self.args)
+            for j in self._own:
+                a = args[j]
+                args[j] = tuple(map(np.zeros_like, a)) if isinstance(a, tuple) else np.empty_like(a)
+            self._lanes.append(tuple(args))
+        return self._lanes[lane]
+
+    def _call(self, args: tuple, u: np.ndarray, lo: int, hi: int) -> tuple[int, int, int, int]:
+        """``run_block`` with a lane's ``args`` on batch rows ``lo..hi-1`` (``u``: their
+        uniforms ``[hi - lo, T, K, 2]``), the rows of its output buffers renumbered to
+        batch rows."""
         if (lo, hi) != (0, self.n_runs):
             args = list(args)
             for j in self.per_run:
@@ -1847,18 +1868,39 @@ class Loop:
             args[self.pack_at] = Pack(*pack)
         t_end, n_ep, n_up, n_tl = run_block(self.spec_marker, self.t0, u, *args)
         if lo:
-            self.ep_buf[:n_ep, 0] += lo
-            self.up_int[:n_up, 0] += lo
-            self.tl_buf[:n_tl, 0] += lo
+            args[self.ep_at][:n_ep, 0] += lo
+            args[self.up_at][:n_up, 0] += lo
+            args[self.tl_at][:n_tl, 0] += lo
         return t_end, n_ep, n_up, n_tl
 
+    def _lane(self, lane: int, groups: Iterable[tuple[int, int, np.ndarray]]) -> tuple:
+        """Run a lane's groups of rows, one after the other: ``(last step, [episode
+        rows], [update int rows], [update float rows], [timeline rows])``, copies."""
+        args = self._lane_args(lane)
+        ep, up_i, up_f, tl = (args[j] for j in (self.ep_at, self.up_at, self.up_f_at, self.tl_at))
+        t_end, eps, ups_i, ups_f, tls = self.t0, [], [], [], []
+        for lo, hi, uu in groups:
+            t_g, n_ep, n_up, n_tl = self._call(args, np.ascontiguousarray(uu), lo, hi)
+            t_end = max(t_end, int(t_g))
+            eps.append(ep[:n_ep].copy())
+            ups_i.append(up_i[:n_up].copy())
+            ups_f.append(up_f[:n_up].copy())
+            tls.append(tl[:n_tl].copy())
+        return t_end, eps, ups_i, ups_f, tls
+
     def run(
-        self, u: np.ndarray, rows: list[tuple[int, int, np.ndarray]] | None = None
+        self,
+        u: np.ndarray | None,
+        rows: list[tuple[int, int, np.ndarray]] | None = None,
+        lanes: list[Iterable[tuple[int, int, np.ndarray]]] | None = None,
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
         ``[R, T, K, 2]``), or, given ``rows`` (``(lo, hi, u)`` with ``u`` float ``[hi -
         lo, T, K, 2]``, covering every row in order), group of rows after group: the
         same numbers, with each group's arrays (tables, maps, uniforms) kept in cache.
+        Given ``lanes`` (several such ``rows``, covering the rows in order between
+        them), each lane runs in a thread of its own (the loop releases the GIL): the
+        same numbers again, as every run is computed alone.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
         [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
@@ -1866,16 +1908,24 @@ class Loop:
         """
         s, p = self.state, self.p
         self.t0 = t0 = s.t
-        groups = rows if rows is not None else [(0, self.n_runs, u)]
-        t_end, eps, ups_i, ups_f = t0, [], [], []
-        for lo, hi, uu in groups:
-            t_g, n_ep, n_up, n_tl = self._call(np.ascontiguousarray(uu), lo, hi)
-            t_end = max(t_end, int(t_g))
-            eps.append(self.ep_buf[:n_ep].copy())
-            ups_i.append(self.up_int[:n_up].copy())
-            ups_f.append(self.up_float[:n_up].copy())
-            if self.timeline is not None:
-                self.timeline.add_rows(self.tl_buf[:n_tl])
+        if lanes is None:
+            lanes = [rows if rows is not None else [(0, self.n_runs, u)]]
+        if len(lanes) == 1:
+            done = [self._lane(0, lanes[0])]
+        else:
+            for i in range(len(lanes)):
+                self._lane_args(i)  # allocated here, not in the threads
+            pool = _pool(len(lanes))
+            futures = [pool.submit(self._lane, i, g) for i, g in enumerate(lanes)]
+            try:
+                done = [f.result() for f in futures]
+            finally:  # an interrupt while waiting: the lanes still finish their calls
+                wait(futures)
+        t_end = max(d[0] for d in done)
+        eps, ups_i, ups_f, tls = ([x for d in done for x in d[j]] for j in range(1, 5))
+        if self.timeline is not None:
+            for rows_tl in tls:
+                self.timeline.add_rows(rows_tl)
         s.t = int(t_end)
         compiled.unpack(self.strategy, self.pack, s)
         # a run that stopped before the batch did sat out its last steps: no wait, no
@@ -1897,3 +1947,13 @@ class Loop:
             ups_i[0] if one else np.concatenate(ups_i),
             ups_f[0] if one else np.concatenate(ups_f),
         )
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+
+
+def _pool(n: int) -> ThreadPoolExecutor:
+    """A pool of ``n`` threads, kept for the process (lanes of every batch reuse it)."""
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="qpatrol-lane")
+    return _POOLS[n]

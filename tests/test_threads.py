@@ -1,0 +1,161 @@
+"""The compiled engine's threads share out a batch's runs and change no number.
+
+Each lane of runs (:func:`qpatrol.engines.threads.lanes`) is advanced by its own thread
+with its own working arrays and output buffers; every file of the run folder must be
+the one a single thread writes, byte for byte, whatever the number of threads, the
+compiled loop (lone and team kernels, the Q-learning loop, the general loop with the
+battery), the recorders, and runs that meet their episode quota at different steps.
+"""
+
+from __future__ import annotations
+
+import threading
+from pathlib import Path
+
+import pytest
+
+from qpatrol import limits
+from qpatrol.config import ConfigError, from_flat
+from qpatrol.engines import threads
+from qpatrol.run import simulate, write_run
+
+META = {"started": "-", "ended": "-"}
+BASE = {"map": "map_b", "seed": 11, "steps": 900, "engine": "numba"}
+
+
+@pytest.fixture
+def lanes_seen(monkeypatch) -> list[tuple[int, int, int, str]]:
+    """Every lane the compiled loop ran during the test: ``(lane, first row, end row,
+    thread name)``; lanes are cut for calls of any size (MIN_LANE_WORK 1)."""
+    pytest.importorskip("numba")
+    from qpatrol.engines import numba_core
+
+    monkeypatch.setattr(threads, "MIN_LANE_WORK", 1)
+    seen: list[tuple[int, int, int, str]] = []
+    real = numba_core.Loop._lane
+
+    def spy(self, lane, groups):
+        def watched():  # the groups as the lane draws them, one after the other
+            for lo, hi, u in groups:
+                seen.append((lane, lo, hi, threading.current_thread().name))
+                yield lo, hi, u
+
+        return real(self, lane, watched())
+
+    monkeypatch.setattr(numba_core.Loop, "_lane", spy)
+    return seen
+
+
+def folder_bytes(flat: dict, path: Path) -> dict[str, bytes]:
+    out = write_run(simulate(from_flat(flat)), path, meta=META)
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+
+CASES = {
+    "lone kernel, trajectory": {"runs": 7, "agents": 1, "record.trajectory": 5},
+    "team kernel, epsilon": {"runs": 5, "agents": 3, "learning.epsilon": 0.2},
+    "battery and recorders (general loop)": {
+        "runs": 4,
+        "agents": 3,
+        "battery.enabled": True,
+        "battery.capacity": 60,
+        "record.watch": [3, 10],
+        "record.timeline": 50,
+        "record.warmup": 30,
+    },
+    "every Q-update recorded": {"runs": 3, "agents": 2, "record.transitions": True},
+    "episode quotas met at different steps": {
+        "runs": 6,
+        "agents": 2,
+        "episodes": 3,
+        "max_episode_steps": 70,
+    },
+    "conscientious": {"runs": 5, "agents": 2, "policy": "conscientious"},
+}
+
+
+@pytest.mark.parametrize("case", list(CASES))
+def test_threads_write_the_same_files(tmp_path, lanes_seen, case):
+    flat = {**BASE, **CASES[case]}
+    one = folder_bytes({**flat, "threads": 1}, tmp_path / "one")
+    assert {lane for lane, *_ in lanes_seen} == {0}
+    for n in (2, 3):
+        lanes_seen.clear()
+        assert folder_bytes({**flat, "threads": n}, tmp_path / f"t{n}") == one, (case, n)
+        # n lanes, each in a thread of the pool, covering the rows in order
+        assert {lane for lane, *_ in lanes_seen} == set(range(n))
+        assert all(name.startswith("qpatrol-lane") for *_, name in lanes_seen)
+        first_call = sorted({(lane, lo, hi) for lane, lo, hi, _ in lanes_seen})[:n]
+        assert [lo for _, lo, _ in first_call] == [flat["runs"] * i // n for i in range(n)]
+
+
+def test_threads_in_groups_of_runs(tmp_path, lanes_seen, ring_map):
+    """A large batch goes through the compiled loop in groups of runs: each lane draws
+    its runs' uniforms and runs its groups (several per lane here)."""
+    flat = {**BASE, "map": str(ring_map), "runs": 150, "agents": 1, "steps": 600}
+    flat["battery.enabled"] = False
+    one = folder_bytes({**flat, "threads": 1}, tmp_path / "one")
+    lanes_seen.clear()
+    assert folder_bytes({**flat, "threads": 2}, tmp_path / "two") == one
+    per_lane = {lane: {(lo, hi) for l2, lo, hi, _ in lanes_seen if l2 == lane} for lane in (0, 1)}
+    assert all(len(groups) > 1 for groups in per_lane.values())
+    assert max(hi for _, hi in per_lane[0]) == 75 == min(lo for lo, _ in per_lane[1])
+
+
+def test_checkpointed_runs_in_threads(tmp_path, lanes_seen, stop_and_resume):
+    """`qpatrol train` keeps a checkpointer: its blocks are cut into lanes too, and a
+    run stopped and resumed with two threads ends as one thread's uninterrupted run."""
+    flat = {**BASE, "runs": 4, "agents": 2, "steps": 1500}
+    whole = simulate(from_flat({**flat, "threads": 1}))
+    lanes_seen.clear()
+    resumed = stop_and_resume(from_flat({**flat, "threads": 2}), tmp_path / "cp", 700)
+    assert {lane for lane, *_ in lanes_seen} == {0, 1}
+    a = write_run(whole, tmp_path / "a", meta=META)
+    b = write_run(resumed, tmp_path / "b", meta=META)
+    for p in sorted(a.iterdir()):
+        if p.name != "meta.json":
+            assert p.read_bytes() == (b / p.name).read_bytes(), p.name
+
+
+def test_lanes_cut_the_runs_in_order():
+    big = threads.MIN_LANE_WORK
+    assert threads.lanes(5, 2, big) == [(0, 2), (2, 5)]
+    assert threads.lanes(5, 3, big) == [(0, 1), (1, 3), (3, 5)]
+    assert threads.lanes(8, 4, big) == [(0, 2), (2, 4), (4, 6), (6, 8)]
+    assert threads.lanes(2, 8, big) == [(0, 1), (1, 2)]  # at most one lane per run
+    assert threads.lanes(1, 4, big) == [(0, 1)]
+    assert threads.lanes(8, 1, big) == [(0, 8)]
+    assert threads.lanes(8, 2, big - 1) == [(0, 8)]  # too little work to hand over
+
+
+def test_threads_resolve_to_this_process_share(monkeypatch):
+    monkeypatch.setattr(limits, "cores", lambda: 8)
+    monkeypatch.setattr(threads, "_share", None)
+    assert threads.resolve(0) == 8  # a process of its own: every core
+    assert threads.resolve(3) == 3  # asked for
+    assert threads.share_of(2) == 4 and threads.share_of(3) == 2 and threads.share_of(16) == 1
+    threads.set_share(threads.share_of(4))  # a worker of a pool of 4
+    assert threads.resolve(0) == 2 and threads.resolve(5) == 5
+    threads.set_share(None)
+    assert threads.resolve(0) == 8
+
+
+def test_pool_workers_share_the_cores(monkeypatch, tmp_path):
+    """A sweep's workers get their share of the cores (two jobs on two cores: one
+    thread each); the share is set in the worker before its points run."""
+    from qpatrol import sweep
+
+    monkeypatch.setattr(threads, "_share", None)
+    got = []
+    monkeypatch.setattr(sweep, "_run_points", lambda *a: got.append(threads.resolve(0)) or [])
+    assert sweep._run_tagged("t", [], None, tmp_path, {}, 1) == ("t", [])
+    assert got == [1]
+
+
+def test_threads_is_an_execution_key():
+    a = from_flat({"runs": 3})
+    b = from_flat({"runs": 3, "threads": 2})
+    assert a.digest() == b.digest() and a.to_yaml() == b.to_yaml()
+    for bad in (-1, 1.5, "two"):
+        with pytest.raises(ConfigError, match=r"^threads: got .*; allowed"):
+            from_flat({"threads": bad})
