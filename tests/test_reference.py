@@ -65,6 +65,20 @@ def test_bench_command_json():
     for key in ("agent_steps_per_s", "reference_agent_steps_per_s", "ratio", "engine"):
         assert key in b
     assert b["agent_steps"] == 600 and b["bytes_per_run"] > 0 and b["ratio"] > 0
+    assert b["threads"] == 1  # a small batch: numpy, one thread
+
+
+def test_bench_reports_the_threads_that_ran():
+    pytest.importorskip("numba")
+    args = ["bench", "--runs", "3", "--steps", "400", "--engine", "numba", "--json"]
+    for asked, ran in (("1", 1), ("2", 2), ("8", 3)):  # at most one thread per run
+        res = CliRunner().invoke(app, [*args, "--threads", asked])
+        assert res.exit_code == 0, res.output
+        assert json.loads(res.stdout)["threads"] == ran
+    res = CliRunner().invoke(app, [*args[:-1], "--threads", "2"])
+    assert "engine numba, 2 threads" in res.stdout
+    res = CliRunner().invoke(app, [*args, "--threads", "-1"])
+    assert res.exit_code == 2 and "threads: got -1" in res.stderr
 
 
 def test_bench_command_text_and_errors():

@@ -23,9 +23,10 @@ from qpatrol import limits
 _share: int | None = None
 
 #: Fewest agent-steps a call of the compiled loop must have to be cut into lanes: a
-#: thread's hand-over costs tens of microseconds, a call of this size about a
-#: millisecond (a checkpointer that wants every step gets calls of one team step).
-MIN_LANE_WORK = 1 << 14
+#: thread's hand-over costs tens of microseconds, a call of this size 0.2 to 0.6 ms
+#: (calls are that short with a Q-update recorder, whose buffers bound a call to 8,192
+#: agent-steps; a checkpointer that wants every step gets calls of one team step).
+MIN_LANE_WORK = 1 << 12
 
 
 def set_share(threads: int | None) -> None:
