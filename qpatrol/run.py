@@ -340,16 +340,17 @@ def _compiled_loop(
     i = first
     bufs: dict[int, np.ndarray] = {}  # the uniforms' buffers, one per lane, refilled per call
     while i < total and state.active.any():
-        n = min(block, total - i)
-        if streams.pending():  # uniforms drawn for every run by the numpy engine first
-            n = min(n, streams.pending())
+        pending = streams.pending()  # uniforms drawn for every run by the numpy engine first
+        n = min(block, total - i, pending or block)
+        cuts = engine_threads.lanes(R, threads, R * K * n)
+        if pending:
             u = streams.take(n, out=_buffer(bufs, -1, (R, n, K, 2)))
-            lanes = [[(lo, hi, u[lo:hi])] for lo, hi in engine_threads.lanes(R, threads, R * K * n)]
+            lanes = [(lo, hi, [(lo, hi, u[lo:hi])]) for lo, hi in cuts]
         else:  # each lane draws its runs' uniforms, group of runs after group
-            lanes = [
-                _row_groups(streams, n, _buffer(bufs, j, (min(group, hi - lo), n, K, 2)), lo, hi)
-                for j, (lo, hi) in enumerate(engine_threads.lanes(R, threads, R * K * n))
-            ]
+            lanes = []
+            for j, (lo, hi) in enumerate(cuts):
+                buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
+                lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
         taken, ends, up_int, up_float = loop.run(None, lanes=lanes)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)

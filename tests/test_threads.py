@@ -159,3 +159,25 @@ def test_threads_is_an_execution_key():
     for bad in (-1, 1.5, "two"):
         with pytest.raises(ConfigError, match=r"^threads: got .*; allowed"):
             from_flat({"threads": bad})
+
+
+def test_lane_buffers_hold_their_own_runs(monkeypatch, lanes_seen):
+    """Lanes other than the first get row buffers for their own runs, not the batch's
+    (a third of them here), and working arrays of their own."""
+    from qpatrol.engines import numba_core
+
+    loops = []
+    real = numba_core.Loop.run
+    monkeypatch.setattr(
+        numba_core.Loop, "run", lambda self, *a, **k: loops.append(self) or real(self, *a, **k)
+    )
+    flat = {**BASE, "runs": 9, "agents": 2, "threads": 3, "record.transitions": True}
+    simulate(from_flat(flat))
+    loop = loops[0]
+    first = loop.args
+    for lane in (1, 2):
+        runs, args = loop._lanes[lane]
+        assert runs == 3
+        for j in (loop.ep_at, loop.up_at, loop.up_f_at):
+            assert args[j].shape[0] * 3 == first[j].shape[0] > 0
+        assert all(a is not b for a, b in zip(args[-1], first[-1], strict=True))

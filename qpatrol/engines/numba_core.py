@@ -1823,7 +1823,7 @@ class Loop:
         self.ep_at, self.tl_at = at[id(self.ep_buf)], at[id(self.tl_buf)]
         self.up_at, self.up_f_at = at[id(self.up_int)], at[id(self.up_float)]
         self._own = (self.ep_at, self.up_at, self.up_f_at, self.tl_at, len(self.args) - 1)
-        self._lanes = [self.args]
+        self._lanes: list[tuple[int, tuple] | None] = [None]  # lane i > 0: (runs, args)
 
     def _timeline_args(self, tl, n_runs: int, n_cells: int, max_steps: int) -> tuple:
         """The timeline's arrays (tiny dummies when it is off) and its row buffer."""
@@ -1842,17 +1842,27 @@ class Loop:
             self.tl_buf,
         )
 
-    def _lane_args(self, lane: int) -> tuple:
+    def _lane_args(self, lane: int, rows: int | None = None) -> tuple:
         """The arguments of lane ``lane``: lane 0's are :attr:`args`; another lane has
-        its own working arrays and output buffers (episode, Q-update and timeline rows),
-        so that lanes may run at once (:meth:`run`)."""
+        its own working arrays and output buffers (episode, Q-update and timeline rows,
+        sized for ``rows`` runs), so that lanes may run at once (:meth:`run`)."""
+        if lane == 0:
+            return self.args
         while len(self._lanes) <= lane:
+            self._lanes.append(None)
+        have = self._lanes[lane]
+        if have is None or have[0] < (rows or 1):
+            n = rows or 1
             args = list(self.args)
             for j in self._own:
                 a = args[j]
-                args[j] = tuple(map(np.zeros_like, a)) if isinstance(a, tuple) else np.empty_like(a)
-            self._lanes.append(tuple(args))
-        return self._lanes[lane]
+                if isinstance(a, tuple):  # the working arrays
+                    args[j] = tuple(map(np.zeros_like, a))
+                else:  # a buffer of rows: as many per run as lane 0's
+                    per_run = max(1, a.shape[0] // self.n_runs) if a.shape[0] > 1 else 0
+                    args[j] = np.empty((max(1, per_run * n), *a.shape[1:]), dtype=a.dtype)
+            self._lanes[lane] = have = (n, tuple(args))
+        return have[1]
 
     def _call(self, args: tuple, u: np.ndarray, lo: int, hi: int) -> tuple[int, int, int, int]:
         """``run_block`` with a lane's ``args`` on batch rows ``lo..hi-1`` (``u``: their
@@ -1892,15 +1902,16 @@ class Loop:
         self,
         u: np.ndarray | None,
         rows: list[tuple[int, int, np.ndarray]] | None = None,
-        lanes: list[Iterable[tuple[int, int, np.ndarray]]] | None = None,
+        lanes: list[tuple[int, int, Iterable[tuple[int, int, np.ndarray]]]] | None = None,
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
         ``[R, T, K, 2]``), or, given ``rows`` (``(lo, hi, u)`` with ``u`` float ``[hi -
         lo, T, K, 2]``, covering every row in order), group of rows after group: the
         same numbers, with each group's arrays (tables, maps, uniforms) kept in cache.
-        Given ``lanes`` (several such ``rows``, covering the rows in order between
-        them), each lane runs in a thread of its own (the loop releases the GIL): the
-        same numbers again, as every run is computed alone.
+        Given ``lanes`` (``(lo, hi, rows)``: consecutive ranges of rows covering the
+        batch in order, each with its ``rows`` as above), each lane runs in a thread of
+        its own (the loop releases the GIL): the same numbers again, as every run is
+        computed alone.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
         [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
@@ -1909,14 +1920,14 @@ class Loop:
         s, p = self.state, self.p
         self.t0 = t0 = s.t
         if lanes is None:
-            lanes = [rows if rows is not None else [(0, self.n_runs, u)]]
+            lanes = [(0, self.n_runs, rows if rows is not None else [(0, self.n_runs, u)])]
         if len(lanes) == 1:
-            done = [self._lane(0, lanes[0])]
+            done = [self._lane(0, lanes[0][2])]
         else:
-            for i in range(len(lanes)):
-                self._lane_args(i)  # allocated here, not in the threads
+            for i, (lo, hi, _) in enumerate(lanes):
+                self._lane_args(i, hi - lo)  # allocated here, not in the threads
             pool = _pool(len(lanes))
-            futures = [pool.submit(self._lane, i, g) for i, g in enumerate(lanes)]
+            futures = [pool.submit(self._lane, i, g) for i, (_, _, g) in enumerate(lanes)]
             try:
                 done = [f.result() for f in futures]
             finally:  # an interrupt while waiting: the lanes still finish their calls
