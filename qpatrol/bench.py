@@ -27,6 +27,17 @@ from qpatrol.run import RunResult, prepare, simulate
 REFERENCE_BUDGET = 300_000
 
 
+def default_steps(runs: int, agents: int, engine: str = "auto") -> int:
+    """Team steps of a workload that takes about a second, so that setting up the runs
+    and writing their summaries weigh little: 20 M agent-steps on the compiled engine
+    (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which ``auto``
+    takes when numba is missing."""
+    size = max(1, runs * agents)
+    if engine == "numpy" or (engine == "auto" and not engines.numba_installed()):
+        return min(20_000, max(400, 1_000_000 // size))
+    return min(20_000_000, max(1_000, 20_000_000 // size))
+
+
 def workload(
     runs: int,
     agents: int,

@@ -657,8 +657,15 @@ def bench(
         int, typer.Option("--agents", "-K", metavar="K", help="Robots per team.")
     ] = 1,
     steps: Annotated[
-        int, typer.Option("--steps", "-T", metavar="T", help="Team steps per run.")
-    ] = 50000,
+        int | None,
+        typer.Option(
+            "--steps",
+            "-T",
+            metavar="T",
+            help="Team steps per run (default: about a second of work, see "
+            "qpatrol.bench.default_steps).",
+        ),
+    ] = None,
     engine: Annotated[
         str, typer.Option("--engine", "-e", metavar="E", help="auto, numpy or numba.")
     ] = "auto",
@@ -689,6 +696,8 @@ def bench(
 
     try:
         extra = dict(config_mod.parse_assignment(a) for a in set_ or [])
+        if steps is None:
+            steps = bench_mod.default_steps(runs, agents, engine)
         cfg = bench_mod.workload(runs, agents, steps, engine, map_, extra, threads)
         result = bench_mod.bench(cfg)
     except (ConfigError, MapError) as e:

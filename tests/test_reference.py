@@ -105,3 +105,24 @@ def test_bench_warms_up_the_engine_it_times(monkeypatch):
     seen.clear()
     bench.time_core(bench.workload(1, 1, 300, engine="auto"))  # small: numpy throughout
     assert seen == ["numpy", "auto"]
+
+
+def test_bench_default_steps_take_about_a_second(monkeypatch):
+    """Without --steps a workload is about 20 M agent-steps compiled, 1 M on numpy,
+    within bounds (a run of 50,000 steps took 4 ms, mostly setting it up)."""
+    from qpatrol import bench, engines
+
+    assert bench.default_steps(1, 1, "numba") == 20_000_000
+    assert bench.default_steps(16, 4, "numba") == 312_500
+    assert bench.default_steps(2048, 1, "numba") == 9_765
+    assert bench.default_steps(100_000, 8, "numba") == 1_000
+    assert bench.default_steps(1, 1, "numpy") == 20_000
+    assert bench.default_steps(2048, 1, "numpy") == 488
+    assert bench.default_steps(4096, 4, "numpy") == 400
+    monkeypatch.setattr(engines, "numba_installed", lambda: False)
+    assert bench.default_steps(2048, 1, "auto") == 488  # auto without numba: numpy
+    seen = []
+    monkeypatch.setattr(bench, "default_steps", lambda r, k, e: seen.append((r, k, e)) or 300)
+    res = CliRunner().invoke(app, ["bench", "--runs", "2", "--engine", "numpy", "--json"])
+    assert res.exit_code == 0, res.output
+    assert seen == [(2, 1, "numpy")] and json.loads(res.stdout)["steps"] == 300
