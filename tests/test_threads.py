@@ -181,3 +181,27 @@ def test_lane_buffers_hold_their_own_runs(monkeypatch, lanes_seen):
         for j in (loop.ep_at, loop.up_at, loop.up_f_at):
             assert args[j].shape[0] * 3 == first[j].shape[0] > 0
         assert all(a is not b for a, b in zip(args[-1], first[-1], strict=True))
+
+
+def test_lanes_only_for_calls_worth_a_hand_over(monkeypatch, tmp_path):
+    """At the default threshold a batch's calls of thousands of agent-steps are cut
+    into lanes, and a checkpointer's calls of one team step are not."""
+    pytest.importorskip("numba")
+    from qpatrol import checkpoint as ck
+    from qpatrol.engines import numba_core
+
+    lanes = []
+    real = numba_core.Loop._lane
+    monkeypatch.setattr(
+        numba_core.Loop, "_lane", lambda self, i, g: lanes.append(i) or real(self, i, g)
+    )
+    flat = {**BASE, "runs": 4, "agents": 2, "steps": 3000, "threads": 2}
+    simulate(from_flat(flat))  # one call of 4 x 2 x 3,000 agent-steps
+    assert sorted(lanes) == [0, 1]
+
+    class EveryStep(ck.Checkpointer):
+        every_step = True
+
+    lanes.clear()
+    simulate(from_flat({**flat, "steps": 50}), checkpoint=EveryStep(tmp_path / "cp", every=0))
+    assert lanes == [0] * 50
