@@ -351,7 +351,7 @@ def _compiled_loop(
             for j, (lo, hi) in enumerate(cuts):
                 buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
                 lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
-        taken, ends, up_int, up_float = loop.run(None, lanes=lanes)
+        taken, ends, up_int, up_float = loop.run(lanes)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken

@@ -1903,19 +1903,14 @@ class Loop:
         return t_end, eps, ups_i, ups_f, tls
 
     def run(
-        self,
-        u: np.ndarray | None,
-        rows: list[tuple[int, int, np.ndarray]] | None = None,
-        lanes: list[tuple[int, int, Iterable[tuple[int, int, np.ndarray]]]] | None = None,
+        self, lanes: list[tuple[int, int, Iterable[tuple[int, int, np.ndarray]]]]
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-        """Advance the batch by up to ``u.shape[1]`` team steps (``u``: float
-        ``[R, T, K, 2]``), or, given ``rows`` (``(lo, hi, u)`` with ``u`` float ``[hi -
-        lo, T, K, 2]``, covering every row in order), group of rows after group: the
-        same numbers, with each group's arrays (tables, maps, uniforms) kept in cache.
-        Given ``lanes`` (``(lo, hi, rows)``: consecutive ranges of rows covering the
-        batch in order, each with its ``rows`` as above), each lane runs in a thread of
-        its own (the loop releases the GIL): the same numbers again, as every run is
-        computed alone.
+        """Advance the batch by up to ``T`` team steps. ``lanes``: ``(lo, hi, rows)``,
+        consecutive ranges of rows covering the batch in order, each with its groups of
+        rows ``(a, b, u)`` (``u`` float ``[b - a, T, K, 2]``, the groups covering
+        ``lo..hi-1`` in order), run group after group, each group's arrays (tables, maps,
+        uniforms) kept in cache. With several lanes each runs in a thread of its own
+        (the loop releases the GIL): the same numbers, as every run is computed alone.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
         [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
@@ -1923,8 +1918,6 @@ class Loop:
         """
         s, p = self.state, self.p
         self.t0 = t0 = s.t
-        if lanes is None:
-            lanes = [(0, self.n_runs, rows if rows is not None else [(0, self.n_runs, u)])]
         if len(lanes) == 1:
             done = [self._lane(0, lanes[0][2])]
         else:
