@@ -12,6 +12,7 @@ from __future__ import annotations
 import threading
 from pathlib import Path
 
+import numpy as np
 import pytest
 
 from qpatrol import limits
@@ -46,9 +47,14 @@ def lanes_seen(monkeypatch) -> list[tuple[int, int, int, str]]:
     return seen
 
 
-def folder_bytes(flat: dict, path: Path) -> dict[str, bytes]:
-    out = write_run(simulate(from_flat(flat)), path, meta=META)
+def written(result, path: Path) -> dict[str, bytes]:
+    """Every file of ``result``'s run folder, written to ``path``: name -> bytes."""
+    out = write_run(result, path, meta=META)
     return {p.name: p.read_bytes() for p in sorted(out.iterdir())}
+
+
+def folder_bytes(flat: dict, path: Path) -> dict[str, bytes]:
+    return written(simulate(from_flat(flat)), path)
 
 
 CASES = {
@@ -71,6 +77,13 @@ CASES = {
         "max_episode_steps": 70,
     },
     "conscientious": {"runs": 5, "agents": 2, "policy": "conscientious"},
+    "qlearning-idleness with the battery": {
+        "runs": 5,
+        "agents": 3,
+        "policy": "qlearning-idleness",
+        "battery.enabled": True,
+        "battery.capacity": 60,
+    },
 }
 
 
@@ -110,11 +123,9 @@ def test_checkpointed_runs_in_threads(tmp_path, lanes_seen, stop_and_resume):
     lanes_seen.clear()
     resumed = stop_and_resume(from_flat({**flat, "threads": 2}), tmp_path / "cp", 700)
     assert {lane for lane, *_ in lanes_seen} == {0, 1}
-    a = write_run(whole, tmp_path / "a", meta=META)
-    b = write_run(resumed, tmp_path / "b", meta=META)
-    for p in sorted(a.iterdir()):
-        if p.name != "meta.json":
-            assert p.read_bytes() == (b / p.name).read_bytes(), p.name
+    a, b = written(whole, tmp_path / "a"), written(resumed, tmp_path / "b")
+    a.pop("meta.json"), b.pop("meta.json")
+    assert a == b
 
 
 def test_lanes_cut_the_runs_in_order():
@@ -205,3 +216,36 @@ def test_lanes_only_for_calls_worth_a_hand_over(monkeypatch, tmp_path):
     lanes.clear()
     simulate(from_flat({**flat, "steps": 50}), checkpoint=EveryStep(tmp_path / "cp", every=0))
     assert lanes == [0] * 50
+
+
+POLICIES = ("qlearning", "qlearning-idleness", "random", "conscientious",
+            "shared-conscientious", "evap", "cyclic", "partition")  # fmt: skip
+
+
+@pytest.mark.parametrize("battery", [False, True])
+@pytest.mark.parametrize("policy", POLICIES)
+def test_lanes_share_nothing_they_write(monkeypatch, policy, battery):
+    """The contract lanes rest on, checked without relying on a race to show: the
+    compiled loop writes only per-run arrays (cut by run for each lane) and each lane's
+    own ones, never a strategy array the lanes share (its constants, or a placeholder
+    of one row). Writing the robots' rewards of ``qlearning-idleness`` into one shared
+    row, as it once did, fails here."""
+    pytest.importorskip("numba")
+    from qpatrol.engines import COMPILED_POLICIES, numba_core
+
+    assert set(POLICIES) == set(COMPILED_POLICIES)
+    shared = []
+    init = numba_core.Loop.__init__
+
+    def spy(self, *args, **kwargs):
+        init(self, *args, **kwargs)
+        for f, name in enumerate(self.pack._fields):
+            if f not in self.pack_per_run:
+                shared.append((name, self.pack[f], self.pack[f].copy()))
+
+    monkeypatch.setattr(numba_core.Loop, "__init__", spy)
+    flat = {**BASE, "runs": 3, "agents": 3, "policy": policy, "battery.enabled": battery}
+    simulate(from_flat({**flat, "battery.capacity": 60, "threads": 1}))
+    assert shared
+    for name, after, before in shared:
+        assert np.array_equal(after, before), (policy, name)

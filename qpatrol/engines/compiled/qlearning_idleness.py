@@ -18,7 +18,9 @@ Pack (see :mod:`qpatrol.engines.compiled`):
 * ``robot_i`` int64 ``[R, K, 3]``: per robot, the idlest-neighbour slot at its last
   choice, the slot it would see next once its run stopped (episode quota), and the
   team step of its last choice (-1: none yet); :func:`unpack` makes ``feat`` of them;
-* ``cell_f`` float64 ``[1, 1, K]``: working array, the robots' rewards of this step;
+* ``cell_f`` float64 ``[R, 1, K]``: working array, the robots' rewards of this step,
+  a row per run (per-run like the tables, so that the runs of a batch share nothing
+  they write and may run in threads at once: :mod:`qpatrol.engines.threads`);
 * ``fpar = [gamma, alpha, epsilon, cap, scale]``;
 * ``ipar = [explore_steps, reward is dot, known reward, use heading, use idlest,
   shared table, F]``.
@@ -69,7 +71,7 @@ def pack(strategy) -> Pack:
         cell_i=s.last,
         cell_b=s.dots,
         robot_i=np.stack([s.feat, s.feat, np.full_like(s.feat, -1)], axis=2).astype(np.int64),
-        cell_f=np.zeros((1, 1, s.n_agents), dtype=np.float64),
+        cell_f=np.zeros((s.q.shape[0], 1, s.n_agents), dtype=np.float64),
     )
 
 
@@ -189,12 +191,12 @@ def learn(
     fpar, ipar = sp.fpar, sp.ipar
     n_agents = pos.shape[1]
     for k in range(n_agents):  # Strategy.rewards, robot by robot as the world
-        rew[0, 0, k] = 0.0
+        rew[r, 0, k] = 0.0
         if not moved[k]:
             continue
         c = pos[r, k]
         g = 0 if communication else k
-        rew[0, 0, k] = _reward(sp, dot_value, r, g, c, t)
+        rew[r, 0, k] = _reward(sp, dot_value, r, g, c, t)
         last[r, g, c] = t
         dots[r, g, c] = False
     for g in range(ended.shape[0]):
@@ -230,7 +232,7 @@ def learn(
                 if v > top:
                     top = v
         bootstrap = gamma * top
-        target = paid * rew[0, 0, k] + bootstrap
+        target = paid * rew[r, 0, k] + bootstrap
         q_sa = q[r, pk, ca, sa, aa]
         n_after = n[r, pk, ca, sa, aa] + 1
         alpha = alpha_par if alpha_par > 0 else 1.0 / n_after
@@ -248,7 +250,7 @@ def learn(
             ri[7] = hb
             ri[8] = 1 if eaten[k] else 0
             rf = up_float[n_up]
-            rf[0] = rew[0, 0, k]
+            rf[0] = rew[r, 0, k]
             rf[1] = alpha
             rf[2] = q_sa
             rf[3] = q[r, pk, ca, sa, aa]
