@@ -227,9 +227,9 @@ POLICIES = ("qlearning", "qlearning-idleness", "random", "conscientious",
 def test_lanes_share_nothing_they_write(monkeypatch, policy, battery):
     """The contract lanes rest on, checked without relying on a race to show: the
     compiled loop writes only per-run arrays (cut by run for each lane) and each lane's
-    own ones, never a strategy array the lanes share (its constants, or a placeholder
-    of one row). Writing the robots' rewards of ``qlearning-idleness`` into one shared
-    row, as it once did, fails here."""
+    own ones, never an array the lanes share (the world's constants, the strategy's
+    constants, or a placeholder of one row). Writing the robots' rewards of
+    ``qlearning-idleness`` into one shared row, as it once did, fails here."""
     pytest.importorskip("numba")
     from qpatrol.engines import COMPILED_POLICIES, numba_core
 
@@ -242,6 +242,9 @@ def test_lanes_share_nothing_they_write(monkeypatch, policy, battery):
         for f, name in enumerate(self.pack._fields):
             if f not in self.pack_per_run:
                 shared.append((name, self.pack[f], self.pack[f].copy()))
+        for j, a in enumerate(self.args):  # the world's constants (map, battery, ...)
+            if j not in self.per_run and j not in self._own and isinstance(a, np.ndarray):
+                shared.append((f"argument {j}", a, a.copy()))
 
     monkeypatch.setattr(numba_core.Loop, "__init__", spy)
     flat = {**BASE, "runs": 3, "agents": 3, "policy": policy, "battery.enabled": battery}
