@@ -802,10 +802,11 @@ def _team_qlearning(
             hs = hk if use_heading else 0
             # the greatest Q of the open moves, without a branch per move
             row = q_r[k, c, hs]
-            v0 = row[0] if free & 1 else -np.inf
-            v1 = row[1] if free & 2 else -np.inf
-            v2 = row[2] if free & 4 else -np.inf
-            v3 = row[3] if free & 8 else -np.inf
+            r0, r1, r2, r3 = row[0], row[1], row[2], row[3]
+            v0 = r0 if free & 1 else -np.inf
+            v1 = r1 if free & 2 else -np.inf
+            v2 = r2 if free & 4 else -np.inf
+            v3 = r3 if free & 8 else -np.inf
             best = max(max(v0, v1), max(v2, v3))
             explore = epsilon > 0.0 and u_r[i, k, 0] < epsilon
             if explore:
@@ -903,10 +904,11 @@ def _team_qlearning(
                 aa = ask[k]
                 hb = aa if use_heading else 0  # the state reached: (c1, hb)
                 nxt = q_r[k, c1, hb]  # its greatest Q over the legal moves, as above
+                n0, n1, n2, n3 = nxt[0], nxt[1], nxt[2], nxt[3]
                 legal1 = wall_legal[c1]
                 top = max(
-                    max(nxt[0] if legal1[0] else -np.inf, nxt[1] if legal1[1] else -np.inf),
-                    max(nxt[2] if legal1[2] else -np.inf, nxt[3] if legal1[3] else -np.inf),
+                    max(n0 if legal1[0] else -np.inf, n1 if legal1[1] else -np.inf),
+                    max(n2 if legal1[2] else -np.inf, n3 if legal1[3] else -np.inf),
                 )
                 target = rew + gamma * top
                 q_sa = q_r[k, c0, ha, aa]

@@ -24,6 +24,8 @@ POPCOUNT = np.array([bin(b).count("1") for b in range(16)], dtype=np.int64)
 def pick(bits, count, uu):
     """The ``floor(uu x count)``-th direction of the mask ``bits`` (``count`` set bits),
     as :func:`qpatrol.learner.pick`; -1 when ``count`` is 0."""
+    if count == 1:  # floor(uu x 1) is 0: the one direction, without the float work
+        return NTH[bits, 0]
     if count == 0:
         return -1
     return NTH[bits, min(np.int64(uu * count), count - 1)]
