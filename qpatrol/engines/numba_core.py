@@ -757,6 +757,7 @@ def _team_qlearning(
     use_heading = sp.ipar[0] != 0
     # the run's rows (views)
     q_r, n_r, u_r = sp.q[r], sp.n[r], u[r]
+    q_f, n_f = q_r.reshape(-1), n_r.reshape(-1)  # flat: one index, not four
     pos_r, head_r, occ_r, wait_r = pos[r], head[r], occ[r], wait[r]
     dots_r, last_r, seen_r, seen_state_r = dots[r], last[r], ep_seen[r], ep_seen_state[r]
     left_r, eaten_r, entered_r = dots_left[r], ep_dots[r], ep_visits[r]
@@ -801,8 +802,8 @@ def _team_qlearning(
                 free = legal
             hs = hk if use_heading else 0
             # the greatest Q of the open moves, without a branch per move
-            row = q_r[k, c, hs]
-            r0, r1, r2, r3 = row[0], row[1], row[2], row[3]
+            at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
+            r0, r1, r2, r3 = q_f[at], q_f[at + 1], q_f[at + 2], q_f[at + 3]
             v0 = r0 if free & 1 else -np.inf
             v1 = r1 if free & 2 else -np.inf
             v2 = r2 if free & 4 else -np.inf
@@ -903,19 +904,20 @@ def _team_qlearning(
                 ha = prev_head[k] if use_heading else 0
                 aa = ask[k]
                 hb = aa if use_heading else 0  # the state reached: (c1, hb)
-                nxt = q_r[k, c1, hb]  # its greatest Q over the legal moves, as above
-                n0, n1, n2, n3 = nxt[0], nxt[1], nxt[2], nxt[3]
+                at1 = ((k * n_cells + c1) * 4 + hb) * 4  # Q(c1, hb, .), flat
+                n0, n1, n2, n3 = q_f[at1], q_f[at1 + 1], q_f[at1 + 2], q_f[at1 + 3]
                 legal1 = wall_legal[c1]
                 top = max(
                     max(n0 if legal1[0] else -np.inf, n1 if legal1[1] else -np.inf),
                     max(n2 if legal1[2] else -np.inf, n3 if legal1[3] else -np.inf),
                 )
                 target = rew + gamma * top
-                q_sa = q_r[k, c0, ha, aa]
-                n_after = n_r[k, c0, ha, aa] + 1
+                at0 = ((k * n_cells + c0) * 4 + ha) * 4 + aa  # Q(c0, ha, aa), flat
+                q_sa = q_f[at0]
+                n_after = n_f[at0] + 1
                 alpha = 1.0 / n_after
-                q_r[k, c0, ha, aa] = q_sa + alpha * (target - q_sa)
-                n_r[k, c0, ha, aa] = n_after
+                q_f[at0] = q_sa + alpha * (target - q_sa)
+                n_f[at0] = n_after
             last_sum, g_sum, g_count, g_max, worst_r = _observe(
                 c1,
                 t,
