@@ -536,6 +536,7 @@ def _solo_qlearning(
     # the run's rows (views), and what nothing inside the kernel reads kept in
     # registers and stored once at the end: cell, heading, occupancy, wait, steps done
     q_r, n_r, u_r = q[r, 0], n[r, 0], u[r]
+    q_f, n_f = q_r.reshape(-1), n_r.reshape(-1)  # flat: one index, not three
     dots_r, last_r, seen_r, seen_state_r = (
         dots[r, 0],
         last[r, 0],
@@ -558,15 +559,16 @@ def _solo_qlearning(
         t = t0 + i + 1
         # --- the robot chooses: greedy over its legal moves (qlearning.act) -----------
         hs = h if use_heading else 0
+        at = (c * 4 + hs) * 4  # Q(c, hs, .), flat
         best = -np.inf
         for d in range(4):
-            if nbrs[c, d] >= 0 and q_r[c, hs, d] > best:
-                best = q_r[c, hs, d]
+            if nbrs[c, d] >= 0 and q_f[at + d] > best:
+                best = q_f[at + d]
         explore = epsilon > 0.0 and u_r[i, 0, 0] < epsilon
         bits = 0
         count = 0
         for d in range(4):
-            if nbrs[c, d] >= 0 and (explore or q_r[c, hs, d] == best):
+            if nbrs[c, d] >= 0 and (explore or q_f[at + d] == best):
                 bits |= 1 << d
                 count += 1
         aa = pick(bits, count, u_r[i, 0, 1])
@@ -617,16 +619,18 @@ def _solo_qlearning(
         if aa >= 0:
             # --- it learns (qlearning.learn) ------------------------------------------
             hb = aa if use_heading else 0  # the state reached: (c1, hb)
+            at1 = (c1 * 4 + hb) * 4  # Q(c1, hb, .), flat
             top = -np.inf
             for d in range(4):
-                if wall_legal[c1, d] and q_r[c1, hb, d] > top:
-                    top = q_r[c1, hb, d]
+                if wall_legal[c1, d] and q_f[at1 + d] > top:
+                    top = q_f[at1 + d]
             target = reward + gamma * top
-            q_sa = q_r[c, hs, aa]
-            n_after = n_r[c, hs, aa] + 1
+            at0 = at + aa  # Q(c, hs, aa)
+            q_sa = q_f[at0]
+            n_after = n_f[at0] + 1
             alpha = 1.0 / n_after
-            q_r[c, hs, aa] = q_sa + alpha * (target - q_sa)
-            n_r[c, hs, aa] = n_after
+            q_f[at0] = q_sa + alpha * (target - q_sa)
+            n_f[at0] = n_after
             last_sum, g_sum, g_count, g_max, worst_r = _observe(
                 c1,
                 t,
