@@ -1,9 +1,10 @@
 """``qpatrol bench``: agent-steps per second of a workload, next to a plain-Python loop.
 
-Both run in the same process, one after the other, so the ratio is meaningful on a
-noisy machine even when the absolute numbers are not. The workload is ``runs`` runs of
-``policy: qlearning`` teams of ``agents`` robots for ``steps`` team steps on ``map``
-(battery off unless ``--set battery.enabled=on``); the reference is
+Both run in the same process, the reference loop just before and just after the core,
+so the ratio is meaningful on a noisy machine even when the absolute numbers are not
+(and ``qpatrol bench`` says when the machine's speed changed under it). The workload
+is ``runs`` runs of ``policy: qlearning`` teams of ``agents`` robots for ``steps`` team
+steps on ``map`` (battery off unless ``--set battery.enabled=on``); the reference is
 :func:`qpatrol.reference.run` on one run of the same map and team.
 """
 
@@ -104,13 +105,24 @@ def time_reference(cfg: Config) -> tuple[float, int]:
     return time.perf_counter() - t, steps * k
 
 
+#: Largest change of the reference loop's speed between its two timings (before and
+#: after the core) that :func:`report` takes in silence.
+DRIFT_WARN = 0.2
+
+
 def bench(cfg: Config) -> dict[str, Any]:
-    """Time ``cfg`` and the reference loop; the numbers ``qpatrol bench`` prints."""
+    """Time ``cfg`` and the reference loop; the numbers ``qpatrol bench`` prints.
+
+    The reference loop is timed just before the core and just after it, and its rate is
+    that of both timings together, so that a machine whose speed drifts (a shared one)
+    weighs the same on both sides of the ratio; ``reference_drift`` is the relative
+    change of its rate from the first timing to the second."""
+    ref_before, ref_steps = time_reference(cfg)
     seconds, result = time_core(cfg)
+    ref_after, _ = time_reference(cfg)
     agent_steps = int(result.state.steps_done.sum()) * cfg["agents"]
-    ref_seconds, ref_steps = time_reference(cfg)
     rate = agent_steps / seconds
-    ref_rate = ref_steps / ref_seconds
+    ref_rate = 2 * ref_steps / (ref_before + ref_after)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_bytes = peak if sys.platform == "darwin" else peak * 1024
     return {
@@ -125,6 +137,7 @@ def bench(cfg: Config) -> dict[str, Any]:
         "agent_steps": agent_steps,
         "agent_steps_per_s": rate,
         "reference_agent_steps_per_s": ref_rate,
+        "reference_drift": ref_before / ref_after - 1.0,
         "ratio": rate / ref_rate,
         "bytes_per_run": limits.bytes_per_run(cfg, result.map),
         "array_bytes_per_run": array_bytes_per_run(result),
@@ -153,8 +166,17 @@ def report(b: dict[str, Any]) -> str:
             f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
-            "(plain Python, qpatrol/reference.py)",
+            "(plain Python, qpatrol/reference.py; timed before and after the core, "
+            f"{b['reference_drift']:+.0%} between them)",
             f"ratio      {b['ratio']:10.2f} x",
+            *(
+                [
+                    "warning    the machine's speed changed during the bench (the reference "
+                    f"loop by {b['reference_drift']:+.0%}): the ratio is uncertain, run it again"
+                ]
+                if abs(b["reference_drift"]) > DRIFT_WARN
+                else []
+            ),
             f"memory     {b['bytes_per_run']:,} bytes per run (estimate; arrays "
             f"{b['array_bytes_per_run']:,}), batches of {b['batch_runs']:,} runs under "
             f"{b['memory_limit_gib']:g} GiB; peak RSS {b['peak_rss_bytes'] / 2**20:,.0f} MiB",

@@ -126,3 +126,25 @@ def test_bench_default_steps_take_about_a_second(monkeypatch):
     res = CliRunner().invoke(app, ["bench", "--runs", "2", "--engine", "numpy", "--json"])
     assert res.exit_code == 0, res.output
     assert seen == [(2, 1, "numpy")] and json.loads(res.stdout)["steps"] == 300
+
+
+def test_bench_times_the_reference_before_and_after_the_core(monkeypatch):
+    """The reference loop brackets the core: its rate is that of both timings together,
+    the drift is the change between them, and a large drift is reported."""
+    from qpatrol import bench
+
+    calls = []
+    ref_seconds = iter([1.0, 3.0])  # 100 agent-steps in 1 s, then in 3 s
+    monkeypatch.setattr(
+        bench, "time_reference", lambda cfg: calls.append("ref") or (next(ref_seconds), 100)
+    )
+    real_core = bench.time_core
+    monkeypatch.setattr(bench, "time_core", lambda cfg: calls.append("core") or real_core(cfg))
+    b = bench.bench(bench.workload(1, 1, 50, engine="numpy"))
+    assert calls == ["ref", "core", "ref"]
+    assert b["reference_agent_steps_per_s"] == 50.0  # 200 agent-steps in 4 s
+    assert b["ratio"] == b["agent_steps_per_s"] / 50.0
+    assert b["reference_drift"] == pytest.approx(1.0 / 3.0 - 1.0)
+    text = bench.report(b)
+    assert "-67% between them" in text and "warning" in text and "uncertain" in text
+    assert "warning" not in bench.report({**b, "reference_drift": 0.05})
