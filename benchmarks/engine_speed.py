@@ -137,7 +137,8 @@ def main() -> None:
             print(
                 f"{b['engine']:6} K={b['agents']} runs={b['runs']:5d} threads={b['threads']} "
                 f"{b['agent_steps_per_s'] / 1e6:9.3f} M/s  ref "
-                f"{b['reference_agent_steps_per_s'] / 1e6:6.3f} M/s  ratio {b['ratio']:8.2f}  "
+                f"{b['reference_agent_steps_per_s'] / 1e6:6.3f} M/s "
+                f"({b['reference_drift']:+.0%})  ratio {b['ratio']:8.2f}  "
                 f"{b['bytes_per_run']:,} B/run",
                 flush=True,
             )

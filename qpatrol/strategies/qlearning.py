@@ -80,8 +80,9 @@ class Strategy(base.Strategy):
             self.q_init = rows * np.asarray(mult, dtype=np.float64).reshape(-1, 1)
             if table:
                 self.q = np.broadcast_to(self.q_init[:, None, None, None, :], shape).copy()
-        elif table:
-            self.q = np.broadcast_to(self.q_init, shape).copy()
+        elif table:  # one run's table, copied into each run's (faster than one broadcast)
+            self.q = np.empty(shape)
+            self.q[...] = np.broadcast_to(self.q_init, shape[1:]).copy()
         if "learning.gamma" in values:
             self.gamma = np.asarray(values["learning.gamma"], dtype=np.float64)
         if "learning.epsilon" in values:
