@@ -668,6 +668,93 @@ def _solo_qlearning(
     return t_end, n_ep
 
 
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _team_enters(
+    k,
+    c0,
+    c1,
+    t,
+    learns,
+    ha,
+    aa,
+    communication,
+    use_heading,
+    warmup,
+    weights,
+    nbrs,
+    wall_legal,
+    dot_value,
+    q_f,
+    n_f,
+    n_cells,
+    group_rows,
+    m_last_r,
+    visits_r,
+    window_visits_r,
+    sums,
+):
+    """Robot ``k`` of a Q-learning team moved from cell ``c0`` into ``c1`` at step ``t``:
+    its dot group takes the visit (:func:`_enter`; ``group_rows`` the run's ``(dots,
+    last, seen, seen_state, left, eaten, entered)`` rows, one per group), it learns when
+    it made the move it chose (``learns``; ``ha`` its heading before, ``aa`` that move;
+    ``weights`` ``(gamma, inc, horizon, lam)``; ``q_f``, ``n_f`` the run's tables, flat),
+    and the measures see the visit (:func:`_observe`; ``sums`` the run's ``(last_sum,
+    gap_sum, gap_count, gap_max, worst)``). Returns ``(heading entered, sums)``. (Fewer
+    than 30 arguments: Python passes more as one tuple, which numba cannot inline.)"""
+    gamma, inc, horizon, lam = weights
+    dots_r, last_r, seen_r, seen_state_r, left_r, eaten_r, entered_r = group_rows
+    last_sum, g_sum, g_count, g_max, worst_r = sums
+    g = 0 if communication else k
+    a, _, left_r[g], eaten_r[g], entered_r[g], rew = _enter(
+        c0,
+        c1,
+        t,
+        nbrs,
+        dot_value,
+        dots_r[g],
+        last_r[g],
+        seen_r[g],
+        seen_state_r[g],
+        left_r[g],
+        eaten_r[g],
+        entered_r[g],
+        inc,
+        horizon,
+        lam,
+    )
+    if learns:  # qlearning.learn
+        hs = ha if use_heading else 0
+        hb = aa if use_heading else 0  # the state reached: (c1, hb)
+        at1 = ((k * n_cells + c1) * 4 + hb) * 4  # Q(c1, hb, .), flat
+        n0, n1, n2, n3 = q_f[at1], q_f[at1 + 1], q_f[at1 + 2], q_f[at1 + 3]
+        legal1 = wall_legal[c1]  # its greatest Q over the legal moves
+        top = max(
+            max(n0 if legal1[0] else -np.inf, n1 if legal1[1] else -np.inf),
+            max(n2 if legal1[2] else -np.inf, n3 if legal1[3] else -np.inf),
+        )
+        target = rew + gamma * top
+        at0 = ((k * n_cells + c0) * 4 + hs) * 4 + aa  # Q(c0, hs, aa), flat
+        q_sa = q_f[at0]
+        n_after = n_f[at0] + 1
+        alpha = 1.0 / n_after
+        q_f[at0] = q_sa + alpha * (target - q_sa)
+        n_f[at0] = n_after
+    sums = _observe(
+        c1,
+        t,
+        warmup,
+        m_last_r,
+        visits_r[k],
+        window_visits_r[k],
+        last_sum,
+        g_sum,
+        g_count,
+        g_max,
+        worst_r,
+    )
+    return a, sums
+
+
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def _team_qlearning(
     r,
@@ -770,8 +857,10 @@ def _team_qlearning(
     # what only this kernel reads, in registers and stored at the end: the right of
     # way, the measures' sums
     tok, held = token[r], token_held[r]
-    last_sum, idle_sum, n_measured = m_last_sum[r], idle_total[r], measured[r]
-    g_sum, g_count, g_max, worst_r = gap_sum[r], gap_count[r], gap_max[r], worst[r]
+    idle_sum, n_measured = idle_total[r], measured[r]
+    sums = (m_last_sum[r], gap_sum[r], gap_count[r], gap_max[r], worst[r])  # _observe's
+    weights = (gamma, inc, horizon, lam)
+    group_rows = (dots_r, last_r, seen_r, seen_state_r, left_r, eaten_r, entered_r)
     top_wait, wait_sum = max_wait[r], wait_total[r]
     waiting = 0  # robots waiting after the last step
     for k in range(n_agents):
@@ -787,13 +876,10 @@ def _team_qlearning(
         t_mod = t_next_mod
         t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
         # --- each robot's open moves and its choice (world.begin_step, qlearning.act)
+        crowded = False  # a robot with no open move asks for an occupied cell
         for k in range(n_agents):
             c = pos_r[k]
             hk = head_r[k]
-            prev_pos[k] = c
-            prev_head[k] = hk
-            moved[k] = False
-            as_asked[k] = False
             legal = 0
             free = 0
             for d in range(4):
@@ -804,6 +890,7 @@ def _team_qlearning(
                         free |= 1 << d
             if free == 0:  # base.prefer_open: every legal move where none is open
                 free = legal
+                crowded = True
             hs = hk if use_heading else 0
             # the greatest Q of the open moves, without a branch per move
             at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
@@ -826,140 +913,168 @@ def _team_qlearning(
             aa = pick(bits, POPCOUNT[bits], u_r[i, k, 1])
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
-        # --- move (traffic.resolve) -------------------------------------------------
-        push_failed = False
-        if not avoid:
-            for k in range(n_agents):
-                if want[k] >= 0:
-                    pos_r[k] = want[k]
-                    moved[k] = True
-                    as_asked[k] = True
-        else:
-            if tok >= 0 and want[tok] >= 0:
-                # 1. the holder takes its cell, pushing robots aside, or steps aside
-                push_failed = _holder_moves(
-                    tok,
-                    nbrs,
-                    occ_r,
-                    pos_r,
-                    want,
-                    moved,
-                    as_asked,
-                    parent,
-                    seen,
-                    queue,
-                    path,
-                    False,
-                    mode_r,
-                    pocket_of,
-                    reserved_r,
-                )
-            # 2. everyone else, in priority order, into cells empty at that moment (the
-            # order of traffic.priority: every robot patrols, so wait, then turn)
-            if waiting == 0:  # by turn alone: robot t % n_agents first, then the next ones
-                for a in range(n_agents):
-                    k = t_mod + a
-                    order[a] = k if k < n_agents else k - n_agents
-            else:
-                for k in range(n_agents):
-                    back = k - t_mod  # (k - t) % n_agents, without a division
-                    if back < 0:
-                        back += n_agents
-                    key[k] = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
-                    order[k] = k
-                for a in range(1, n_agents):  # insertion sort, largest key first
-                    x = order[a]
-                    b = a - 1
-                    while b >= 0 and key[order[b]] < key[x]:
-                        order[b + 1] = order[b]
-                        b -= 1
-                    order[b + 1] = x
-            _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
-        # --- each robot that moved enters its cell (dots, visits, reward, heading); one
-        # that made the move it chose learns (qlearning.learn); the measures see the
-        # visit (Measures.observe). Robot after robot: each touches only its group's
-        # dots and its own Q-table, and the measures their own arrays, in robot order
+        # --- the common step: no holder, no one waiting, and every robot asks for a
+        # cell empty now that no other asks for. Then traffic.resolve moves every robot
+        # as asked whatever the order, no one waits and no one takes the right of way:
+        # each robot moves, enters, learns and is measured in one pass, in robot order
+        # (the order of the entries below)
+        clear = not crowded and tok < 0 and waiting == 0
+        if clear and avoid:
+            for a in range(n_agents - 1):
+                wa = want[a]
+                if wa >= 0:
+                    for b in range(a + 1, n_agents):
+                        if want[b] == wa:
+                            clear = False
         in_window = t > warmup
-        for k in range(n_agents):
-            if not moved[k]:
-                continue
-            g = 0 if communication else k
-            c0 = prev_pos[k]
-            c1 = pos_r[k]
-            a, _, left_r[g], eaten_r[g], entered_r[g], rew = _enter(
-                c0,
-                c1,
-                t,
-                nbrs,
-                dot_value,
-                dots_r[g],
-                last_r[g],
-                seen_r[g],
-                seen_state_r[g],
-                left_r[g],
-                eaten_r[g],
-                entered_r[g],
-                inc,
-                horizon,
-                lam,
-            )
-            head_r[k] = a
-            if as_asked[k]:
-                ha = prev_head[k] if use_heading else 0
-                aa = ask[k]
-                hb = aa if use_heading else 0  # the state reached: (c1, hb)
-                at1 = ((k * n_cells + c1) * 4 + hb) * 4  # Q(c1, hb, .), flat
-                n0, n1, n2, n3 = q_f[at1], q_f[at1 + 1], q_f[at1 + 2], q_f[at1 + 3]
-                legal1 = wall_legal[c1]
-                top = max(
-                    max(n0 if legal1[0] else -np.inf, n1 if legal1[1] else -np.inf),
-                    max(n2 if legal1[2] else -np.inf, n3 if legal1[3] else -np.inf),
+        if clear:
+            for k in range(n_agents):
+                c1 = want[k]
+                if c1 < 0:
+                    continue
+                c0 = pos_r[k]
+                if avoid:
+                    occ_r[c0] = -1
+                    occ_r[c1] = k
+                pos_r[k] = c1
+                ha = head_r[k]
+                head_r[k], sums = _team_enters(
+                    k,
+                    c0,
+                    c1,
+                    t,
+                    True,
+                    ha,
+                    ask[k],
+                    communication,
+                    use_heading,
+                    warmup,
+                    weights,
+                    nbrs,
+                    wall_legal,
+                    dot_value,
+                    q_f,
+                    n_f,
+                    n_cells,
+                    group_rows,
+                    m_last_r,
+                    visits_r,
+                    window_visits_r,
+                    sums,
                 )
-                target = rew + gamma * top
-                at0 = ((k * n_cells + c0) * 4 + ha) * 4 + aa  # Q(c0, ha, aa), flat
-                q_sa = q_f[at0]
-                n_after = n_f[at0] + 1
-                alpha = 1.0 / n_after
-                q_f[at0] = q_sa + alpha * (target - q_sa)
-                n_f[at0] = n_after
-            last_sum, g_sum, g_count, g_max, worst_r = _observe(
-                c1,
-                t,
-                warmup,
-                m_last_r,
-                visits_r[k],
-                window_visits_r[k],
-                last_sum,
-                g_sum,
-                g_count,
-                g_max,
-                worst_r,
-            )
-        # --- waits, who blocked whom, the right of way ---------------------------------
-        waiting = 0  # robots waiting now, and the longest wait
-        longest = 0
-        for k in range(n_agents):
-            failed = ask[k] >= 0 and not as_asked[k]
-            blocked_by[k] = occ_r[want[k]] if failed else -1
-            wk = wait_r[k] + 1 if failed else 0
-            wait_r[k] = wk
-            if wk > 0:
-                waiting += 1
-            longest = max(longest, wk)
-        if avoid:
-            tok, held = _pass_token(
-                tok,
-                held,
-                push_failed,
-                want,
-                as_asked,
-                blocked_by,
-                wait_r,
-                mode_r,
-                depart_left_r,
-                t_next_mod,
-                diameter,
-            )
+            longest = 0
+            if avoid:
+                tok, held = -1, 0
+        else:
+            for k in range(n_agents):
+                prev_pos[k] = pos_r[k]
+                prev_head[k] = head_r[k]
+                moved[k] = False
+                as_asked[k] = False
+            push_failed = False
+            if not avoid:
+                for k in range(n_agents):
+                    if want[k] >= 0:
+                        pos_r[k] = want[k]
+                        moved[k] = True
+                        as_asked[k] = True
+            else:
+                if tok >= 0 and want[tok] >= 0:
+                    # 1. the holder takes its cell, pushing robots aside, or steps aside
+                    push_failed = _holder_moves(
+                        tok,
+                        nbrs,
+                        occ_r,
+                        pos_r,
+                        want,
+                        moved,
+                        as_asked,
+                        parent,
+                        seen,
+                        queue,
+                        path,
+                        False,
+                        mode_r,
+                        pocket_of,
+                        reserved_r,
+                    )
+                # 2. everyone else, in priority order, into cells empty at that moment (the
+                # order of traffic.priority: every robot patrols, so wait, then turn)
+                if waiting == 0:  # by turn alone: robot t % n_agents first, then the next ones
+                    for a in range(n_agents):
+                        k = t_mod + a
+                        order[a] = k if k < n_agents else k - n_agents
+                else:
+                    for k in range(n_agents):
+                        back = k - t_mod  # (k - t) % n_agents, without a division
+                        if back < 0:
+                            back += n_agents
+                        key[k] = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
+                        order[k] = k
+                    for a in range(1, n_agents):  # insertion sort, largest key first
+                        x = order[a]
+                        b = a - 1
+                        while b >= 0 and key[order[b]] < key[x]:
+                            order[b + 1] = order[b]
+                            b -= 1
+                        order[b + 1] = x
+                _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
+            # --- each robot that moved enters its cell (dots, visits, reward, heading); one
+            # that made the move it chose learns (qlearning.learn); the measures see the
+            # visit (Measures.observe). Robot after robot: each touches only its group's
+            # dots and its own Q-table, and the measures their own arrays, in robot order
+            for k in range(n_agents):
+                if not moved[k]:
+                    continue
+                head_r[k], sums = _team_enters(
+                    k,
+                    prev_pos[k],
+                    pos_r[k],
+                    t,
+                    as_asked[k],
+                    prev_head[k],
+                    ask[k],
+                    communication,
+                    use_heading,
+                    warmup,
+                    weights,
+                    nbrs,
+                    wall_legal,
+                    dot_value,
+                    q_f,
+                    n_f,
+                    n_cells,
+                    group_rows,
+                    m_last_r,
+                    visits_r,
+                    window_visits_r,
+                    sums,
+                )
+            # --- waits, who blocked whom, the right of way ---------------------------------
+            waiting = 0  # robots waiting now, and the longest wait
+            longest = 0
+            for k in range(n_agents):
+                failed = ask[k] >= 0 and not as_asked[k]
+                blocked_by[k] = occ_r[want[k]] if failed else -1
+                wk = wait_r[k] + 1 if failed else 0
+                wait_r[k] = wk
+                if wk > 0:
+                    waiting += 1
+                longest = max(longest, wk)
+            if avoid:
+                tok, held = _pass_token(
+                    tok,
+                    held,
+                    push_failed,
+                    want,
+                    as_asked,
+                    blocked_by,
+                    wait_r,
+                    mode_r,
+                    depart_left_r,
+                    t_next_mod,
+                    diameter,
+                )
         # --- episodes: all dots eaten, or too long -------------------------------------
         n_ep = _end_episodes(
             r,
@@ -983,7 +1098,7 @@ def _team_qlearning(
         )
         going = active[r]
         if in_window:
-            idle_sum += n_cells * t - last_sum
+            idle_sum += n_cells * t - sums[0]
             n_measured += 1
             top_wait = max(top_wait, longest)
             wait_sum += waiting
@@ -993,8 +1108,8 @@ def _team_qlearning(
                 tail_pos[r, slot, k] = pos_r[k]
         t_end = t
     token[r], token_held[r] = tok, held
-    m_last_sum[r], idle_total[r], measured[r] = last_sum, idle_sum, n_measured
-    gap_sum[r], gap_count[r], gap_max[r], worst[r] = g_sum, g_count, g_max, worst_r
+    m_last_sum[r], idle_total[r], measured[r] = sums[0], idle_sum, n_measured
+    gap_sum[r], gap_count[r], gap_max[r], worst[r] = sums[1], sums[2], sums[3], sums[4]
     max_wait[r], wait_total[r] = top_wait, wait_sum
     if t_end > t0:
         steps_done[r] = t_end
