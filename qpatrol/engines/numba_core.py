@@ -876,7 +876,6 @@ def _team_qlearning(
         t_mod = t_next_mod
         t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
         # --- each robot's open moves and its choice (world.begin_step, qlearning.act)
-        crowded = False  # a robot with no open move asks for an occupied cell
         for k in range(n_agents):
             c = pos_r[k]
             hk = head_r[k]
@@ -890,7 +889,6 @@ def _team_qlearning(
                         free |= 1 << d
             if free == 0:  # base.prefer_open: every legal move where none is open
                 free = legal
-                crowded = True
             hs = hk if use_heading else 0
             # the greatest Q of the open moves, without a branch per move
             at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
@@ -913,16 +911,19 @@ def _team_qlearning(
             aa = pick(bits, POPCOUNT[bits], u_r[i, k, 1])
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
-        # --- the common step: no holder, no one waiting, and every robot asks for a
-        # cell empty now that no other asks for. Then traffic.resolve moves every robot
-        # as asked whatever the order, no one waits and no one takes the right of way:
-        # each robot moves, enters, learns and is measured in one pass, in robot order
-        # (the order of the entries below)
-        clear = not crowded and tok < 0 and waiting == 0
-        if clear and avoid:
-            for a in range(n_agents - 1):
+        # --- the common step: every robot asks for a cell that is empty now and that
+        # no other asks for. Then traffic.resolve moves every robot as asked whatever the
+        # order (the holder of the right of way pushes no one), no one waits, and the
+        # right of way stays with a holder that moved, for at most `diameter` steps
+        # (traffic.pass_token): each robot moves, enters, learns and is measured in one
+        # pass, in robot order (the order of the entries below)
+        clear = True
+        if avoid:
+            for a in range(n_agents):
                 wa = want[a]
                 if wa >= 0:
+                    if occ_r[wa] >= 0:
+                        clear = False
                     for b in range(a + 1, n_agents):
                         if want[b] == wa:
                             clear = False
@@ -962,9 +963,16 @@ def _team_qlearning(
                     window_visits_r,
                     sums,
                 )
+            if waiting > 0:
+                for k in range(n_agents):
+                    wait_r[k] = 0
+                waiting = 0
             longest = 0
             if avoid:
-                tok, held = -1, 0
+                if tok >= 0 and want[tok] >= 0 and held < diameter:
+                    held += 1
+                else:
+                    tok, held = -1, 0
         else:
             for k in range(n_agents):
                 prev_pos[k] = pos_r[k]
