@@ -166,13 +166,12 @@ def report(b: dict[str, Any]) -> str:
             f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
-            "(plain Python, qpatrol/reference.py; timed before and after the core, "
-            f"{b['reference_drift']:+.0%} between them)",
+            f"(plain Python, qpatrol/reference.py; before and after: {b['reference_drift']:+.0%})",
             f"ratio      {b['ratio']:10.2f} x",
             *(
                 [
-                    "warning    the machine's speed changed during the bench (the reference "
-                    f"loop by {b['reference_drift']:+.0%}): the ratio is uncertain, run it again"
+                    "warning    the machine's speed changed during the bench: the ratio is "
+                    "uncertain, run it again"
                 ]
                 if abs(b["reference_drift"]) > DRIFT_WARN
                 else []

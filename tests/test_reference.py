@@ -146,5 +146,5 @@ def test_bench_times_the_reference_before_and_after_the_core(monkeypatch):
     assert b["ratio"] == b["agent_steps_per_s"] / 50.0
     assert b["reference_drift"] == pytest.approx(1.0 / 3.0 - 1.0)
     text = bench.report(b)
-    assert "-67% between them" in text and "warning" in text and "uncertain" in text
+    assert "before and after: -67%" in text and "warning" in text and "uncertain" in text
     assert "warning" not in bench.report({**b, "reference_drift": 0.05})
