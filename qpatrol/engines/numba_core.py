@@ -390,6 +390,7 @@ def _end_episodes(
 def _enter(
     c0,
     c1,
+    asked,
     t,
     nbrs,
     dot_value,
@@ -410,11 +411,18 @@ def _enter(
     episode's counters (dots ``left``, ``eaten``, cells ``entered``) take the visit.
     Returns ``(heading entered, dot eaten, left, eaten, entered, reward)``, the reward
     ``dot + inc min(1, idle / horizon) + lam eaten / entered``."""
-    a = 0
-    for d in range(4):
-        if nbrs[c0, d] == c1:
-            a = d
-            break
+    if asked >= 0:  # it moved as asked: the first direction into c1 is at most that one
+        nb = nbrs[c0]
+        a = asked
+        a = 2 if (nb[2] == c1) & (asked > 2) else a
+        a = 1 if (nb[1] == c1) & (asked > 1) else a
+        a = 0 if (nb[0] == c1) & (asked > 0) else a
+    else:
+        a = 0
+        for d in range(4):
+            if nbrs[c0, d] == c1:
+                a = d
+                break
     ate = dots_g[c1]
     dots_g[c1] = False
     if ate:
@@ -579,6 +587,7 @@ def _solo_qlearning(
             a, _, left, eaten, entered, reward = _enter(
                 c,
                 c1,
+                -1,
                 t,
                 nbrs,
                 dot_value,
@@ -709,6 +718,7 @@ def _team_enters(
     a, _, left_r[g], eaten_r[g], entered_r[g], rew = _enter(
         c0,
         c1,
+        aa if learns else -1,
         t,
         nbrs,
         dot_value,
@@ -1607,6 +1617,7 @@ def run_block(
                 ) = _enter(
                     prev_pos[k],
                     pos[r, k],
+                    -1,
                     t,
                     nbrs,
                     dot_value,
