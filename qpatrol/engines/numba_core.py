@@ -679,38 +679,32 @@ def _solo_qlearning(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _team_enters(
-    k,
-    c0,
-    c1,
-    t,
-    learns,
-    ha,
-    aa,
-    communication,
-    use_heading,
-    warmup,
-    weights,
-    nbrs,
-    wall_legal,
-    dot_value,
-    q_f,
-    n_f,
-    n_cells,
-    group_rows,
-    m_last_r,
-    visits_r,
-    window_visits_r,
-    sums,
-):
+def _team_enters(k, c0, c1, t, learns, ha, aa, run, sums):
     """Robot ``k`` of a Q-learning team moved from cell ``c0`` into ``c1`` at step ``t``:
-    its dot group takes the visit (:func:`_enter`; ``group_rows`` the run's ``(dots,
-    last, seen, seen_state, left, eaten, entered)`` rows, one per group), it learns when
-    it made the move it chose (``learns``; ``ha`` its heading before, ``aa`` that move;
-    ``weights`` ``(gamma, inc, horizon, lam)``; ``q_f``, ``n_f`` the run's tables, flat),
-    and the measures see the visit (:func:`_observe`; ``sums`` the run's ``(last_sum,
-    gap_sum, gap_count, gap_max, worst)``). Returns ``(heading entered, sums)``. (Fewer
-    than 30 arguments: Python passes more as one tuple, which numba cannot inline.)"""
+    its dot group takes the visit (:func:`_enter`), it learns when it made the move it
+    chose (``learns``; ``ha`` its heading before, ``aa`` that move), and the measures see
+    the visit (:func:`_observe`; ``sums`` the run's ``(last_sum, gap_sum, gap_count,
+    gap_max, worst)``). ``run``: what the team kernel holds for its run, ``(communication,
+    use_heading, warmup, (gamma, inc, horizon, lam), nbrs, wall_legal, dot_value, q_f,
+    n_f, n_cells, (dots, last, seen, seen_state, left, eaten, entered), m_last, visits,
+    window_visits)``, with ``q_f``, ``n_f`` the run's tables, flat, and the group rows one
+    per dot group. Returns ``(heading entered, sums)``."""
+    (
+        communication,
+        use_heading,
+        warmup,
+        weights,
+        nbrs,
+        wall_legal,
+        dot_value,
+        q_f,
+        n_f,
+        n_cells,
+        group_rows,
+        m_last_r,
+        visits_r,
+        window_visits_r,
+    ) = run
     gamma, inc, horizon, lam = weights
     dots_r, last_r, seen_r, seen_state_r, left_r, eaten_r, entered_r = group_rows
     last_sum, g_sum, g_count, g_max, worst_r = sums
@@ -873,8 +867,22 @@ def _team_qlearning(
     tok, held = token[r], token_held[r]
     idle_sum, n_measured = idle_total[r], measured[r]
     sums = (m_last_sum[r], gap_sum[r], gap_count[r], gap_max[r], worst[r])  # _observe's
-    weights = (gamma, inc, horizon, lam)
-    group_rows = (dots_r, last_r, seen_r, seen_state_r, left_r, eaten_r, entered_r)
+    run = (  # what each robot's entry needs (_team_enters)
+        communication,
+        use_heading,
+        warmup,
+        (gamma, inc, horizon, lam),
+        nbrs,
+        wall_legal,
+        dot_value,
+        q_f,
+        n_f,
+        n_cells,
+        (dots_r, last_r, seen_r, seen_state_r, left_r, eaten_r, entered_r),
+        m_last_r,
+        visits_r,
+        window_visits_r,
+    )
     top_wait, wait_sum = max_wait[r], wait_total[r]
     waiting = 0  # robots waiting after the last step
     for k in range(n_agents):
@@ -953,30 +961,7 @@ def _team_qlearning(
                     occ_r[c1] = k
                 pos_r[k] = c1
                 ha = head_r[k]
-                head_r[k], sums = _team_enters(
-                    k,
-                    c0,
-                    c1,
-                    t,
-                    True,
-                    ha,
-                    ask[k],
-                    communication,
-                    use_heading,
-                    warmup,
-                    weights,
-                    nbrs,
-                    wall_legal,
-                    dot_value,
-                    q_f,
-                    n_f,
-                    n_cells,
-                    group_rows,
-                    m_last_r,
-                    visits_r,
-                    window_visits_r,
-                    sums,
-                )
+                head_r[k], sums = _team_enters(k, c0, c1, t, True, ha, ask[k], run, sums)
             if waiting > 0:
                 for k in range(n_agents):
                     wait_r[k] = 0
@@ -1049,28 +1034,7 @@ def _team_qlearning(
                 if not moved[k]:
                     continue
                 head_r[k], sums = _team_enters(
-                    k,
-                    prev_pos[k],
-                    pos_r[k],
-                    t,
-                    as_asked[k],
-                    prev_head[k],
-                    ask[k],
-                    communication,
-                    use_heading,
-                    warmup,
-                    weights,
-                    nbrs,
-                    wall_legal,
-                    dot_value,
-                    q_f,
-                    n_f,
-                    n_cells,
-                    group_rows,
-                    m_last_r,
-                    visits_r,
-                    window_visits_r,
-                    sums,
+                    k, prev_pos[k], pos_r[k], t, as_asked[k], prev_head[k], ask[k], run, sums
                 )
             # --- waits, who blocked whom, the right of way ---------------------------------
             waiting = 0  # robots waiting now, and the longest wait
