@@ -33,7 +33,7 @@ import pandas as pd
 from qpatrol import limits, world
 from qpatrol.config import Config
 from qpatrol.maps import Map
-from qpatrol.rng import run_seed
+from qpatrol.rng import RunKey
 from qpatrol.run import RunResult, join, simulate_rows
 from qpatrol.strategies import qlearning
 
@@ -219,7 +219,7 @@ def run_group(
     for lo in range(0, len(rows), size):
         chunk = rows[lo : lo + size]
         cfgs = [items[j][2] for j, _ in chunk]
-        seeds = [run_seed(items[j][2]["seed"], items[j][1], r) for j, r in chunk]
+        seeds = [RunKey(items[j][2]["seed"], items[j][1], r) for j, r in chunk]
         pieces, owners = [], []
         for i, (j, r) in enumerate(chunk):
             if not owners or owners[-1] != j:

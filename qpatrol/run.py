@@ -15,7 +15,7 @@ from __future__ import annotations
 
 import copy
 import json
-from collections.abc import Callable
+from collections.abc import Callable, Sequence
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
@@ -30,7 +30,7 @@ from qpatrol.engines import numpy_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.rng import Seed, Streams, run_keys
 from qpatrol.strategies.base import Strategy
 from qpatrol.timeline import Timeline
 
@@ -151,13 +151,13 @@ def _simulate_batch(
     checkpoint: Checkpointer | None,
 ) -> RunResult:
     """The runs ``idx`` of ``cfg`` as one batch (see :func:`simulate`)."""
-    seeds = run_seeds(cfg["seed"], idx, point)
+    seeds = run_keys(cfg["seed"], idx, point)
     return _batch(cfg, seeds, np.array(list(idx)), None, progress, prepared, checkpoint)
 
 
 def simulate_rows(
     cfg: Config,
-    seeds: list[np.random.SeedSequence],
+    seeds: Sequence[Seed],
     run_ids: np.ndarray,
     values: dict[str, np.ndarray] | None,
     prepared: tuple[Map, world.Params],
@@ -167,7 +167,8 @@ def simulate_rows(
 
     Args:
         cfg: the config of every row, but for ``values``.
-        seeds: each row's SeedSequence (its random stream).
+        seeds: each row's SeedSequence or :class:`~qpatrol.rng.RunKey` (its random
+            stream).
         run_ids: int ``[R]``, the run number written for each row in the tables.
         values: config key -> float64 ``[R]``, each row's value of the per-run keys that
             differ between rows (reward weights, and the keys the strategy names in
@@ -181,7 +182,7 @@ def simulate_rows(
 
 def _batch(
     cfg: Config,
-    seeds: list[np.random.SeedSequence],
+    seeds: Sequence[Seed],
     run_ids: np.ndarray,
     values: dict[str, np.ndarray] | None,
     progress: Progress | None,
