@@ -10,9 +10,12 @@ steps on ``map`` (battery off unless ``--set battery.enabled=on``); the referenc
 
 from __future__ import annotations
 
+import gc
 import resource
 import sys
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from typing import Any
 
 import numpy as np
@@ -75,6 +78,22 @@ def array_bytes_per_run(result: RunResult) -> int:
     return total // result.state.n_runs
 
 
+@contextmanager
+def no_gc() -> Iterator[None]:
+    """Python's cyclic garbage collector off inside, as ``timeit`` times code: a full
+    collection walks every object of the process (numba, pandas and matplotlib bring
+    ~140,000), and when one happens depends on what the process did before, not on the
+    code timed. Measured here: the reference loop's 300,000 agent-steps took 1.73 s with
+    it on, 253 ms of which in six full collections, and 1.44 s with it off."""
+    was = gc.isenabled()
+    gc.disable()
+    try:
+        yield
+    finally:
+        if was:
+            gc.enable()
+
+
 def time_core(cfg: Config) -> tuple[float, RunResult]:
     """``(seconds, result)`` of one :func:`qpatrol.run.simulate` of ``cfg`` (the map is
     loaded and the compiled engine warmed up beforehand, outside the timing)."""
@@ -85,9 +104,11 @@ def time_core(cfg: Config) -> tuple[float, RunResult]:
     engine, _ = engines.choose(cfg)
     warm = cfg.replace(runs=1, steps=min(cfg["steps"], 50), engine=engine)
     simulate(warm, prepared=prepare(warm))
-    t = time.perf_counter()
-    result = simulate(cfg, prepared=prepared)
-    return time.perf_counter() - t, result
+    with no_gc():
+        t = time.perf_counter()
+        result = simulate(cfg, prepared=prepared)
+        seconds = time.perf_counter() - t
+    return seconds, result
 
 
 def time_reference(cfg: Config) -> tuple[float, int]:
@@ -100,9 +121,13 @@ def time_reference(cfg: Config) -> tuple[float, int]:
     u = streams.take(steps)[0]
     q_init = [cfg[f"learning.q_init.{d}"] * cfg["learning.multiplier"] for d in DIRECTIONS]
     use_heading = cfg["learning.state_space"] == "cell_heading"
-    t = time.perf_counter()
-    reference.run(p, starts, u, q_init, cfg["learning.gamma"], cfg["learning.epsilon"], use_heading)
-    return time.perf_counter() - t, steps * k
+    with no_gc():
+        t = time.perf_counter()
+        reference.run(
+            p, starts, u, q_init, cfg["learning.gamma"], cfg["learning.epsilon"], use_heading
+        )
+        seconds = time.perf_counter() - t
+    return seconds, steps * k
 
 
 #: Largest change of the reference loop's speed between its two timings (before and
@@ -138,6 +163,7 @@ def bench(cfg: Config) -> dict[str, Any]:
         "agent_steps_per_s": rate,
         "reference_agent_steps_per_s": ref_rate,
         "reference_drift": ref_before / ref_after - 1.0,
+        "gc_during_timings": False,
         "ratio": rate / ref_rate,
         "bytes_per_run": limits.bytes_per_run(cfg, result.map),
         "array_bytes_per_run": array_bytes_per_run(result),

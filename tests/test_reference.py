@@ -148,3 +148,37 @@ def test_bench_times_the_reference_before_and_after_the_core(monkeypatch):
     text = bench.report(b)
     assert "before and after: -67%" in text and "warning" in text and "uncertain" in text
     assert "warning" not in bench.report({**b, "reference_drift": 0.05})
+
+
+def test_bench_times_both_loops_with_the_garbage_collector_off(monkeypatch):
+    """As timeit does: a full collection's cost depends on the process, not on the loop
+    timed. Both timings run with gc disabled; gc is back on afterwards, and a caller's
+    disabled gc stays disabled."""
+    import gc
+
+    from qpatrol import bench
+
+    seen = []
+    real_ref, real_sim = bench.reference.run, bench.simulate
+    monkeypatch.setattr(
+        bench.reference,
+        "run",
+        lambda *a, **k: seen.append(("ref", gc.isenabled())) or real_ref(*a, **k),
+    )
+    monkeypatch.setattr(
+        bench,
+        "simulate",
+        lambda *a, **k: seen.append(("core", gc.isenabled())) or real_sim(*a, **k),
+    )
+    assert gc.isenabled()
+    b = bench.bench(bench.workload(1, 1, 50, engine="numpy"))
+    # the warm-up's simulate runs with gc on; the timed one and both references with it off
+    assert seen == [("ref", False), ("core", True), ("core", False), ("ref", False)]
+    assert gc.isenabled() and b["gc_during_timings"] is False
+    gc.disable()
+    try:
+        with bench.no_gc():
+            pass
+        assert not gc.isenabled()
+    finally:
+        gc.enable()
