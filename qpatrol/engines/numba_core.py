@@ -562,6 +562,11 @@ def _solo_qlearning(
     last_sum, idle_sum, n_measured = m_last_sum[r], idle_total[r], measured[r]
     g_sum, g_count, g_max, worst_r = gap_sum[r], gap_count[r], gap_max[r], worst[r]
     t_end = t0
+    # the best legal Q of the state the robot stands in, once known: a learning step
+    # bootstraps from the very row the next step chooses from (the state reached), and
+    # no update between them writes that row (a move leaves its cell)
+    best = -np.inf
+    known = False
     for i in range(u.shape[1]):
         if not going:
             break
@@ -569,10 +574,11 @@ def _solo_qlearning(
         # --- the robot chooses: greedy over its legal moves (qlearning.act) -----------
         hs = h if use_heading else 0
         at = (c * 4 + hs) * 4  # Q(c, hs, .), flat
-        best = -np.inf
-        for d in range(4):
-            if nbrs[c, d] >= 0 and q_f[at + d] > best:
-                best = q_f[at + d]
+        if not known:
+            best = -np.inf
+            for d in range(4):
+                if nbrs[c, d] >= 0 and q_f[at + d] > best:
+                    best = q_f[at + d]
         explore = epsilon > 0.0 and u_r[i, 0, 0] < epsilon
         bits = 0
         count = 0
@@ -641,6 +647,8 @@ def _solo_qlearning(
             alpha = 1.0 / n_after
             q_f[at0] = q_sa + alpha * (target - q_sa)
             n_f[at0] = n_after
+            best = top  # the next choice's best: Q(c1, hb, .) over c1's legal moves
+            known = True
             last_sum, g_sum, g_count, g_max, worst_r = _observe(
                 c1,
                 t,
