@@ -193,7 +193,8 @@ def report(b: dict[str, Any]) -> str:
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"(plain Python, qpatrol/reference.py; before and after: {b['reference_drift']:+.0%})",
-            f"ratio      {b['ratio']:10.2f} x",
+            f"ratio      {b['ratio']:10.2f} x"
+            + ("" if b.get("gc_during_timings", True) else "  (both timed with gc off, as timeit)"),
             *(
                 [
                     "warning    the machine's speed changed during the bench: the ratio is "

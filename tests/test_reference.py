@@ -175,6 +175,7 @@ def test_bench_times_both_loops_with_the_garbage_collector_off(monkeypatch):
     # the warm-up's simulate runs with gc on; the timed one and both references with it off
     assert seen == [("ref", False), ("core", True), ("core", False), ("ref", False)]
     assert gc.isenabled() and b["gc_during_timings"] is False
+    assert "both timed with gc off" in bench.report(b)
     gc.disable()
     try:
         with bench.no_gc():
