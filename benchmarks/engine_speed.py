@@ -111,6 +111,7 @@ def plot(results: list[dict], path: Path) -> None:
             if pts:
                 xs, ys = zip(*pts, strict=True)
                 ax.plot(xs, ys, line, color=color, marker=marker, label=f"{name}, {team[agents]}")
+    gc = "; gc off" if all(b.get("gc_during_timings") is False for b in results) else ""
     for agents, line in ((1, ":"), (4, "-.")):
         refs = [b["reference_agent_steps_per_s"] for b in results if b["agents"] == agents]
         if refs:
@@ -118,7 +119,7 @@ def plot(results: list[dict], path: Path) -> None:
                 float(np.median(refs)),
                 linestyle=line,
                 color="0.35",
-                label=f"plain-Python loop, {team[agents]} (median of {len(refs)})",
+                label=f"plain-Python loop, {team[agents]} (median of {len(refs)}{gc})",
             )
     ax.set_xscale("log", base=2)
     ax.set_yscale("log")
