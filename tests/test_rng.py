@@ -11,7 +11,7 @@ import pytest
 from qpatrol import rng
 
 SEEDS = [0, 1, 7, 12345, 2**32 - 1, 2**32, 2**40 + 3, 2**130 + 77]  # 1 to 5 words
-POINTS = [0, 1, 5, 2**31, 2**32 - 1]
+POINTS = [0, 1, 5, 2**31, 2**32 - 1, 2**33 + 9]  # the last two words long
 RUNS = np.array([0, 1, 2, 3, 100, 2047, 65536, 2**32 - 1])
 
 
@@ -30,9 +30,9 @@ def test_state_words_are_seedsequences(seed: int) -> None:
 
 def test_state_words_of_no_runs_and_bad_input() -> None:
     assert rng.state_words(0, 0, np.array([], dtype=np.int64)).shape == (0, 4)
-    with pytest.raises(ValueError, match="seed, point and runs"):
+    with pytest.raises(ValueError, match="seed and point must be >= 0"):
         rng.state_words(-1, 0, np.array([0]))
-    with pytest.raises(ValueError, match="seed, point and runs"):
+    with pytest.raises(ValueError, match="seed and point must be >= 0"):
         rng.state_words(0, 0, np.array([2**32]))
 
 
