@@ -73,6 +73,11 @@ class Team:
         self.run_of = robots // k  # int [R K]: run of each robot
         self.k_of = robots % k  # int [R K]: robot index within its run
         self.ks = np.arange(k)  # int [K]
+        # int [K, R, K]: at steps t with t % K = j, each robot's place in the turn order
+        # when no robot of its run waits, (k - t) % K (see _rank)
+        self.rank_by_turn = np.stack(
+            [np.broadcast_to((self.ks - j) % k, (n_runs, k)) for j in range(k)]
+        )
         self.cell0 = runs * c  # int [R]: first cell of run r in [R C] maps
         self.cell0_rk = self.run_of * c  # int [R K]: the same for each robot
         self.q_row0 = (robots * (c * 4)).reshape(n_runs, k)  # int [R, K]: first Q row
@@ -299,11 +304,16 @@ class Team:
         ``argsort(-traffic.priority)``: every robot patrols (battery off), so the longest
         wait goes first, then the turn; in a run where no robot waits, the turn alone."""
         k = self.ks.size
-        turn = (k - 1) - (self.ks - t) % k
-        rank = np.broadcast_to((k - 1) - turn, self.s.pos.shape).copy()
-        rows = np.unique(_nonzero(self.s.wait) // k)  # runs where a robot waits
-        if rows.size:
+        rank = self.rank_by_turn[t % k]  # (k - t) % K, read-only
+        waits = _nonzero(self.s.wait) // k  # the run of each waiting robot, in order
+        if waits.size:
+            first = np.empty(waits.size, dtype=bool)  # its first waiting robot
+            first[0] = True
+            np.not_equal(waits[1:], waits[:-1], out=first[1:])
+            rows = waits[first]  # runs where a robot waits (np.unique of a sorted array)
+            turn = (k - 1) - rank[0]
             prio = (1 << 40) + np.minimum(self.s.wait[rows], 1 << 30) * k + turn
+            rank = rank.copy()
             rank[rows] = np.argsort(np.argsort(-prio, axis=1, kind="stable"), axis=1)
         return rank
 
