@@ -116,25 +116,35 @@ def state_words(seed: int, point: int, runs: np.ndarray) -> np.ndarray:
     return lo | (hi << np.uint64(32))
 
 
-class _Words:
-    """What a PCG64 asks of its seed sequence, answered from words computed beforehand
-    (:func:`state_words`): ``generate_state(4, np.uint64)``."""
+class KeyWords:
+    """The seed sequence of a generator that :func:`generators` seeded from a
+    :class:`RunKey` (what its ``bit_generator.seed_seq`` is, and what a checkpoint
+    pickles with it): the key, and the four words a PCG64 asks its seed sequence for,
+    ``generate_state(4, np.uint64)`` of the key's SeedSequence, computed beforehand by
+    :func:`state_words`. :meth:`sequence` builds that SeedSequence."""
 
-    def __init__(self, words: np.ndarray):
+    def __init__(self, key: RunKey, words: np.ndarray):
+        self.key = key
         self.words = words
 
     def generate_state(self, n_words: int, dtype: type = np.uint32) -> np.ndarray:
         if n_words != 4 or np.dtype(dtype) != np.uint64:
-            raise ValueError("seeded from PCG64's four uint64 words only")
+            raise ValueError("KeyWords hold PCG64's four uint64 words only; use .sequence()")
         return self.words
 
+    def sequence(self) -> np.random.SeedSequence:
+        """The SeedSequence of the key (its ``generate_state(4, np.uint64)`` is
+        ``words``)."""
+        return self.key.sequence()
 
-np.random.bit_generator.ISeedSequence.register(_Words)
+
+np.random.bit_generator.ISeedSequence.register(KeyWords)
 
 
 def generators(seeds: Sequence[Seed]) -> list[np.random.Generator]:
     """A PCG64 ``Generator`` per seed (SeedSequence or :class:`RunKey`); the keys of one
-    (seed, point) are seeded together by :func:`state_words`."""
+    (seed, point) are seeded together by :func:`state_words`, and their generators'
+    seed sequences are :class:`KeyWords`."""
     out: list[np.random.Generator | None] = [None] * len(seeds)
     groups: dict[tuple[int, int], list[int]] = {}
     for i, s in enumerate(seeds):
@@ -146,7 +156,7 @@ def generators(seeds: Sequence[Seed]) -> list[np.random.Generator]:
     for (seed, point), rows in groups.items():
         words = state_words(seed, point, np.array([seeds[i].run for i in rows]))
         for i, w in zip(rows, words, strict=True):
-            out[i] = np.random.Generator(np.random.PCG64(_Words(w)))
+            out[i] = np.random.Generator(np.random.PCG64(KeyWords(seeds[i], w)))
     return out  # type: ignore[return-value]
 
 

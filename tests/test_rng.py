@@ -72,6 +72,16 @@ def test_a_seeded_generator_pickles_and_goes_on() -> None:
     np.testing.assert_array_equal(back.random(5), ref.random(5))
 
 
+def test_a_keyed_generator_names_its_key_and_seedsequence() -> None:
+    g = rng.generators([rng.RunKey(6, 3, 8)])[0]
+    seq = g.bit_generator.seed_seq
+    assert isinstance(seq, rng.KeyWords) and seq.key == rng.RunKey(6, 3, 8)
+    assert seq.sequence().entropy == 6 and seq.sequence().spawn_key == (3, 8)
+    np.testing.assert_array_equal(seq.words, numpy_words(6, 3, 8))
+    with pytest.raises(ValueError, match="four uint64 words"):
+        seq.generate_state(8)
+
+
 def test_key_names_its_seedsequence() -> None:
     s = rng.RunKey(4, 1, 9).sequence()
     assert s.entropy == 4 and s.spawn_key == (1, 9)
