@@ -251,6 +251,19 @@ def _holder_moves(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _sort_by_key(order, key, n):
+    """Sort the robots ``order[:n]`` by ``key`` (indexed by robot), largest first, equal
+    keys keeping their places: an insertion sort (a team has a few robots)."""
+    for a in range(1, n):
+        x = order[a]
+        b = a - 1
+        while b >= 0 and key[order[b]] < key[x]:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = x
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
     """Step 2 of :func:`qpatrol.traffic.resolve`: the robots that have not moved, in
     ``order``, each into the cell it wants if that cell is empty at that moment, pass
@@ -1021,18 +1034,9 @@ def _team_qlearning(
                         order[a] = k if k < n_agents else k - n_agents
                 else:
                     for k in range(n_agents):
-                        back = k - t_mod  # (k - t) % n_agents, without a division
-                        if back < 0:
-                            back += n_agents
-                        key[k] = min(wait_r[k], 1 << 30) * n_agents + (n_agents - 1) - back
+                        key[k] = _priority(wait_r[k], PATROL, 0, k, n_agents, t_mod)
                         order[k] = k
-                    for a in range(1, n_agents):  # insertion sort, largest key first
-                        x = order[a]
-                        b = a - 1
-                        while b >= 0 and key[order[b]] < key[x]:
-                            order[b + 1] = order[b]
-                            b -= 1
-                        order[b + 1] = x
+                    _sort_by_key(order, key, n_agents)
                 _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
             # --- each robot that moved enters its cell (dots, visits, reward, heading); one
             # that made the move it chose learns (qlearning.learn); the measures see the
@@ -1563,14 +1567,8 @@ def run_block(
                         wait[r, k], mode[r, k], depart_left[r, k], k, n_agents, t_mod
                     )
                     order[k] = k
-                for a in range(1, n_agents):  # insertion sort, largest key first
-                    x = order[a]
-                    b = a - 1
-                    while b >= 0 and key[order[b]] < key[x]:
-                        order[b + 1] = order[b]
-                        b -= 1
-                    order[b + 1] = x
                 if n_agents > 1:
+                    _sort_by_key(order, key, n_agents)
                     _move_in_order(order, want, moved, as_asked, occ[r], pos[r])
             # --- entering a cell: dots, visits, reward, heading -------------------------
             for k in range(n_agents):
