@@ -57,6 +57,10 @@ _INIT_B, _MULT_B = 0x8B51F9DD, 0x58F38DED
 _MIX_L, _MIX_R = 0xCA01F9DD, 0x4973F715
 _POOL = 4
 _M32 = 0xFFFFFFFF
+_M64 = (1 << 64) - 1
+_M128 = (1 << 128) - 1
+#: numpy's PCG64 multiplier (PCG_DEFAULT_MULTIPLIER_128).
+PCG_MULT = (2549297995355413924 << 64) | 4865540595714422341
 
 
 def _words32(n: int) -> list[int]:
@@ -160,23 +164,113 @@ def generators(seeds: Sequence[Seed]) -> list[np.random.Generator]:
     return out  # type: ignore[return-value]
 
 
+def pcg_advance(state: int, inc: int, delta: int) -> int:
+    """The PCG64 state ``delta`` draws after ``state`` (``inc`` its increment), ``delta``
+    any integer (negative: before), as numpy's ``PCG64.advance``: ``s <- s M + inc``
+    ``delta mod 2**128`` times, in O(log) steps."""
+    delta &= _M128
+    acc_mult, acc_plus, cur_mult, cur_plus = 1, 0, PCG_MULT, inc
+    while delta:
+        if delta & 1:
+            acc_mult = acc_mult * cur_mult & _M128
+            acc_plus = (acc_plus * cur_mult + cur_plus) & _M128
+        cur_plus = (cur_mult + 1) * cur_plus & _M128
+        cur_mult = cur_mult * cur_mult & _M128
+        delta >>= 1
+    return (acc_mult * state + acc_plus) & _M128
+
+
 class Streams:
     """Per-step uniforms ``[R, K, 2]`` for a batch of runs, drawn in blocks.
 
     The Python loop over runs happens once per ``block`` steps, not in every step.
     Drawing ``(B, K, 2)`` doubles twice gives the same numbers as ``(2B, K, 2)`` once,
-    so the block size never changes a result.
+    so the block size never changes a result. The compiled engine's Q-learning kernels
+    draw the same numbers themselves, from the streams' states (:meth:`words`), and the
+    generators catch up before anyone else draws or pickles them.
     """
 
     #: Steps drawn at once by :meth:`next` unless told otherwise.
     BLOCK = 512
 
     def __init__(self, seeds: Sequence[Seed], agents: int, block: int = BLOCK):
-        self.generators = generators(seeds)
+        self._gens = generators(seeds)
         self.agents = agents
         self.block = block
         self._buf = np.empty((len(seeds), 0, agents, 2))
         self._i = 0
+        # the streams' PCG64 states as words (see words()): one array for the batch's
+        # life, valid or not; where valid and ``_ahead``, the generators lag behind it
+        self._words = np.zeros((len(seeds), 4), dtype=np.uint64)
+        self._words_valid = False
+        self._ahead = False
+        self._extra: list[tuple[int, int]] = []  # each generator's (has_uint32, uinteger)
+
+    @property
+    def generators(self) -> list[np.random.Generator]:
+        """The runs' generators, brought up to date with :meth:`words` first (and the
+        words then read again when next asked for: the caller may draw)."""
+        self._sync()
+        self._words_valid = False
+        return self._gens
+
+    def words(self) -> np.ndarray:
+        """uint64 ``[R, 4]``: each run's PCG64 state as words (state low, high, inc low,
+        high), for a caller that draws the stream's next uniforms itself, in order and to
+        the bit, and steps these words past them
+        (:mod:`qpatrol.engines.compiled.pcg`). Uniforms drawn into the current block
+        and not yet taken (:meth:`pending`) are given back first: the words stand where
+        the taken ones left the stream. The same array at every call; the generators
+        catch up when next used (:attr:`generators`, :meth:`next`, :meth:`take`,
+        :meth:`draw`, a pickle)."""
+        if not self._words_valid:
+            back = self.pending() * self.agents * 2
+            self._buf = self._buf[:, :0]
+            self._i = 0
+            self._extra = []
+            for r, g in enumerate(self._gens):
+                st = g.bit_generator.state
+                if st["bit_generator"] != "PCG64":
+                    raise TypeError(f"Streams.words: run {r} draws from {st['bit_generator']}")
+                s, inc = st["state"]["state"], st["state"]["inc"]
+                if back:
+                    s = pcg_advance(s, inc, -back)
+                self._words[r] = (s & _M64, s >> 64, inc & _M64, inc >> 64)
+                self._extra.append((st["has_uint32"], st["uinteger"]))
+            self._words_valid = True
+        self._ahead = True
+        return self._words
+
+    def _sync(self) -> None:
+        """Set the generators to the words' states, when the words ran ahead."""
+        if self._words_valid and self._ahead:
+            for g, w, (has, extra) in zip(
+                self._gens, self._words.tolist(), self._extra, strict=True
+            ):
+                g.bit_generator.state = {
+                    "bit_generator": "PCG64",
+                    "state": {"state": w[0] | w[1] << 64, "inc": w[2] | w[3] << 64},
+                    "has_uint32": has,
+                    "uinteger": extra,
+                }
+            self._ahead = False
+
+    def __getstate__(self) -> dict:
+        self._sync()
+        d = dict(self.__dict__)
+        d["_words_valid"] = False
+        return d
+
+    def __setstate__(self, d: dict) -> None:
+        if "generators" in d:  # pickled before the words
+            d["_gens"] = d.pop("generators")
+            d.update(
+                _words=np.zeros((len(d["_gens"]), 4), dtype=np.uint64),
+                _words_valid=False,
+                _ahead=False,
+                _extra=[],
+            )
+        self.__dict__.update(d)
 
     def next(self) -> np.ndarray:
         """float ``[R, K, 2]``: the uniforms of the next step."""

@@ -336,22 +336,30 @@ def _compiled_loop(
     if checkpoint is not None:  # it may save (or stop) after any call
         group = R
         block = 1 if checkpoint.every_step else max(1, min(block, COMPILED_BLOCK // (R * K)))
-    loop = numba_core.Loop(state, p, strategy, watch, tail, rec, min(block, total), timeline)
+    loop = numba_core.Loop(
+        state, p, strategy, watch, tail, rec, min(block, total), timeline, words=streams.words
+    )
     every = max(1, total // 200)
     i = first
     bufs: dict[int, np.ndarray] = {}  # the uniforms' buffers, one per lane, refilled per call
     while i < total and state.active.any():
-        pending = streams.pending()  # uniforms drawn for every run by the numpy engine first
-        n = min(block, total - i, pending or block)
-        cuts = engine_threads.lanes(R, threads, R * K * n)
-        if pending:
-            u = streams.take(n, out=_buffer(bufs, -1, (R, n, K, 2)))
-            lanes = [(lo, hi, [(lo, hi, u[lo:hi])]) for lo, hi in cuts]
-        else:  # each lane draws its runs' uniforms, group of runs after group
-            lanes = []
-            for j, (lo, hi) in enumerate(cuts):
-                buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
-                lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
+        if loop.draws_itself:  # the kernels draw from the streams' words, in place
+            streams.words()  # (the generators fall behind again: a checkpoint caught them up)
+            n = min(block, total - i)
+            cuts = engine_threads.lanes(R, threads, R * K * n)
+            lanes = [(lo, hi, [(lo, hi, np.empty((hi - lo, n, K, 0)))]) for lo, hi in cuts]
+        else:
+            pending = streams.pending()  # uniforms drawn for every run by the numpy engine
+            n = min(block, total - i, pending or block)
+            cuts = engine_threads.lanes(R, threads, R * K * n)
+            if pending:
+                u = streams.take(n, out=_buffer(bufs, -1, (R, n, K, 2)))
+                lanes = [(lo, hi, [(lo, hi, u[lo:hi])]) for lo, hi in cuts]
+            else:  # each lane draws its runs' uniforms, group of runs after group
+                lanes = []
+                for j, (lo, hi) in enumerate(cuts):
+                    buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
+                    lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
         taken, ends, up_int, up_float = loop.run(lanes)
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)

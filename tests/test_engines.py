@@ -330,7 +330,10 @@ def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, time
     """Large batches go through the compiled loop a group of runs at a time (uniforms
     drawn per group, output rows renumbered): shrunk limits force groups of 2 runs out
     of 5 (the last group of 1) and blocks of 64 steps, with a short last block and runs
-    stopped early by an episode quota; every file equals the numpy engine's."""
+    stopped early by an episode quota; every file equals the numpy engine's. Without
+    battery or timeline the Q-learning team kernel draws its uniforms itself, from the
+    streams' words (stepped past the blocks' steps that runs stopped early sat out):
+    nothing is drawn beforehand then."""
     from qpatrol import run
 
     monkeypatch.setattr(run, "COMPILED_BLOCK", 256)
@@ -355,7 +358,10 @@ def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, time
         "record.timeline": timeline,
     }
     assert both(flat, tmp_path) == ("numba", "")
-    assert calls[:3] == [(0, 2), (2, 4), (4, 5)]
+    if battery or timeline:
+        assert calls[:3] == [(0, 2), (2, 4), (4, 5)]
+    else:
+        assert calls == []
 
 
 # --- qlearning-idleness ---------------------------------------------------------------

@@ -102,16 +102,23 @@ def test_threads_write_the_same_files(tmp_path, lanes_seen, case):
         assert [lo for _, lo, _ in first_call] == [flat["runs"] * i // n for i in range(n)]
 
 
-def test_threads_in_groups_of_runs(tmp_path, lanes_seen, ring_map):
-    """A large batch goes through the compiled loop in groups of runs: each lane draws
-    its runs' uniforms and runs its groups (several per lane here)."""
+@pytest.mark.parametrize("timeline", [50, 0])
+def test_threads_in_groups_of_runs(tmp_path, lanes_seen, ring_map, timeline):
+    """A large batch goes through the compiled loop in groups of runs: with uniforms
+    drawn beforehand (the general loop, here for the timeline), each lane draws its runs'
+    uniforms and runs its groups (several per lane here); the lone kernel draws its own,
+    from the streams' words, and runs its lane's runs in one call."""
     flat = {**BASE, "map": str(ring_map), "runs": 150, "agents": 1, "steps": 600}
     flat["battery.enabled"] = False
+    flat["record.timeline"] = timeline
     one = folder_bytes({**flat, "threads": 1}, tmp_path / "one")
     lanes_seen.clear()
     assert folder_bytes({**flat, "threads": 2}, tmp_path / "two") == one
     per_lane = {lane: {(lo, hi) for l2, lo, hi, _ in lanes_seen if l2 == lane} for lane in (0, 1)}
-    assert all(len(groups) > 1 for groups in per_lane.values())
+    if timeline:
+        assert all(len(groups) > 1 for groups in per_lane.values())
+    else:
+        assert per_lane == {0: {(0, 75)}, 1: {(75, 150)}}
     assert max(hi for _, hi in per_lane[0]) == 75 == min(lo for lo, _ in per_lane[1])
 
 

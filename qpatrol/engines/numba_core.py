@@ -36,13 +36,14 @@ lane with its own working arrays and output buffers (:mod:`qpatrol.engines.threa
 
 from __future__ import annotations
 
-from collections.abc import Iterable
+from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 from numba import njit
 
 from qpatrol.engines import compiled
+from qpatrol.engines.compiled import pcg
 from qpatrol.engines.compiled.choice import POPCOUNT, pick
 from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
@@ -492,6 +493,7 @@ def _solo_qlearning(
     r,
     t0,
     u,
+    words,
     nbrs,
     wall_legal,
     dot_value,
@@ -540,9 +542,11 @@ def _solo_qlearning(
     trajectory), advanced by up to ``u.shape[1]`` steps after ``t0``: the steps of
     :func:`run_block` with what a robot alone cannot meet left out (no one else blocks
     it, waits or holds the right of way; its open moves are its legal ones), and the
-    robot's cell and heading kept in registers. The same arithmetic, operation for
-    operation, as :func:`qpatrol.engines.compiled.qlearning.act` and ``learn`` and the
-    world's steps. Returns ``(last team step taken, episode rows written)``."""
+    robot's cell and heading kept in registers. Its uniforms come from its stream's
+    state ``words[r]`` (:mod:`qpatrol.engines.compiled.pcg`), stepped past the block's
+    ``2 x u.shape[1]`` draws. The same arithmetic, operation for operation, as
+    :func:`qpatrol.engines.compiled.qlearning.act` and ``learn`` and the world's steps.
+    Returns ``(last team step taken, episode rows written)``."""
     gamma, epsilon = sp.row_f[r, 0], sp.row_f[r, 1]
     inc, horizon, lam = reward_w[r, 0], reward_w[r, 1], reward_w[r, 2]
     use_heading = sp.ipar[0] != 0
@@ -557,8 +561,11 @@ def _solo_qlearning(
     sink[0] = warm
     # the run's rows (views), and what nothing inside the kernel reads kept in
     # registers and stored once at the end: cell, heading, occupancy, wait, steps done
-    q_r, n_r, u_r = q[r, 0], n[r, 0], u[r]
+    q_r, n_r = q[r, 0], n[r, 0]
     q_f, n_f = q_r.reshape(-1), n_r.reshape(-1)  # flat: one index, not three
+    # the run's stream (PCG64, pcg): its state, its increment, the increment of two draws
+    s_lo, s_hi, inc_lo, inc_hi = words[r, 0], words[r, 1], words[r, 2], words[r, 3]
+    inc2_lo, inc2_hi = pcg.double_inc(inc_lo, inc_hi)
     dots_r, last_r, seen_r, seen_state_r = (
         dots[r, 0],
         last[r, 0],
@@ -592,14 +599,17 @@ def _solo_qlearning(
             for d in range(4):
                 if nbrs[c, d] >= 0 and q_f[at + d] > best:
                     best = q_f[at + d]
-        explore = epsilon > 0.0 and u_r[i, 0, 0] < epsilon
+        # the step's two uniforms: the first for epsilon, the second to break ties, each
+        # computed only where read
+        a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
+        explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
         bits = 0
         count = 0
         for d in range(4):
             if nbrs[c, d] >= 0 and (explore or q_f[at + d] == best):
                 bits |= 1 << d
                 count += 1
-        aa = pick(bits, count, u_r[i, 0, 1])
+        aa = pick(bits, count, pcg.uniform(s_lo, s_hi))
         if aa >= 0:
             # --- it moves and enters c1: dots, visits, reward, heading ----------------
             c1 = nbrs[c, aa]
@@ -683,6 +693,7 @@ def _solo_qlearning(
         if tail_n > 0:
             tail_pos[r, (t - 1) % tail_n, 0] = c
         t_end = t
+    pcg.store(words[r], s_lo, s_hi, (u.shape[1] - (t_end - t0)) * 2)
     dots_left[r, 0], ep_dots[r, 0], ep_visits[r, 0] = left, eaten, entered
     m_last_sum[r], idle_total[r], measured[r] = last_sum, idle_sum, n_measured
     gap_sum[r], gap_count[r], gap_max[r], worst[r] = g_sum, g_count, g_max, worst_r
@@ -786,6 +797,7 @@ def _team_qlearning(
     r,
     t0,
     u,
+    words,
     nbrs,
     wall_legal,
     dot_value,
@@ -845,8 +857,10 @@ def _team_qlearning(
     and its right of way and measures' sums kept in registers. A step in which every
     robot asks for a cell that is empty and that no other asks for (nine steps in ten
     for four robots on map_a) moves, enters, learns and measures each robot in one pass;
-    any other step takes the traffic rules' passes. The same arithmetic, operation for
-    operation, as :func:`qpatrol.engines.compiled.qlearning.act` and ``learn``,
+    any other step takes the traffic rules' passes. The uniforms come from the run's
+    stream state ``words[r]`` (:mod:`qpatrol.engines.compiled.pcg`), stepped past the
+    block's ``2 x K x u.shape[1]`` draws. The same arithmetic, operation for operation,
+    as :func:`qpatrol.engines.compiled.qlearning.act` and ``learn``,
     :mod:`qpatrol.traffic` and the world's steps. Returns ``(last team step taken,
     episode rows written)``."""
     (
@@ -876,8 +890,11 @@ def _team_qlearning(
     inc, horizon, lam = reward_w[r, 0], reward_w[r, 1], reward_w[r, 2]
     use_heading = sp.ipar[0] != 0
     # the run's rows (views)
-    q_r, n_r, u_r = sp.q[r], sp.n[r], u[r]
+    q_r, n_r = sp.q[r], sp.n[r]
     q_f, n_f = q_r.reshape(-1), n_r.reshape(-1)  # flat: one index, not four
+    # the run's stream (PCG64, pcg): its state, its increment, the increment of two draws
+    s_lo, s_hi, inc_lo, inc_hi = words[r, 0], words[r, 1], words[r, 2], words[r, 3]
+    inc2_lo, inc2_hi = pcg.double_inc(inc_lo, inc_hi)
     pos_r, head_r, occ_r, wait_r = pos[r], head[r], occ[r], wait[r]
     dots_r, last_r, seen_r, seen_state_r = dots[r], last[r], ep_seen[r], ep_seen_state[r]
     left_r, eaten_r, entered_r = dots_left[r], ep_dots[r], ep_visits[r]
@@ -941,7 +958,9 @@ def _team_qlearning(
             v2 = r2 if free & 4 else -np.inf
             v3 = r3 if free & 8 else -np.inf
             best = max(max(v0, v1), max(v2, v3))
-            explore = epsilon > 0.0 and u_r[i, k, 0] < epsilon
+            # the robot's two uniforms of the step, each computed only where read
+            a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
+            explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
             if explore:
                 bits = free
             else:
@@ -951,7 +970,7 @@ def _team_qlearning(
                     | (4 if v2 == best else 0)
                     | (8 if v3 == best else 0)
                 ) & free
-            aa = pick(bits, POPCOUNT[bits], u_r[i, k, 1])
+            aa = pick(bits, POPCOUNT[bits], pcg.uniform(s_lo, s_hi))
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
         # --- the common step: every robot asks for a cell that is empty now and that
@@ -1105,6 +1124,7 @@ def _team_qlearning(
             for k in range(n_agents):
                 tail_pos[r, slot, k] = pos_r[k]
         t_end = t
+    pcg.store(words[r], s_lo, s_hi, (u.shape[1] - (t_end - t0)) * n_agents * 2)
     token[r], token_held[r] = tok, held
     m_last_sum[r], idle_total[r], measured[r] = sums[0], idle_sum, n_measured
     gap_sum[r], gap_count[r], gap_max[r], worst[r] = sums[1], sums[2], sums[3], sums[4]
@@ -1119,6 +1139,7 @@ def run_block(
     spec_marker,
     t0,
     u,
+    words,
     nbrs,
     wall_legal,
     dot_value,
@@ -1200,7 +1221,11 @@ def run_block(
     """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
 
     ``spec_marker``: an int8 array whose ``ndim`` is the loop to compile (``SPEC_*``;
-    :class:`Loop` picks it). ``u``: float ``[R, T, K, 2]``. Arrays are the engine's
+    :class:`Loop` picks it). ``u``: float ``[R, T, K, 2]``, each robot's two uniforms
+    of each step; the Q-learning kernels (``SPEC_QLEARNING_SOLO``, ``_TEAM``) take its
+    shape alone (``[R, T, K, 0]``) and draw them from ``words`` (uint64 ``[R, 4]``, each
+    run's PCG64 state, :mod:`qpatrol.engines.compiled.pcg`), which they step past
+    ``T x K x 2`` draws. Arrays are the engine's
     state (see module doc), modified in place. Ended episodes are written to
     ``ep_buf`` ``[E, EP_COLS]``.
     Q-updates of every robot (``record_all``) or of the ``watched`` cells (bool ``[C]``)
@@ -1259,6 +1284,7 @@ def run_block(
                 r,
                 t0,
                 u,
+                words,
                 nbrs,
                 wall_legal,
                 dot_value,
@@ -1310,6 +1336,7 @@ def run_block(
                 r,
                 t0,
                 u,
+                words,
                 nbrs,
                 wall_legal,
                 dot_value,
@@ -1780,7 +1807,13 @@ def run_block(
     return t_end, n_ep, n_up, n_tl
 
 
-compiled.key_cache(run_block, __file__)  # the cache also follows the strategies' files
+# the caches of the loop and of the functions it calls without inlining them (the
+# kernels, which inline the choice and the streams' draws) also follow the files of
+# qpatrol.engines.compiled
+for _f in (_priority, _kept_out, _way_out, _push_path, _solo_qlearning, _team_qlearning):
+    compiled.key_cache(_f, __file__)
+compiled.key_cache(run_block, __file__)
+del _f
 
 
 def scratch(n_agents: int, n_groups: int, n_cells: int) -> tuple[np.ndarray, ...]:
@@ -1812,10 +1845,25 @@ class Loop:
         state, p, strategy, measures, tail, rec: the objects the numpy loop uses too
             (their arrays are updated in place).
         max_steps: most team steps one :meth:`run` will be given.
+        timeline: the idleness timeline, or None.
+        words: where the loop may draw its uniforms itself
+            (:attr:`draws_itself`), the runs' streams: a function giving their PCG64
+            states, uint64 ``[R, 4]`` (:meth:`qpatrol.rng.Streams.words`), the same
+            array at every call, stepped in place by :meth:`run`. Otherwise (or
+            without it) each call of :meth:`run` reads uniforms drawn beforehand.
     """
 
     def __init__(
-        self, state: State, p: Params, strategy, measures, tail, rec, max_steps: int, timeline=None
+        self,
+        state: State,
+        p: Params,
+        strategy,
+        measures,
+        tail,
+        rec,
+        max_steps: int,
+        timeline=None,
+        words: Callable[[], np.ndarray] | None = None,
     ):
         s, m = state, measures
         self.state, self.p = s, p
@@ -1840,7 +1888,11 @@ class Loop:
         self.reward_w[:, 0] = p.incremental_value
         self.reward_w[:, 1] = p.idle_horizon
         self.reward_w[:, 2] = p.lambda_weight
+        # uint64 [R, 4]: the runs' PCG64 states (rng.Streams.words), which the
+        # Q-learning kernels step as they draw (a placeholder until the spec is known)
+        self.words = np.zeros((n_runs, 4), dtype=np.uint64)
         self.args = (
+            self.words,
             p.neighbors,
             p.wall_legal,
             p.dot_value,
@@ -1921,7 +1973,7 @@ class Loop:
             for o in owners
             for v in vars(o).values()
             if isinstance(v, np.ndarray) and v.ndim and v.shape[0] == n_runs
-        } | {id(self.reward_w)}
+        } | {id(self.reward_w), id(self.words)}
         self.per_run = [j for j, a in enumerate(self.args) if id(a) in ids]
         # the strategy's per-run arrays (not its constants, however many rows they have;
         # nor a one-row placeholder)
@@ -1934,8 +1986,14 @@ class Loop:
         self.spec = SPEC_ANY
         if self.code == compiled.QLEARNING and not p.battery and self.timeline is None:
             self.spec = SPEC_QLEARNING
-            if not rec.wants_updates:
+            if not rec.wants_updates and words is not None:
                 self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
+        #: the loop draws each run's uniforms itself, from its stream's words (the
+        #: Q-learning kernels): :meth:`run` is given their shape alone, ``[R, T, K, 0]``
+        self.draws_itself = self.spec in (SPEC_QLEARNING_SOLO, SPEC_QLEARNING_TEAM)
+        if self.draws_itself:
+            self.words = words()
+            self.args = (self.words, *self.args[1:])
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self.pack_at = next(j for j, a in enumerate(self.args) if a is self.pack)
         # each lane's own arrays: output buffers and working arrays (see _lane_args)
@@ -2023,9 +2081,10 @@ class Loop:
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
         """Advance the batch by up to ``T`` team steps. ``lanes``: ``(lo, hi, rows)``,
         consecutive ranges of rows covering the batch in order, each with its groups of
-        rows ``(a, b, u)`` (``u`` float ``[b - a, T, K, 2]``, the groups covering
-        ``lo..hi-1`` in order), run group after group, each group's arrays (tables, maps,
-        uniforms) kept in cache. With several lanes each runs in a thread of its own
+        rows ``(a, b, u)`` (``u`` float ``[b - a, T, K, 2]``, or ``[b - a, T, K, 0]``
+        when the loop :attr:`draws_itself`; the groups covering ``lo..hi-1`` in order),
+        run group after group, each group's arrays (tables, maps, uniforms) kept in
+        cache. With several lanes each runs in a thread of its own
         (the loop releases the GIL): the same numbers, as every run is computed alone.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
