@@ -401,6 +401,18 @@ def _end_episodes(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _ep_deadline(ep_start_r, max_ep, never):
+    """The first step at which an episode of a run (its groups' start steps
+    ``ep_start_r`` ``[G]``) reaches ``max_ep`` steps; ``never`` without a limit."""
+    if max_ep <= 0:
+        return never
+    first = ep_start_r[0]
+    for g in range(1, ep_start_r.shape[0]):
+        first = min(first, ep_start_r[g])
+    return first + max_ep
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _enter(
     c0,
     c1,
@@ -927,6 +939,10 @@ def _team_qlearning(
         if wait_r[k] > 0:
             waiting += 1
     going = active[r]
+    # the first step at which a group's episode reaches max_ep steps: before it and
+    # while every group has dots left, no episode ends (_end_episodes is not called)
+    n_groups = left_r.shape[0]
+    deadline = _ep_deadline(ep_start[r], max_ep, t0 + u.shape[1] + 1)
     t_end = t0
     t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
     for i in range(u.shape[1]):
@@ -1093,27 +1109,33 @@ def _team_qlearning(
                     diameter,
                 )
         # --- episodes: all dots eaten, or too long -------------------------------------
-        n_ep = _end_episodes(
-            r,
-            t,
-            has_dot,
-            n_dots,
-            max_ep,
-            quota,
-            dots,
-            dots_left,
-            ep_dots,
-            ep_visits,
-            ep_start,
-            ep_count,
-            ep_seen,
-            ep_seen_state,
-            active,
-            ep_buf,
-            n_ep,
-            ended,
-        )
-        going = active[r]
+        due = t >= deadline
+        for g in range(n_groups):
+            if left_r[g] == 0:
+                due = True
+        if due:
+            n_ep = _end_episodes(
+                r,
+                t,
+                has_dot,
+                n_dots,
+                max_ep,
+                quota,
+                dots,
+                dots_left,
+                ep_dots,
+                ep_visits,
+                ep_start,
+                ep_count,
+                ep_seen,
+                ep_seen_state,
+                active,
+                ep_buf,
+                n_ep,
+                ended,
+            )
+            going = active[r]
+            deadline = _ep_deadline(ep_start[r], max_ep, t0 + u.shape[1] + 1)
         if in_window:
             idle_sum += n_cells * t - sums[0]
             n_measured += 1
