@@ -27,7 +27,9 @@ rest left out; and for Q-learning without battery, timeline or Q-update recorder
 steps run in a kernel of their own, one for a lone robot (:func:`_solo_qlearning`, its
 state in registers: twice the speed of the general loop) and one for teams
 (:func:`_team_qlearning`, the battery's rules left out, a step without conflicts in one
-pass over the robots: about twice).
+pass over the robots: about twice). Both draw their uniforms themselves, stepping each
+run's PCG64 state with numpy's arithmetic (:mod:`qpatrol.engines.compiled.pcg`); the
+other loops read them from blocks drawn beforehand.
 
 The loop releases the GIL, and a batch's runs share nothing they write, so
 :meth:`Loop.run` may advance them in lanes of consecutive runs, one thread each, each
