@@ -58,9 +58,6 @@ _MIX_L, _MIX_R = 0xCA01F9DD, 0x4973F715
 _POOL = 4
 _M32 = 0xFFFFFFFF
 _M64 = (1 << 64) - 1
-_M128 = (1 << 128) - 1
-#: numpy's PCG64 multiplier (PCG_DEFAULT_MULTIPLIER_128).
-PCG_MULT = (2549297995355413924 << 64) | 4865540595714422341
 
 
 def _words32(n: int) -> list[int]:
@@ -164,22 +161,6 @@ def generators(seeds: Sequence[Seed]) -> list[np.random.Generator]:
     return out  # type: ignore[return-value]
 
 
-def pcg_advance(state: int, inc: int, delta: int) -> int:
-    """The PCG64 state ``delta`` draws after ``state`` (``inc`` its increment), ``delta``
-    any integer (negative: before), as numpy's ``PCG64.advance``: ``s <- s M + inc``
-    ``delta mod 2**128`` times, in O(log) steps."""
-    delta &= _M128
-    acc_mult, acc_plus, cur_mult, cur_plus = 1, 0, PCG_MULT, inc
-    while delta:
-        if delta & 1:
-            acc_mult = acc_mult * cur_mult & _M128
-            acc_plus = (acc_plus * cur_mult + cur_plus) & _M128
-        cur_plus = (cur_mult + 1) * cur_plus & _M128
-        cur_mult = cur_mult * cur_mult & _M128
-        delta >>= 1
-    return (acc_mult * state + acc_plus) & _M128
-
-
 class Streams:
     """Per-step uniforms ``[R, K, 2]`` for a batch of runs, drawn in blocks.
 
@@ -229,12 +210,13 @@ class Streams:
             self._i = 0
             self._extra = []
             for r, g in enumerate(self._gens):
-                st = g.bit_generator.state
-                if st["bit_generator"] != "PCG64":
-                    raise TypeError(f"Streams.words: run {r} draws from {st['bit_generator']}")
+                bg = g.bit_generator
+                if not isinstance(bg, np.random.PCG64):
+                    raise TypeError(f"Streams.words: run {r} draws from {type(bg).__name__}")
+                if back:  # numpy's jump, by back draws less than its period: back
+                    bg.advance((1 << 128) - back)
+                st = bg.state
                 s, inc = st["state"]["state"], st["state"]["inc"]
-                if back:
-                    s = pcg_advance(s, inc, -back)
                 self._words[r] = (s & _M64, s >> 64, inc & _M64, inc >> 64)
                 self._extra.append((st["has_uint32"], st["uinteger"]))
             self._words_valid = True
