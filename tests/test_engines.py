@@ -258,6 +258,31 @@ def test_the_compiled_strategies_are_the_ones_the_engine_choice_names():
     assert set(engines.COMPILED_POLICIES) == set(compiled.MODULES) == set(NAMES)
 
 
+def test_the_kernels_wall_masks():
+    """``choice.legal_bits`` (each cell's legal moves as N=1, E=2, S=4, W=8) and
+    ``choice.MASKED`` (0.0 or -inf per direction of a mask), with which the Q-learning
+    kernels take the greatest Q of some moves with no branch: by hand on a tiny map, and
+    against a plain loop over the mask's directions for every mask."""
+    from qpatrol.engines.compiled.choice import MASKED, legal_bits
+
+    # cells: 0 open to the east and the south, 1 to the west, 2 to the north, 3 nowhere
+    nbrs = np.array([[-1, 1, 2, -1], [-1, -1, -1, 0], [0, -1, -1, -1], [-1, -1, -1, -1]])
+    assert legal_bits(nbrs).tolist() == [2 + 4, 8, 1, 0]
+    assert legal_bits(nbrs).dtype == np.int64
+    assert MASKED[0b0101].tolist() == [0.0, -np.inf, 0.0, -np.inf]
+    rng = np.random.default_rng(7)
+    for b in range(16):
+        for q in (rng.normal(size=4) * 100, np.array([-0.0, 0.0, 2.5, 2.5])):
+            want = max([q[d] for d in range(4) if b >> d & 1], default=-np.inf)
+            got = max(
+                max(q[0] + MASKED[b, 0], q[1] + MASKED[b, 1]),
+                max(q[2] + MASKED[b, 2], q[3] + MASKED[b, 3]),
+            )
+            assert got == want
+            ties = [d for d in range(4) if b >> d & 1 and q[d] + MASKED[b, d] == got]
+            assert ties == [d for d in range(4) if b >> d & 1 and q[d] == want]
+
+
 def test_engine_choice(monkeypatch):
     cfg = from_flat({"battery.enabled": False, "engine": "numpy", "runs": 16})
     assert engines.choose(cfg) == ("numpy", "")

@@ -46,7 +46,7 @@ from numba import njit
 
 from qpatrol.engines import compiled
 from qpatrol.engines.compiled import pcg
-from qpatrol.engines.compiled.choice import POPCOUNT, pick
+from qpatrol.engines.compiled.choice import MASKED, POPCOUNT, legal_bits, pick
 from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
 
@@ -509,7 +509,7 @@ def _solo_qlearning(
     u,
     words,
     nbrs,
-    wall_legal,
+    cell_moves,
     dot_value,
     has_dot,
     n_dots,
@@ -673,10 +673,11 @@ def _solo_qlearning(
             # --- it learns (qlearning.learn) ------------------------------------------
             hb = aa if use_heading else 0  # the state reached: (c1, hb)
             at1 = (c1 * 4 + hb) * 4  # Q(c1, hb, .), flat
-            top = -np.inf
-            for d in range(4):
-                if wall_legal[c1, d] and q_f[at1 + d] > top:
-                    top = q_f[at1 + d]
+            m1 = MASKED[cell_moves[c1]]  # its greatest Q over the legal moves
+            top = max(
+                max(q_f[at1] + m1[0], q_f[at1 + 1] + m1[1]),
+                max(q_f[at1 + 2] + m1[2], q_f[at1 + 3] + m1[3]),
+            )
             target = reward + gamma * top
             at0 = at + aa  # Q(c, hs, aa)
             q_sa = q_f[at0]
@@ -731,7 +732,7 @@ def _team_enters(k, c0, c1, t, learns, ha, aa, run, sums):
     chose (``learns``; ``ha`` its heading before, ``aa`` that move), and the measures see
     the visit (:func:`_observe`; ``sums`` the run's ``(last_sum, gap_sum, gap_count,
     gap_max, worst)``). ``run``: what the team kernel holds for its run, ``(communication,
-    use_heading, warmup, (gamma, inc, horizon, lam), nbrs, wall_legal, dot_value, q_f,
+    use_heading, warmup, (gamma, inc, horizon, lam), nbrs, cell_moves, dot_value, q_f,
     n_f, n_cells, (dots, last, seen, seen_state, left, eaten, entered), m_last, visits,
     window_visits)``, with ``q_f``, ``n_f`` the run's tables, flat, and the group rows one
     per dot group. Returns ``(heading entered, sums)``."""
@@ -741,7 +742,7 @@ def _team_enters(k, c0, c1, t, learns, ha, aa, run, sums):
         warmup,
         weights,
         nbrs,
-        wall_legal,
+        cell_moves,
         dot_value,
         q_f,
         n_f,
@@ -778,11 +779,8 @@ def _team_enters(k, c0, c1, t, learns, ha, aa, run, sums):
         hb = aa if use_heading else 0  # the state reached: (c1, hb)
         at1 = ((k * n_cells + c1) * 4 + hb) * 4  # Q(c1, hb, .), flat
         n0, n1, n2, n3 = q_f[at1], q_f[at1 + 1], q_f[at1 + 2], q_f[at1 + 3]
-        legal1 = wall_legal[c1]  # its greatest Q over the legal moves
-        top = max(
-            max(n0 if legal1[0] else -np.inf, n1 if legal1[1] else -np.inf),
-            max(n2 if legal1[2] else -np.inf, n3 if legal1[3] else -np.inf),
-        )
+        m1 = MASKED[cell_moves[c1]]  # its greatest Q over the legal moves, branch-free
+        top = max(max(n0 + m1[0], n1 + m1[1]), max(n2 + m1[2], n3 + m1[3]))
         target = rew + gamma * top
         at0 = ((k * n_cells + c0) * 4 + hs) * 4 + aa  # Q(c0, hs, aa), flat
         q_sa = q_f[at0]
@@ -813,7 +811,7 @@ def _team_qlearning(
     u,
     words,
     nbrs,
-    wall_legal,
+    cell_moves,
     dot_value,
     has_dot,
     n_dots,
@@ -925,7 +923,7 @@ def _team_qlearning(
         warmup,
         (gamma, inc, horizon, lam),
         nbrs,
-        wall_legal,
+        cell_moves,
         dot_value,
         q_f,
         n_f,
@@ -957,24 +955,27 @@ def _team_qlearning(
         for k in range(n_agents):
             c = pos_r[k]
             hk = head_r[k]
-            legal = 0
-            free = 0
-            for d in range(4):
-                nb = nbrs[c, d]
-                if nb >= 0:
-                    legal |= 1 << d
-                    if not (avoid and k != tok and occ_r[nb] >= 0):
-                        free |= 1 << d
-            if free == 0:  # base.prefer_open: every legal move where none is open
-                free = legal
+            legal = cell_moves[c]
+            free = legal
+            if avoid and k != tok:  # the legal moves into cells no robot stands in
+                nb = nbrs[c]  # (a wall's -1 reads the last cell: masked by legal)
+                taken = (
+                    (1 if occ_r[nb[0]] >= 0 else 0)
+                    | (2 if occ_r[nb[1]] >= 0 else 0)
+                    | (4 if occ_r[nb[2]] >= 0 else 0)
+                    | (8 if occ_r[nb[3]] >= 0 else 0)
+                )
+                free = legal & ~taken
+                if free == 0:  # base.prefer_open: every legal move where none is open
+                    free = legal
             hs = hk if use_heading else 0
-            # the greatest Q of the open moves, without a branch per move
+            # the greatest Q of the open moves, with no branch per move (MASKED)
             at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
-            r0, r1, r2, r3 = q_f[at], q_f[at + 1], q_f[at + 2], q_f[at + 3]
-            v0 = r0 if free & 1 else -np.inf
-            v1 = r1 if free & 2 else -np.inf
-            v2 = r2 if free & 4 else -np.inf
-            v3 = r3 if free & 8 else -np.inf
+            mf = MASKED[free]
+            v0 = q_f[at] + mf[0]
+            v1 = q_f[at + 1] + mf[1]
+            v2 = q_f[at + 2] + mf[2]
+            v3 = q_f[at + 3] + mf[3]
             best = max(max(v0, v1), max(v2, v3))
             # the robot's two uniforms of the step, each computed only where read
             a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
@@ -1166,6 +1167,7 @@ def run_block(
     words,
     nbrs,
     wall_legal,
+    cell_moves,
     dot_value,
     has_dot,
     reward_w,
@@ -1249,7 +1251,9 @@ def run_block(
     of each step; the Q-learning kernels (``SPEC_QLEARNING_SOLO``, ``_TEAM``) take its
     shape alone (``[R, T, K, 0]``) and draw them from ``words`` (uint64 ``[R, 4]``, each
     run's PCG64 state, :mod:`qpatrol.engines.compiled.pcg`), which they step past
-    ``T x K x 2`` draws. Arrays are the engine's
+    ``T x K x 2`` draws. ``cell_moves``: int64 ``[C]``, each cell's legal moves as 4
+    bits (:func:`qpatrol.engines.compiled.choice.legal_bits` of ``nbrs``), which the
+    kernels read to leave out walls with no branch (``MASKED``). Arrays are the engine's
     state (see module doc), modified in place. Ended episodes are written to
     ``ep_buf`` ``[E, EP_COLS]``.
     Q-updates of every robot (``record_all``) or of the ``watched`` cells (bool ``[C]``)
@@ -1310,7 +1314,7 @@ def run_block(
                 u,
                 words,
                 nbrs,
-                wall_legal,
+                cell_moves,
                 dot_value,
                 has_dot,
                 n_dots,
@@ -1362,7 +1366,7 @@ def run_block(
                 u,
                 words,
                 nbrs,
-                wall_legal,
+                cell_moves,
                 dot_value,
                 has_dot,
                 n_dots,
@@ -1919,6 +1923,7 @@ class Loop:
             self.words,
             p.neighbors,
             p.wall_legal,
+            legal_bits(p.neighbors),
             p.dot_value,
             p.has_dot,
             self.reward_w,

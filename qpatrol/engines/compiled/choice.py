@@ -18,6 +18,19 @@ from qpatrol.learner import _NTH
 NTH = _NTH.astype(np.int64)
 #: The number of set bits of a 4-bit mask of directions.
 POPCOUNT = np.array([bin(b).count("1") for b in range(16)], dtype=np.int64)
+#: What a score of each direction gets added to leave out the directions not in a 4-bit
+#: mask: float64 ``[16, 4]``, 0.0 where direction ``d`` is in mask ``b``, -inf where it
+#: is not. ``max`` over ``score[d] + MASKED[b, d]`` is the greatest score of the mask's
+#: directions with no branch per direction. Adding 0.0 leaves a finite number as it is
+#: but for the sign of a zero (-0.0 + 0.0 is +0.0), which no comparison sees and which a
+#: Q-target ``r + gamma x max`` does not see either (its reward is never -0.0).
+MASKED = np.array([[0.0 if b >> d & 1 else -np.inf for d in range(4)] for b in range(16)])
+
+
+def legal_bits(nbrs: np.ndarray) -> np.ndarray:
+    """Each cell's legal moves as a 4-bit mask (N=1, E=2, S=4, W=8): int64 ``[C]``, from
+    the neighbours ``nbrs`` int ``[C, 4]`` (-1 for a wall)."""
+    return ((nbrs >= 0) << np.arange(4)).sum(axis=1).astype(np.int64)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
