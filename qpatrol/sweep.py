@@ -50,6 +50,7 @@ import pandas as pd
 from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
 from qpatrol.csvio import read_csv
+from qpatrol.engines import compiled_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
@@ -496,7 +497,7 @@ def _pool(
             for outcome in _run_points(pts, m, pdir, meta):
                 yield tag, outcome
         return
-    ordered = sorted(tasks, key=lambda t: -_task_cost(t))
+    ordered = _distinct_loops_first(sorted(tasks, key=lambda t: -_task_cost(t)))
     # one task at a time (joblib's automatic batching may hand a worker several of the
     # short tasks at the end at once, and the other worker then idles)
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered", batch_size=1)
@@ -506,6 +507,26 @@ def _pool(
     ):
         for outcome in outcomes:
             yield tag, outcome
+
+
+def _distinct_loops_first(tasks: list[Task]) -> list[Task]:
+    """``tasks`` with the first task of each compiled loop
+    (:func:`qpatrol.engines.compiled_loop`) moved to the front, in their order, the rest
+    after them in theirs. A loop's first use compiles it (tens of seconds when numba's
+    on-disk cache does not hold it yet, as on a fresh machine), and every later use
+    loads it from the cache: the workers of a pool then start by compiling different
+    loops at once, not all the loop of the costliest tasks side by side."""
+    first: list[Task] = []
+    rest: list[Task] = []
+    seen: set[str] = set()
+    for task in tasks:
+        loop = compiled_loop(task[1][0][1])
+        if loop is not None and loop not in seen:
+            seen.add(loop)
+            first.append(task)
+        else:
+            rest.append(task)
+    return first + rest
 
 
 def _run_tagged(

@@ -236,6 +236,29 @@ def test_two_workers_get_two_tasks_of_a_group(maps):
     assert batching.tasks([[0, 1, 2], [3]], 2, [1.0, 1.0, 1.0, 10.0]) == [[0, 1, 2], [3]]
 
 
+def test_a_pool_starts_on_different_compiled_loops(maps):
+    """The first task of each compiled loop goes first (each worker then compiles a
+    different one at once); the others keep their order, and numpy tasks stay where
+    they were among them."""
+    base = make_base(maps[1], 1, engine="numba", record=False)
+    any_ = base.replace(**{"battery.enabled": True})
+    team = base.replace(agents=4, **{"battery.enabled": False})
+    solo = base.replace(agents=1, **{"battery.enabled": False})
+    numpy = base.replace(engine="numpy")
+    cfgs = [any_, any_.replace(seed=2), numpy, team, any_.replace(seed=3), solo, team]
+    tasks = [(i, [(None, c)], None, Path(".")) for i, c in enumerate(cfgs)]
+    assert [sweep.compiled_loop(c) for c in cfgs] == [
+        "any",
+        "any",
+        None,
+        "qlearning-team",
+        "any",
+        "qlearning-solo",
+        "qlearning-team",
+    ]
+    assert [t[0] for t in sweep._distinct_loops_first(tasks)] == [0, 3, 5, 1, 2, 4, 6]
+
+
 def test_two_workers_batched_sweep_is_identical(maps, tmp_path):
     base = make_base(maps[1], 1)
     pts = points_for("learning.gamma", [0.1, 0.3, 0.5, 0.7, 0.9])

@@ -204,8 +204,13 @@ def test_compiled_loop_specializations(loop_specs):
     ]
     for extra, agents, spec in cases:
         loop_specs.clear()
-        simulate(bench.workload(2, agents, 20, engine="numba", extra=extra))
+        cfg = bench.workload(2, agents, 20, engine="numba", extra=extra)
+        simulate(cfg)
         assert loop_specs == [spec], (extra, agents)
+        # read from the config alone, for a pool to compile different loops at once
+        assert engines.compiled_loop(cfg) == numba_core.SPEC_NAMES[spec], (extra, agents)
+    assert engines.compiled_loop(bench.workload(2, 1, 20, engine="numpy")) is None
+    assert engines.compiled_loop(bench.workload(1, 1, 20, engine="auto")) is None  # small
 
 
 @pytest.mark.parametrize("policy", NAMES)

@@ -86,3 +86,20 @@ def choose(cfg: Config) -> tuple[str, str]:
     if gap is not None:
         return "numpy", f"fallback from numba: {gap}"
     return "numba", ""
+
+
+def compiled_loop(cfg: Config) -> str | None:
+    """Which of the compiled engine's loops runs ``cfg``, each its own machine code,
+    compiled on its first use (and then kept in numba's on-disk cache): ``"any"`` (any
+    strategy, battery, timeline), ``"qlearning"`` (Q-learning with Q-update recorders),
+    ``"qlearning-solo"`` or ``"qlearning-team"`` (the Q-learning kernels); None when the
+    numpy engine runs it. The choice :class:`qpatrol.engines.numba_core.Loop` makes from
+    the prepared batch, read from the config (a test checks that they agree), so that
+    a pool of workers can compile different loops at once (:mod:`qpatrol.sweep`)."""
+    if choose(cfg)[0] != "numba":
+        return None
+    if cfg["policy"] != "qlearning" or cfg["battery.enabled"] or cfg["record.timeline"]:
+        return "any"
+    if cfg["record.transitions"] or cfg["record.watch"]:
+        return "qlearning"
+    return "qlearning-solo" if cfg["agents"] == 1 else "qlearning-team"

@@ -63,6 +63,13 @@ SPEC_ANY = 1
 SPEC_QLEARNING = 2
 SPEC_QLEARNING_SOLO = 3
 SPEC_QLEARNING_TEAM = 4
+#: Each loop's name in :func:`qpatrol.engines.compiled_loop`.
+SPEC_NAMES = {
+    SPEC_ANY: "any",
+    SPEC_QLEARNING: "qlearning",
+    SPEC_QLEARNING_SOLO: "qlearning-solo",
+    SPEC_QLEARNING_TEAM: "qlearning-team",
+}
 #: Columns of the Q-update buffers: ints run, step, agent, cell, heading, action,
 #: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
 #: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
@@ -1273,7 +1280,9 @@ def run_block(
         battery = False
         tl_window = 0
     n_cells = nbrs.shape[0]
-    n_dots = 0
+    # np.int64(0), not 0: a literal 0 would have numba compile each kernel twice, for a
+    # literal argument and for an int64 one
+    n_dots = np.int64(0)
     for c in range(n_cells):
         if has_dot[c]:
             n_dots += 1
@@ -1304,7 +1313,7 @@ def run_block(
     for c in range(n_cells):
         parent[c] = -2
     t_end = t0
-    n_ep = 0
+    n_ep = np.int64(0)
     n_tl = 0
     for r in range(n_runs):
         if spec == SPEC_QLEARNING_SOLO:
