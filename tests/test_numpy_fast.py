@@ -87,6 +87,25 @@ def test_solo(rooms_map, tmp_path, monkeypatch, extra):
     assert kind == "Solo" and taken > 100
 
 
+def test_solo_episodes_of_different_lengths(ring_map, tmp_path, monkeypatch):
+    """Runs whose episodes end at different steps (the ring's dots all eaten, or 12
+    steps up), so their episodes start at different steps: the fast step checks the
+    step limit against the earliest start of all runs, kept between steps."""
+    flat = {**BASE, "map": str(ring_map), "agents": 1, "runs": 6, "max_episode_steps": 12}
+    kind, taken = both_ways(flat, tmp_path, monkeypatch)
+    assert kind == "Solo" and taken > 250
+
+
+def test_solo_leaves_a_map_without_moves_to_the_general_step(tmp_path, monkeypatch):
+    """A one-cell map (collision avoidance off, else it is refused): its robot has no
+    move, which the lone fast step (walls at -inf, no check) must not take; the team
+    step, which checks, is offered it and declines every step."""
+    one = tmp_path / "one.txt"
+    one.write_text("; name: one\n#0#\n")
+    flat = {**BASE, "map": str(one), "agents": 1, "team.avoid_collisions": False}
+    assert both_ways(flat, tmp_path, monkeypatch) == ("Team", 0)
+
+
 @pytest.mark.parametrize("agents", [1, 2, 4, 8])
 @pytest.mark.parametrize("communication", [True, False])
 @pytest.mark.parametrize("avoid", [True, False])

@@ -69,3 +69,16 @@ def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     # below count, so j never needs it (tests/test_numpy_fast.py checks u = 1 - 2**-53)
     j = (u * count).astype(np.int64)
     return NTH_OF_CODE.take(key * 4 + j), count
+
+
+#: float [CODE_MOD]: COUNT_OF_CODE as floats (the same products ``u * count``, without
+#: converting the counts on every step).
+COUNTF_OF_CODE = COUNT_OF_CODE.astype(np.float64)
+
+
+def pick_among(cand: np.ndarray, u: np.ndarray) -> np.ndarray:
+    """int ``[B]``: the action of :func:`pick` where every row of ``cand`` has a
+    candidate (no counts returned)."""
+    key = cand.view(np.uint32)[:, 0] % CODE_MOD
+    j = (u * COUNTF_OF_CODE.take(key)).astype(np.int64)
+    return NTH_OF_CODE.take(key * 4 + j)

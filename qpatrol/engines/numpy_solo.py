@@ -3,10 +3,14 @@
 One team step of every run in about seventy cheap numpy calls on flat views of the
 arrays the general step uses (:mod:`qpatrol.world`, the learner's tables, the
 measures), so the two may alternate from one step to the next: :meth:`Solo.step` is used
-while every run is active and every robot has a move, the general step otherwise.
+while every run is active, the general step otherwise (and on a map with a cell that has
+no move, where :func:`covers` is False).
 Work per step does not grow with the map: a Q row is one ``take`` from the table viewed
 as ``[R C 4, 4]`` (row ``(r C + cell) 4 + heading``), and no ``[runs, cells]`` array is
-allocated. The arithmetic is the general step's, operation for operation.
+allocated. The arithmetic is the general step's, operation for operation, but for the
+masking of walls: a Q row gets 0.0 or -inf added per move (``Solo.wall_add``), as the
+compiled kernels do, instead of ``np.where``. Adding 0.0 changes a Q-value only in the
+sign of a zero, which no comparison sees, nor the Q-target (its reward is never -0.0).
 
 A lone robot always makes the move it chose, so the state it reaches is the one it
 bootstraps from: the masked Q row of that state (and its maximum) are kept from one
@@ -18,7 +22,7 @@ from __future__ import annotations
 import numpy as np
 
 from qpatrol.engines.deferred import Deferred
-from qpatrol.engines.flat import max4, pick, view
+from qpatrol.engines.flat import max4, pick_among, view
 from qpatrol.measures import Measures
 from qpatrol.records import Recorder, Tail
 from qpatrol.timeline import Timeline
@@ -29,6 +33,8 @@ def covers(p: Params, strategy: object) -> bool:
     """True when :class:`Solo` applies: qlearning, one robot, battery off (on a map
     where no cell is its own neighbour)."""
     if p.n_agents != 1 or p.battery or getattr(strategy, "name", "") != "qlearning":
+        return False
+    if not p.wall_legal.any(axis=1).all():  # a cell without a move (a one-cell map)
         return False
     return not (p.neighbors == np.arange(p.n_cells)[:, None]).any()
 
@@ -53,6 +59,7 @@ class Solo:
         self.deferred = Deferred(s, m, defer, last=True, occ=p.avoid_collisions)
         self.nbrs = nbrs.reshape(-1)  # int [C 4]: next cell of (cell, direction), -1 wall
         self.legal = p.wall_legal  # bool [C, 4]
+        self.wall_add = np.where(p.wall_legal, 0.0, -np.inf)  # float [C, 4]: -inf for walls
         self.dir_of = dir_of.reshape(-1)  # int [C 4]: the direction traffic.direction_of gives
         self.next_row = (np.maximum(nbrs, 0) * 4 + heading).reshape(-1)  # int [C 4]: Q row
         # offset (cell' 4 + heading') of the state reached by (cell, direction)
@@ -77,35 +84,38 @@ class Solo:
         self.visits = view(m.visits, -1)
         self.window_visits = view(m.window_visits, -1)
         # kept from the last fast step (valid while self.t == s.t): the Q row index
-        # [R], its cell's legal moves bool [R, 4], the masked row float [R, 4] and its max
+        # [R], the row with its walls at -inf float [R, 4] and its max
         self.t = -1
-        self.row = self.legal_row = self.masked = self.best = None
+        self.row = self.masked = self.best = None
+        self.ep_start_min = 0  # min of ep_start (set at the first step)
         # epsilon: a float, or float [R] per run (np.any once, not every step)
         self.explores = bool(np.any(np.asarray(strategy.epsilon) > 0.0))
 
     def step(self, u: np.ndarray, rec: Recorder, tail: Tail, timeline: Timeline) -> bool:
-        """One team step of every run (all active), in place; False if it does not
-        apply this step (a robot without a move), and then nothing was changed.
+        """One team step of every run (all active), in place; always True (every robot
+        has a move: :func:`covers` excludes a map with a cell that has none).
 
         ``u``: float ``[R, 1, 2]``, this step's uniforms; ``timeline`` is off.
         """
         s, p, strategy, m = self.s, self.p, self.strategy, self.m
         pos = self.pos
         if self.t == s.t:
-            row, legal, masked, best = self.row, self.legal_row, self.masked, self.best
+            row, masked, best = self.row, self.masked, self.best
         else:  # the first step, or a general step came in between
-            c = pos.copy()
-            row = self.row0 + (c * 4 + (self.head if strategy.use_heading else 0))
-            legal = self.legal.take(c, axis=0)
-            masked = np.where(legal, self.q2.take(row, axis=0), -np.inf)
+            row = self.row0 + (pos * 4 + (self.head if strategy.use_heading else 0))
+            masked = self.q2.take(row, axis=0)
+            masked += self.wall_add.take(pos, axis=0)
             best = max4(masked)
+            self.ep_start_min = int(self.ep_start.min())
         # --- choose (learner.choose) --------------------------------------------------------
-        cand = legal & (masked == best[:, None])
+        # walls are -inf in ``masked`` and every cell has a legal move, so its best is
+        # finite and equals no wall
+        cand = masked == best[:, None]
         if self.explores:
-            cand = np.where((u[:, 0, 0] < strategy.epsilon)[:, None], legal, cand)
-        a, count = pick(cand, u[:, 0, 1])
-        if np.count_nonzero(count) < count.size:  # a robot without a move
-            return False
+            cand = np.where(
+                (u[:, 0, 0] < strategy.epsilon)[:, None], self.legal.take(pos, axis=0), cand
+            )
+        a = pick_among(cand, u[:, 0, 1])
         self.taken += 1
         self.deferred.mark()
         ca = pos * 4 + a  # flat (cell, direction) index
@@ -141,13 +151,14 @@ class Solo:
         s.steps_done.fill(t)
         ended = np.count_nonzero(self.dots_left) < self.dots_left.size
         if p.max_episode_steps and not ended:
-            ended = np.minimum.reduce(self.ep_start) <= t - p.max_episode_steps
+            ended = self.ep_start_min <= t - p.max_episode_steps
         if ended:
             rec.episodes(t, _end_episodes(s, p))
+            self.ep_start_min = int(self.ep_start.min())
         # --- learn (qlearning.learn): the robot made the move it chose -----------------------
         row1 = self.row0 + self.next_row.take(ca)
-        legal1 = self.legal.take(c1, axis=0)
-        masked1 = np.where(legal1, self.q2.take(row1, axis=0), -np.inf)
+        masked1 = self.q2.take(row1, axis=0)
+        masked1 += self.wall_add.take(c1, axis=0)
         best1 = max4(masked1)
         target = reward + strategy.gamma * best1
         idx = row * 4 + a
@@ -157,7 +168,7 @@ class Solo:
         self.q1[idx] = q_sa + alpha * (target - q_sa)
         self.n1[idx] = n_after
         self.t = t
-        self.row, self.legal_row, self.masked, self.best = row1, legal1, masked1, best1
+        self.row, self.masked, self.best = row1, masked1, best1
         # --- measures (Measures.observe) -----------------------------------------------------
         m.last_sum += idle
         if t > m.warmup and self.deferred.count_window():
