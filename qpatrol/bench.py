@@ -35,7 +35,9 @@ def default_steps(runs: int, agents: int, engine: str = "auto") -> int:
     """Team steps of a workload that takes about a second, so that setting up the runs
     and writing their summaries weigh little: 20 M agent-steps on the compiled engine
     (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which ``auto``
-    takes when numba is missing."""
+    takes when numba is missing. On numpy that is 0.2 to 1.5 s here; at 2,048 runs
+    (488 steps, 0.2 s) setting up the runs takes about a quarter of it
+    (``benchmarks/numpy_floor.py`` times the steady step alone)."""
     size = max(1, runs * agents)
     if engine == "numpy" or (engine == "auto" and not engines.numba_installed()):
         return min(20_000, max(400, 1_000_000 // size))
