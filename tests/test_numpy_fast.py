@@ -246,6 +246,9 @@ def test_flat_blocks_match_learner():
     action, count = flat.pick(np.ascontiguousarray(cand), u)
     expected, has = learner.pick(cand, u)
     assert np.array_equal(action, expected) and np.array_equal(count > 0, has)
+    some = has  # pick_among: rows with a candidate only (the lone step's)
+    got = flat.pick_among(np.ascontiguousarray(cand[some]), u[some])
+    assert np.array_equal(got, expected[some])
 
 
 @pytest.mark.parametrize("agents", [2, 3, 4, 8])
