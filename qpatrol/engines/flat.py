@@ -60,25 +60,30 @@ def any4(rows: np.ndarray) -> np.ndarray:
     return rows.view(np.uint32)[..., 0] != 0
 
 
-def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """``(action [B], count [B])``: :func:`qpatrol.learner.pick` of bool ``cand`` ``[B, 4]``
-    (C-contiguous) with uniforms ``u`` ``[B]``; the action is 0 where count is 0."""
-    key = cand.view(np.uint32)[:, 0] % CODE_MOD
-    count = COUNT_OF_CODE.take(key)
-    # learner.pick clips j at count - 1; for u < 1 and count <= 4, u * count rounds to
-    # below count, so j never needs it (tests/test_numpy_fast.py checks u = 1 - 2**-53)
-    j = (u * count).astype(np.int64)
-    return NTH_OF_CODE.take(key * 4 + j), count
-
-
 #: float [CODE_MOD]: COUNT_OF_CODE as floats (the same products ``u * count``, without
 #: converting the counts on every step).
 COUNTF_OF_CODE = COUNT_OF_CODE.astype(np.float64)
 
 
+def _nth(key: np.ndarray, u: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """int ``[B]``: the ``floor(u * count)``-th candidate of each key (0 where count is 0);
+    ``count``: the keys' candidates, int or float (the same products)."""
+    # learner.pick clips j at count - 1; for u < 1 and count <= 4, u * count rounds to
+    # below count, so j never needs it (tests/test_numpy_fast.py checks u = 1 - 2**-53)
+    j = (u * count).astype(np.int64)
+    return NTH_OF_CODE.take(key * 4 + j)
+
+
+def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """``(action [B], count [B])``: :func:`qpatrol.learner.pick` of bool ``cand`` ``[B, 4]``
+    (C-contiguous) with uniforms ``u`` ``[B]``; the action is 0 where count is 0."""
+    key = code(cand)
+    count = COUNT_OF_CODE.take(key)
+    return _nth(key, u, count), count
+
+
 def pick_among(cand: np.ndarray, u: np.ndarray) -> np.ndarray:
     """int ``[B]``: the action of :func:`pick` where every row of ``cand`` has a
     candidate (no counts returned)."""
-    key = cand.view(np.uint32)[:, 0] % CODE_MOD
-    j = (u * COUNTF_OF_CODE.take(key)).astype(np.int64)
-    return NTH_OF_CODE.take(key * 4 + j)
+    key = code(cand)
+    return _nth(key, u, COUNTF_OF_CODE.take(key))
