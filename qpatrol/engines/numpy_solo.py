@@ -1,6 +1,6 @@
 """The numpy engine's fast step for lone Q-learners: one robot per run, battery off.
 
-One team step of every run in about seventy cheap numpy calls on flat views of the
+One team step of every run in about fifty cheap numpy calls on flat views of the
 arrays the general step uses (:mod:`qpatrol.world`, the learner's tables, the
 measures), so the two may alternate from one step to the next: :meth:`Solo.step` is used
 while every run is active, the general step otherwise (and on a map with a cell that has
