@@ -821,7 +821,7 @@ def maps_import(
 
     Cells are free only if all their pixels are free; the largest 4-connected free
     region is kept and cropped; starts and stations are spread by farthest-point
-    sampling. Details: README (maps import) and qpatrol/mapimport.py.
+    sampling. Details: docs/maps.md and qpatrol/mapimport.py.
     """
     from qpatrol import atomic
     from qpatrol.mapimport import RosMapError, import_map
