@@ -32,12 +32,13 @@ REFERENCE_BUDGET = 300_000
 
 
 def default_steps(runs: int, agents: int, engine: str = "auto") -> int:
-    """Team steps of a workload that takes about a second, so that setting up the runs
-    and writing their summaries weigh little: 20 M agent-steps on the compiled engine
-    (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which ``auto``
-    takes when numba is missing. On numpy that is 0.2 to 1.5 s here; at 2,048 runs
-    (488 steps, 0.2 s) setting up the runs takes about a quarter of it
-    (``benchmarks/numpy_floor.py`` times the steady step alone)."""
+    """Team steps of a workload that takes about a second on the compiled engine, so
+    that setting up the runs and writing their summaries weigh little: 20 M agent-steps
+    there (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which
+    ``auto`` takes when numba is missing. The numpy engine, :func:`qpatrol.run.advance`
+    on every step, takes 1 to 9 s of CPU for that here: 1.1 s at 2,048 lone robots
+    (488 steps), 4 s for one lone robot (20,000 steps, about 200 us a team step),
+    8.5 s for one team of 4 (about 430 us a team step)."""
     size = max(1, runs * agents)
     if engine == "numpy" or (engine == "auto" and not engines.numba_installed()):
         return min(20_000, max(400, 1_000_000 // size))

@@ -22,7 +22,7 @@ TINY = """\
 #.....#
 #######
 """
-#: A bigger map, so that four robots (avoiding collisions) get the team fast step.
+#: A bigger map, with room for four robots (avoiding collisions).
 HALL = """\
 ; name: hall
 ###########
@@ -128,29 +128,6 @@ def test_batched_sweep_gives_the_same_files(
     # 0's values would give equal summaries)
     summaries = {(tmp_path / "batched" / "points" / p.id / "summary.json").read_text() for p in pts}
     assert len(summaries) == 3
-
-
-def test_fast_steps_run_in_mixed_batches(maps, monkeypatch):
-    """The numpy fast steps (lone robot, team) really take the steps of a mixed batch."""
-    from qpatrol.engines import numpy_loop
-    from qpatrol.maps import get_map
-
-    taken = []
-    real = numpy_loop.fast_step
-
-    def spy(*a, **k):
-        fast = real(*a, **k)
-        taken.append(fast)
-        return fast
-
-    monkeypatch.setattr(numpy_loop, "fast_step", spy)
-    for agents in (1, 4):
-        base = make_base(maps[agents], agents, record=False)
-        cfgs = [base.replace(**ov) for ov in SWEEPS["explore"]]
-        items = [(i, i, c) for i, c in enumerate(cfgs)]
-        batching.run_group(items, get_map(base["map"]), lambda p, r: None)
-    assert [type(f).__name__ for f in taken] == ["Solo", "Team"]
-    assert all(f.taken > 100 for f in taken)
 
 
 def test_rows_use_their_own_point_values(maps):

@@ -91,6 +91,38 @@ def test_simulate_resumed_equals_uninterrupted(tmp_path: Path, stop_and_resume):
     assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)
 
 
+@pytest.mark.parametrize("agents", [1, 3])
+def test_numpy_resumed_with_an_episode_quota_equals_uninterrupted(
+    rooms_map, tmp_path, stop_and_resume, agents
+):
+    """On the numpy engine a run stopped at step 123 and resumed writes the files of an
+    uninterrupted run, an episode quota ending runs on the way (the loop stops early
+    once none is active)."""
+    from qpatrol.run import write_run
+
+    flat = {
+        "map": str(rooms_map),
+        "agents": agents,
+        "runs": 3,
+        "seed": 5,
+        "steps": 300,
+        "episodes": 4,
+        "max_episode_steps": 60,
+        "engine": "numpy",
+        "battery": {"enabled": False},
+        "reward": {"lambda": 0.3},
+        "record": {"warmup": 30},
+    }
+    cfg = from_mapping(flat)
+    meta = {"started": "-", "ended": "-"}
+    a = write_run(stop_and_resume(cfg, tmp_path / "cp", 123), tmp_path / "resumed", meta=meta)
+    b = write_run(simulate(cfg), tmp_path / "whole", meta=meta)
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir())
+    for name in names:
+        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+
+
 @pytest.mark.parametrize("agents", [1, 4])
 def test_compiled_kernels_stop_at_any_step_and_resume_the_same(
     tmp_path, loop_specs, stop_and_resume, agents

@@ -145,6 +145,22 @@ def test_compiled_lone_qlearner(rooms_map, tmp_path, loop_specs, extra):
     assert loop_specs == [numba_core.SPEC_QLEARNING_SOLO]
 
 
+def test_lone_qlearner_episodes_of_different_lengths(ring_map, tmp_path):
+    """Runs whose episodes end at different steps (the ring's dots all eaten, or 12
+    steps up), so that their episodes start at different steps."""
+    flat = {**BASE, "map": str(ring_map), "agents": 1, "runs": 6, "max_episode_steps": 12}
+    assert both({**flat, "steps": 300, "battery.enabled": False}, tmp_path) == ("numba", "")
+
+
+def test_lone_qlearner_without_moves(tmp_path):
+    """A one-cell map (collision avoidance off, else it is refused): its robot has no
+    move and waits on every step."""
+    one = tmp_path / "one.txt"
+    one.write_text("; name: one\n#0#\n")
+    flat = {**BASE, "map": str(one), "agents": 1, "battery.enabled": False}
+    assert both({**flat, "team.avoid_collisions": False}, tmp_path) == ("numba", "")
+
+
 TEAM = [  # (settings, team size, the right of way pushes robots aside in these runs)
     ({}, 4, True),
     ({"team.avoid_collisions": False, "runs": 3}, 3, False),

@@ -47,10 +47,11 @@ def test_update_rule_by_hand():
 
 
 def test_pick_takes_the_jth_candidate_for_every_mask():
+    """Every candidate mask, uniforms up to the largest below 1 (1 - 2**-53)."""
     import itertools
 
     masks = np.array(list(itertools.product([False, True], repeat=4)))
-    for u in np.linspace(0.0, 0.999, 37):
+    for u in [*np.linspace(0.0, 0.999, 37), np.nextafter(1.0, 0.0)]:
         action, ok = learner.pick(masks, np.full(16, u))
         for row, a, has in zip(masks, action, ok, strict=True):
             cands = np.flatnonzero(row)
