@@ -87,17 +87,21 @@ def td_target(
     return reward + bootstrap, bootstrap
 
 
-def update(q_sa: np.ndarray, n_sa: np.ndarray, target: np.ndarray) -> tuple[np.ndarray, ...]:
-    """One Q-learning step with ``alpha = 1/N``, N counted after this choice.
+def update(
+    q_sa: np.ndarray, n_sa: np.ndarray, target: np.ndarray, fixed_alpha: float = 0.0
+) -> tuple[np.ndarray, ...]:
+    """One Q-learning step with ``alpha = 1/N``, N counted after this choice (or a fixed
+    ``alpha`` when ``fixed_alpha > 0``).
 
     Args:
         q_sa: float ``[B]``, Q(s, a) before the update.
         n_sa: int ``[B]``, N(s, a) before this choice.
         target: float ``[B]``, ``r + gamma * max Q(s', .)``.
+        fixed_alpha: the step size; 0 means ``1/N``.
 
     Returns:
         ``(q_after [B], n_after [B], alpha [B])``.
     """
     n_after = n_sa + 1
-    alpha = 1.0 / n_after
+    alpha = np.full(n_after.shape, fixed_alpha) if fixed_alpha > 0 else 1.0 / n_after
     return q_sa + alpha * (target - q_sa), n_after, alpha

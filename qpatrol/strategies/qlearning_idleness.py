@@ -244,9 +244,7 @@ class Strategy(base.Strategy):
             )
             idx = (rr, pk, ca, ha[rr, k], fa, aa)
             q_before = self.q[idx]
-            n_after = self.n[idx] + 1
-            alpha = np.full(rr.size, self.alpha) if self.alpha > 0 else 1.0 / n_after
-            q_after = q_before + alpha * (target - q_before)
+            q_after, n_after, alpha = learner.update(q_before, self.n[idx], target, self.alpha)
             self.q[idx] = q_after
             self.n[idx] = n_after
             if rec is not None and rec.wants_updates:
