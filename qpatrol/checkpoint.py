@@ -110,10 +110,15 @@ class Checkpointer:
     """
 
     #: True: the loop calls :meth:`tick` after every team step. False (the default): the
-    #: compiled engine calls it after each block of steps it computes at once (at most
-    #: 65,536 agent-steps, a few milliseconds), so a save or a stop comes at the end of
-    #: that block (the numpy engine ticks after every step either way).
+    #: compiled engine calls it after each block of steps it computes at once (the
+    #: blocks it runs without a checkpointer, each call at most about a second:
+    #: :data:`qpatrol.run.COMPILED_CALL_SECONDS`), so a save or a stop comes at the end
+    #: of that block (the numpy engine ticks after every step either way).
     every_step: bool = False
+    #: Called (with no argument) just before a save, by the loop that owns the payload:
+    #: it brings the payload up to date (the numpy engine's deferred writes,
+    #: :mod:`qpatrol.engines.deferred`). None: nothing to do.
+    before_save: Callable[[], None] | None = None
 
     def __init__(
         self,
@@ -176,6 +181,8 @@ class Checkpointer:
         """Save ``payload`` at ``position`` now (atomically, replacing the previous one)."""
         from qpatrol.provenance import now
 
+        if self.before_save is not None:
+            self.before_save()
         saved = now()
         blob = {
             "format": FORMAT,

@@ -202,9 +202,11 @@ def test_team_recorders(rooms_map, tmp_path, monkeypatch, record, agents):
 
 @pytest.mark.parametrize("agents", [1, 3])
 def test_checkpoint_resume_with_fast_steps(rooms_map, tmp_path, monkeypatch, agents):
-    """With a checkpointer nothing is deferred: a run stopped at a checkpoint and resumed
-    (a new fast step, no kept rows) writes the files of a run on the general step only;
-    an episode quota ends runs on the way (the general step takes over)."""
+    """With a checkpointer the fast step defers its writes too, and the checkpointer
+    brings them up to date before it saves (``before_save``): a run stopped at a
+    checkpoint and resumed (a new fast step, no kept rows) writes the files of a run on
+    the general step only; an episode quota ends runs on the way (the general step
+    takes over)."""
     from qpatrol import checkpoint as ck
 
     flat = {**BASE, "map": str(rooms_map), "agents": agents, "episodes": 4, "record.warmup": 30}

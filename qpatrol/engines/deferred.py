@@ -5,8 +5,9 @@ of a run: the world's last visits when one map is shared (they equal the measure
 a lone robot's occupancy (nothing can be in its way) and the window visit counts (the
 visit counts since the window began). A fast step may skip those writes; :meth:`sync`
 brings the arrays up to date, in O(runs x cells), and the loop calls it before a
-general step and after the last step. With a checkpointer nothing is deferred (a
-checkpoint may save the state after any step).
+general step and after the last step, and a checkpointer calls it just before it saves
+(:attr:`qpatrol.checkpoint.Checkpointer.before_save`: a checkpoint may save the state
+after any step).
 """
 
 from __future__ import annotations

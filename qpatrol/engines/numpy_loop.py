@@ -61,30 +61,38 @@ def run(
     checkpoint: Checkpointer | None,
 ) -> None:
     """Team steps ``first..total`` of the batch, in place (stops early once no run is
-    active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step."""
+    active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step.
+    A fast step defers its writes with a checkpointer too (as without one): the
+    checkpointer brings them up to date just before it saves (``before_save``)."""
     from qpatrol.run import advance  # run.py imports this module
 
-    fast = fast_step(p, state, strategy, watch, rec, timeline, defer=checkpoint is None)
+    fast = fast_step(p, state, strategy, watch, rec, timeline)
+    if checkpoint is not None and fast is not None:
+        checkpoint.before_save = fast.deferred.sync
     quota = bool(p.episodes)  # only an episode quota makes runs inactive
     every = max(1, total // 200)
-    for i in range(first, total):
-        if quota and not state.active.any():
-            break
-        u = streams.next()
-        if (
-            fast is None
-            or (quota and not state.active.all())
-            or not fast.step(u, rec, tail, timeline)
-        ):
-            if fast is not None:
-                fast.deferred.sync()
-            out = advance(state, p, strategy, u, rec)
-            watch.observe(out, state.wait, state.charge if p.battery else None)
-            tail.observe(state)
-            timeline.observe(out)
-        if progress is not None and (i + 1) % every == 0:
-            progress(i + 1, total)
+    try:
+        for i in range(first, total):
+            if quota and not state.active.any():
+                break
+            u = streams.next()
+            if (
+                fast is None
+                or (quota and not state.active.all())
+                or not fast.step(u, rec, tail, timeline)
+            ):
+                if fast is not None:
+                    fast.deferred.sync()
+                out = advance(state, p, strategy, u, rec)
+                watch.observe(out, state.wait, state.charge if p.battery else None)
+                tail.observe(state)
+                timeline.observe(out)
+            if progress is not None and (i + 1) % every == 0:
+                progress(i + 1, total)
+            if checkpoint is not None:
+                checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+    finally:
         if checkpoint is not None:
-            checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+            checkpoint.before_save = None
     if fast is not None:
         fast.deferred.sync()

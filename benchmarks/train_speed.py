@@ -1,0 +1,117 @@
+"""``qpatrol train`` against the Python API (``simulate`` then ``write_run``), same config.
+
+    .venv/bin/python benchmarks/train_speed.py [--repeat 3] [--steps 100000] [--set KEY=V]
+
+Each path runs in a fresh process (imports, numba's on-disk cache and the writing of the
+run folder included, as a user pays them), the two alternating (api, train, api, train,
+...) so that a machine whose speed drifts weighs on both alike; it prints each pass's
+seconds, the medians and the ratio train / api of the medians. The default workload is
+``configs/paper.yaml`` on the pacman map, 2,048 runs x 1 robot x 100,000 steps, battery
+off, compiled engine, nothing watched.
+
+``--path api`` or ``--path train`` runs one path once, in this process, and prints its
+seconds (for an outside timer such as ``/usr/bin/time -v``).
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import shutil
+import statistics
+import subprocess
+import sys
+import tempfile
+import time
+from pathlib import Path
+
+CONFIG = "paper"
+#: The workload's overrides of CONFIG (steps comes from --steps).
+WORKLOAD = [
+    "map=pacman",
+    "runs=2048",
+    "agents=1",
+    "battery.enabled=off",
+    "engine=numba",
+    "record.watch=[]",
+]
+
+
+def run_api(config: str, overrides: list[str], out: Path) -> float:
+    """Seconds of ``simulate`` + ``write_run`` (config loading included)."""
+    from qpatrol.config import load_config
+    from qpatrol.run import simulate, write_run
+
+    t = time.perf_counter()
+    cfg = load_config(config, overrides)
+    write_run(simulate(cfg), out)
+    return time.perf_counter() - t
+
+
+def run_train(config: str, overrides: list[str], out: Path) -> float:
+    """Seconds of ``qpatrol train CONFIG --set ... --out OUT -q`` in this process."""
+    from qpatrol import cli
+
+    sets = [a for o in overrides for a in ("--set", o)]
+    t = time.perf_counter()
+    try:
+        cli.main(["train", config, *sets, "--out", str(out), "-q"])
+    except SystemExit as e:
+        if e.code:
+            raise
+    return time.perf_counter() - t
+
+
+def one(path: str, config: str, overrides: list[str]) -> float:
+    """Run ``path`` once into a temporary folder; its inner seconds."""
+    tmp = Path(tempfile.mkdtemp(prefix="train-speed-"))
+    try:
+        fn = run_api if path == "api" else run_train
+        return fn(config, overrides, tmp / "run")
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
+def timed(path: str, config: str, overrides: list[str]) -> tuple[float, float]:
+    """``(whole-process seconds, inner seconds)`` of one path in a fresh process."""
+    cmd = [sys.executable, __file__, "--path", path, "--config", config]
+    cmd += [a for o in overrides for a in ("--set", o)]
+    t = time.perf_counter()
+    done = subprocess.run(cmd, capture_output=True, text=True, check=True)
+    wall = time.perf_counter() - t
+    return wall, json.loads(done.stdout.strip().splitlines()[-1])["seconds"]
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
+    ap.add_argument("--config", default=CONFIG)
+    ap.add_argument("--steps", type=int, default=100_000)
+    ap.add_argument("--set", dest="sets", action="append", default=[], metavar="KEY=V")
+    ap.add_argument("--repeat", type=int, default=3, help="passes of each path")
+    ap.add_argument("--path", choices=("api", "train"), help="run one path here, once")
+    ap.add_argument("--no-workload", action="store_true", help="only CONFIG and --set")
+    a = ap.parse_args()
+    if a.path:  # a child: the overrides are complete
+        print(json.dumps({"path": a.path, "seconds": one(a.path, a.config, a.sets)}))
+        return
+    overrides = ([] if a.no_workload else [*WORKLOAD, f"steps={a.steps}"]) + a.sets
+    print(f"config {a.config} {' '.join(overrides)}")
+    for path in ("api", "train"):  # compile or load the engine once, not counted
+        timed(path, a.config, [*overrides, "steps=100", "runs=2"])
+    walls: dict[str, list[float]] = {"api": [], "train": []}
+    for i in range(a.repeat):
+        for path in ("api", "train"):
+            wall, inner = timed(path, a.config, overrides)
+            walls[path].append(wall)
+            print(f"pass {i + 1} {path:5s} {wall:8.2f} s whole process ({inner:.2f} s inside)")
+    med = {k: statistics.median(v) for k, v in walls.items()}
+    ratios = [t / p for t, p in zip(walls["train"], walls["api"], strict=True)]
+    print(
+        f"median api {med['api']:.2f} s, train {med['train']:.2f} s, "
+        f"train/api {med['train'] / med['api']:.3f} (pairwise median "
+        f"{statistics.median(ratios):.3f})"
+    )
+
+
+if __name__ == "__main__":
+    main()
