@@ -56,6 +56,13 @@ class RunResult:
             ``record.trajectory``).
         timeline: idleness in windows of each run (None unless ``record.timeline``).
         summary: one dict of measures per run.
+        engine: the engine that ran the time loop (``numpy`` or ``numba``).
+        engine_note: why it is not the one the config asked for ("" when it is).
+        loop: the loop of that engine that ran: on numba the compiled loop's name
+            (:func:`qpatrol.engines.compiled_loop`: ``any``, ``qlearning``,
+            ``qlearning-solo``, ``qlearning-team``), on numpy ``fast-solo`` or
+            ``fast-team`` (:mod:`qpatrol.engines.numpy_loop`'s fast step, the general
+            step taking any step it declines) or ``general``.
     """
 
     config: Config
@@ -73,6 +80,7 @@ class RunResult:
     summary: list[dict[str, Any]]
     engine: str = "numpy"
     engine_note: str = ""
+    loop: str = ""
 
 
 #: Most Q-update rows ``record.transitions`` may keep in memory for one batch.
@@ -214,9 +222,9 @@ def _batch(
     total = cfg["steps"]
     args = (state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress)
     if engine == "numba":
-        _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
+        loop = _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
     else:
-        numpy_loop.run(*args, checkpoint)
+        loop = numpy_loop.run(*args, checkpoint)
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -237,6 +245,7 @@ def _batch(
         summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
         engine=engine,
         engine_note=note,
+        loop=loop,
     )
 
 
@@ -285,6 +294,7 @@ def join(results: list[RunResult]) -> RunResult:
         summary=[s for r in results for s in r.summary],
         engine=first.engine,
         engine_note=first.engine_note,
+        loop=first.loop,
     )
 
 
@@ -355,7 +365,7 @@ def _compiled_loop(
     progress: Progress | None,
     checkpoint: Checkpointer | None,
     threads: int = 1,
-) -> None:
+) -> str:
     """Steps ``first..total`` on the compiled engine, in calls of blocks of team steps
     (same objects, same results as :func:`qpatrol.engines.numpy_loop.run`, for any
     block). The blocks are :func:`compiled_schedule`'s whether or not a checkpointer
@@ -364,7 +374,8 @@ def _compiled_loop(
     call (after every team step when it asks for that: ``every_step``), so a due
     checkpoint or a Ctrl-C is served within about a second. With ``threads`` > 1 the
     runs of a call are cut into that many lanes, each advanced by its own thread
-    (:mod:`qpatrol.engines.threads`): the same numbers."""
+    (:mod:`qpatrol.engines.threads`): the same numbers. Returns the compiled loop's
+    name (``numba_core.SPEC_NAMES``)."""
     import time
 
     from qpatrol.engines import numba_core
@@ -410,6 +421,7 @@ def _compiled_loop(
         if taken < n:
             break
         block = _next_block(block, taken, seconds, largest)
+    return numba_core.SPEC_NAMES[loop.spec]
 
 
 def _buffer(bufs: dict[int, np.ndarray], key: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -478,9 +490,9 @@ def write_run(
     check_finite(result)
     info = dict(meta) if meta is not None else provenance.collect()
     info["map"] = provenance.map_entry(result.map.text, result.map.name)
-    info["loop_engine"] = result.engine
-    if result.engine_note:
-        info["loop_engine_note"] = result.engine_note
+    info["engine"] = provenance.engine_entry(
+        result.config["engine"], result.engine, result.loop, result.engine_note
+    )
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
         (tmp / "config.yaml").write_text(result.config.to_yaml())

@@ -374,3 +374,43 @@ def test_resume_without_checkpoint(setup, tmp_path: Path, capsys):
     assert main("train", cfg, "--out", tmp_path / "x", "--resume") == 2
     assert "no checkpoint to resume from" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_sigint_on_the_compiled_engine_stops_soon_and_resumes_byte_identical(tmp_path: Path):
+    """`qpatrol train` on the compiled engine, in the blocks the Python API uses (4,096
+    team steps of 256 lone robots a call): a SIGINT is served at the end of the call it
+    comes in, the checkpoint is at a call's end, and the resumed run writes the files of
+    an uninterrupted one."""
+    pytest.importorskip("numba")
+    flat = {
+        "map": "map_b",
+        "agents": 1,
+        "runs": 256,
+        "seed": 4,
+        "steps": 100_000,
+        "engine": "numba",
+        "threads": 1,
+        "battery": {"enabled": False},
+    }
+    cfg = tmp_path / "big.yaml"
+    cfg.write_text(yaml.safe_dump(flat))
+    ref, out = tmp_path / "ref", tmp_path / "run"
+    assert main("train", cfg, "--out", ref, "-q") == 0
+    folder = ck.location(out)
+    proc = start_train(cfg, out)
+    wait_for_checkpoint(proc, folder)
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    latency = time.monotonic() - sent
+    assert proc.returncode == 130, err
+    assert "interrupted at team step" in err
+    at = position_of(folder)
+    assert 0 < at < flat["steps"] and at % 512 == 0  # at a call's end, halfway
+    assert latency < 10  # a call lasts about a second at most (the process exits too)
+    assert main("train", cfg, "--out", out, "-q", "--resume") == 0
+    names = sorted(p.name for p in ref.iterdir())
+    assert names == sorted(p.name for p in out.iterdir())
+    for name in names:
+        if name != "meta.json":
+            assert (ref / name).read_bytes() == (out / name).read_bytes(), name

@@ -59,11 +59,13 @@ def run(
     total: int,
     progress: Callable[[int, int], None] | None,
     checkpoint: Checkpointer | None,
-) -> None:
+) -> str:
     """Team steps ``first..total`` of the batch, in place (stops early once no run is
     active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step.
     A fast step defers its writes with a checkpointer too (as without one): the
-    checkpointer brings them up to date just before it saves (``before_save``)."""
+    checkpointer brings them up to date just before it saves (``before_save``).
+    Returns the step that ran: ``fast-solo``, ``fast-team`` (the general step taking
+    the steps it declines) or ``general``."""
     from qpatrol.run import advance  # run.py imports this module
 
     fast = fast_step(p, state, strategy, watch, rec, timeline)
@@ -94,5 +96,7 @@ def run(
     finally:
         if checkpoint is not None:
             checkpoint.before_save = None
-    if fast is not None:
-        fast.deferred.sync()
+    if fast is None:
+        return "general"
+    fast.deferred.sync()
+    return "fast-solo" if isinstance(fast, numpy_solo.Solo) else "fast-team"
