@@ -10,7 +10,8 @@ seconds, the medians and the ratio train / api of the medians. The default workl
 off, compiled engine, nothing watched.
 
 ``--path api`` or ``--path train`` runs one path once, in this process, and prints its
-seconds (for an outside timer such as ``/usr/bin/time -v``).
+inner seconds as JSON (for an outside timer: ``/usr/bin/time -v python
+benchmarks/train_speed.py --path train --steps 20000``).
 """
 
 from __future__ import annotations
@@ -74,7 +75,7 @@ def one(path: str, config: str, overrides: list[str]) -> float:
 
 def timed(path: str, config: str, overrides: list[str]) -> tuple[float, float]:
     """``(whole-process seconds, inner seconds)`` of one path in a fresh process."""
-    cmd = [sys.executable, __file__, "--path", path, "--config", config]
+    cmd = [sys.executable, __file__, "--path", path, "--config", config, "--no-workload"]
     cmd += [a for o in overrides for a in ("--set", o)]
     t = time.perf_counter()
     done = subprocess.run(cmd, capture_output=True, text=True, check=True)
@@ -91,10 +92,10 @@ def main() -> None:
     ap.add_argument("--path", choices=("api", "train"), help="run one path here, once")
     ap.add_argument("--no-workload", action="store_true", help="only CONFIG and --set")
     a = ap.parse_args()
-    if a.path:  # a child: the overrides are complete
-        print(json.dumps({"path": a.path, "seconds": one(a.path, a.config, a.sets)}))
-        return
     overrides = ([] if a.no_workload else [*WORKLOAD, f"steps={a.steps}"]) + a.sets
+    if a.path:
+        print(json.dumps({"path": a.path, "seconds": one(a.path, a.config, overrides)}))
+        return
     print(f"config {a.config} {' '.join(overrides)}")
     for path in ("api", "train"):  # compile or load the engine once, not counted
         timed(path, a.config, [*overrides, "steps=100", "runs=2"])

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
-from qpatrol.checkpoint import Checkpointer
+from qpatrol.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.config import Config, ConfigError
 from qpatrol.engines import numpy_loop
 from qpatrol.engines import threads as engine_threads
@@ -519,6 +519,57 @@ def write_run(
             (tmp / "timeline.csv").write_text(to_csv_text(result.timeline))
         (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
     return out
+
+
+def train_checkpointer(
+    cfg: Config,
+    m: Map,
+    folder: str | Path,
+    every: float = DEFAULT_EVERY,
+    info: dict[str, Any] | None = None,
+) -> Checkpointer:
+    """The checkpointer of ``qpatrol train``: saves in ``folder`` every ``every``
+    seconds and on Ctrl-C/SIGTERM, and resumes only a checkpoint of the same resolved
+    config, map file and qpatrol version."""
+    from qpatrol import __version__
+
+    key = {
+        "config": cfg.digest(),
+        "map": provenance.map_entry(m.text, m.name)["sha256"],
+        "qpatrol": __version__,
+    }
+    return Checkpointer(folder, every=every, key=key, info=info)
+
+
+def train(
+    cfg: Config,
+    out: str | Path,
+    checkpoint: Checkpointer,
+    prepared: tuple[Map, world.Params] | None = None,
+    progress: Progress | None = None,
+    meta: dict[str, Any] | None = None,
+    replace: bool = False,
+) -> RunResult:
+    """What ``qpatrol train`` does once its arguments are checked (and ``qpatrol bench``
+    times): :func:`simulate` with ``checkpoint`` (continued from the checkpoint it
+    loaded, if any; SIGINT and SIGTERM make it save and stop), then :func:`write_run`
+    to ``out``, then the checkpoint is discarded. The compiled loop runs in the blocks
+    it runs in without a checkpointer (see :func:`compiled_schedule`).
+
+    Raises:
+        Interrupted: a signal stopped the run (the checkpoint is kept).
+        ConfigError: the Q-values are not finite (nothing written, checkpoint gone);
+        another error of the writing keeps the checkpoint.
+    """
+    with checkpoint.signals():
+        result = simulate(cfg, progress=progress, prepared=prepared, checkpoint=checkpoint)
+    try:
+        write_run(result, out, replace=replace, meta=meta)
+    except ConfigError:
+        checkpoint.discard()  # resuming would give the same non-finite values
+        raise
+    checkpoint.discard()
+    return result
 
 
 def _save_npz(path: Path, **arrays: np.ndarray) -> None:

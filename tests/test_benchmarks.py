@@ -37,3 +37,16 @@ def test_the_floor_layouts_take_the_same_walks(floor):
         == floor.floor_step_us(8, 300, shared=False, one_line=True)[1]
     )
     assert floor.floor_step_us(8, 50, shared=True)[1] > 1
+
+
+def test_train_speed_times_both_paths_on_the_same_config():
+    """benchmarks/train_speed.py runs the Python API and `qpatrol train` on one config,
+    each writing a run folder, and gives their seconds."""
+    spec = importlib.util.spec_from_file_location("train_speed", PATH.parent / "train_speed.py")
+    module = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(module)
+    small = ["map=map_b", "runs=2", "agents=1", "steps=60", "battery.enabled=off"]
+    for path in ("api", "train"):
+        assert module.one(path, "paper", small) > 0
+    with pytest.raises(SystemExit):  # a bad config fails, it is not timed
+        module.one("train", "paper", [*small, "agents=0"])
