@@ -10,6 +10,7 @@ chosen so that the fast steps run (checked) and also hand steps to the general s
 
 from __future__ import annotations
 
+import json
 from pathlib import Path
 
 import numpy as np
@@ -20,6 +21,22 @@ from qpatrol.engines import numpy_loop
 from qpatrol.run import simulate, write_run
 
 META = {"started": "-", "ended": "-"}
+
+
+def same_folders(a: Path, b: Path, context: object) -> None:
+    """Every file of run folders ``a`` (fast steps) and ``b`` (general step only) is the
+    same byte for byte; in ``meta.json`` but the step that ran (``engine.loop``)."""
+    names = sorted(p.name for p in a.iterdir())
+    assert names == sorted(p.name for p in b.iterdir())
+    for name in names:
+        if name == "meta.json":
+            ma, mb = (json.loads((f / name).read_text()) for f in (a, b))
+            assert ma["engine"]["loop"] in ("fast-solo", "fast-team"), ma["engine"]
+            assert mb["engine"]["loop"] == "general"
+            ma["engine"].pop("loop"), mb["engine"].pop("loop")
+            assert ma == mb, context
+        else:
+            assert (a / name).read_bytes() == (b / name).read_bytes(), (context, name)
 
 
 def both_ways(
@@ -52,11 +69,7 @@ def both_ways(
     for fast in (True, False):
         monkeypatch.setattr(numpy_loop, "FAST", fast)
         folders[fast] = write_run(simulate(cfg), tmp_path / str(fast), replace=True, meta=META)
-    a, b = folders[True], folders[False]
-    names = sorted(p.name for p in a.iterdir())
-    assert names == sorted(p.name for p in b.iterdir())
-    for name in names:
-        assert (a / name).read_bytes() == (b / name).read_bytes(), (flat, name)
+    same_folders(folders[True], folders[False], flat)
     assert made[-1] is None  # the second run had no fast step
     return type(made[0]).__name__, made[0].taken
 
@@ -227,8 +240,7 @@ def test_checkpoint_resume_with_fast_steps(rooms_map, tmp_path, monkeypatch, age
     a = write_run(simulate(cfg, checkpoint=resumed), tmp_path / "resumed", meta=META)
     monkeypatch.setattr(numpy_loop, "FAST", False)
     b = write_run(simulate(cfg), tmp_path / "general", meta=META)
-    for name in sorted(p.name for p in a.iterdir()):
-        assert (a / name).read_bytes() == (b / name).read_bytes(), name
+    same_folders(a, b, flat)
 
 
 def test_flat_blocks_match_learner():
