@@ -9,6 +9,13 @@ seconds, the medians and the ratio train / api of the medians. The default workl
 ``configs/paper.yaml`` on the pacman map, 2,048 runs x 1 robot x 100,000 steps, battery
 off, compiled engine, nothing watched.
 
+Measured on a shared 2-core machine (whole process, medians of alternated passes, the
+default workload): before train ran the compiled loop in the API's blocks (commit
+c34d8ca) train took 107.9 s against the API's 15.4 s (7.0x; 42.6 s of user CPU against
+5.3 s: 3,125 calls of 32 steps instead of 25 of 4,096); after, 16.2 s against 15.6 s
+(1.06x), and 13.9 s against 13.3 s with this script (1.05x). At ``--steps 20000``:
+26.0 s against 6.8 s (3.9x) before, 7.1 s against 6.9 s (1.08x) after.
+
 ``--path api`` or ``--path train`` runs one path once, in this process, and prints its
 inner seconds as JSON (for an outside timer: ``/usr/bin/time -v python
 benchmarks/train_speed.py --path train --steps 20000``).
