@@ -16,6 +16,12 @@ c34d8ca) train took 107.9 s against the API's 15.4 s (7.0x; 42.6 s of user CPU a
 (1.06x), and 13.9 s against 13.3 s with this script (1.05x). At ``--steps 20000``:
 26.0 s against 6.8 s (3.9x) before, 7.1 s against 6.9 s (1.08x) after.
 
+``--loop`` times the loop alone in this process (no process start, no files): the API's
+calls, one call per group of runs for all its steps (the floor the calls' cost is
+measured against), and train's (checkpointer, signal handlers, progress), alternated.
+Measured (default workload, 3 passes, medians): api 9.18 s, one-call 8.00 s, train
+8.72 s (train / one-call 1.09; api and train run the same calls, their gap is noise).
+
 ``--path api`` or ``--path train`` runs one path once, in this process, and prints its
 inner seconds as JSON (for an outside timer: ``/usr/bin/time -v python
 benchmarks/train_speed.py --path train --steps 20000``).
@@ -70,6 +76,42 @@ def run_train(config: str, overrides: list[str], out: Path) -> float:
     return time.perf_counter() - t
 
 
+def loop_costs(config: str, overrides: list[str], repeat: int) -> dict[str, list[float]]:
+    """Seconds of the loop alone (no writing), in this process, alternated: ``api``
+    (:func:`qpatrol.run.simulate` in its blocks), ``one-call`` (each group of runs in
+    one call of all its steps: the calls' floor) and ``train`` (with train's
+    checkpointer under its signal handlers, and a progress callback)."""
+    from qpatrol import run
+    from qpatrol.config import load_config
+
+    cfg = load_config(config, overrides)
+    run.simulate(cfg.replace(steps=50, runs=2))  # load the compiled loop
+    steps, seconds = run.COMPILED_GROUP_STEPS, run.COMPILED_CALL_SECONDS
+    times: dict[str, list[float]] = {"api": [], "one-call": [], "train": []}
+    try:
+        for _ in range(repeat):
+            for kind, ts in times.items():
+                one_call = kind == "one-call"
+                run.COMPILED_GROUP_STEPS = cfg["steps"] if one_call else steps
+                run.COMPILED_CALL_SECONDS = float("inf") if one_call else seconds
+                tmp = Path(tempfile.mkdtemp(prefix="train-speed-"))
+                prepared = run.prepare(cfg)
+                t = time.perf_counter()
+                if kind == "train":
+                    cp = run.train_checkpointer(cfg, prepared[0], tmp / "cp")
+                    with cp.signals():
+                        run.simulate(
+                            cfg, prepared=prepared, checkpoint=cp, progress=lambda d, n: None
+                        )
+                else:
+                    run.simulate(cfg, prepared=prepared)
+                ts.append(time.perf_counter() - t)
+                shutil.rmtree(tmp, ignore_errors=True)
+    finally:
+        run.COMPILED_GROUP_STEPS, run.COMPILED_CALL_SECONDS = steps, seconds
+    return times
+
+
 def one(path: str, config: str, overrides: list[str]) -> float:
     """Run ``path`` once into a temporary folder; its inner seconds."""
     tmp = Path(tempfile.mkdtemp(prefix="train-speed-"))
@@ -98,8 +140,17 @@ def main() -> None:
     ap.add_argument("--repeat", type=int, default=3, help="passes of each path")
     ap.add_argument("--path", choices=("api", "train"), help="run one path here, once")
     ap.add_argument("--no-workload", action="store_true", help="only CONFIG and --set")
+    ap.add_argument("--loop", action="store_true", help="time the loop alone (loop_costs)")
     a = ap.parse_args()
     overrides = ([] if a.no_workload else [*WORKLOAD, f"steps={a.steps}"]) + a.sets
+    if a.loop:
+        times = loop_costs(a.config, overrides, a.repeat)
+        for kind, ts in times.items():
+            each = " ".join(f"{t:.2f}" for t in ts)
+            print(f"{kind:8s} median {statistics.median(ts):8.2f} s  ({each})")
+        base = statistics.median(times["one-call"])
+        print(f"train / one-call {statistics.median(times['train']) / base:.3f}")
+        return
     if a.path:
         print(json.dumps({"path": a.path, "seconds": one(a.path, a.config, overrides)}))
         return

@@ -50,3 +50,10 @@ def test_train_speed_times_both_paths_on_the_same_config():
         assert module.one(path, "paper", small) > 0
     with pytest.raises(SystemExit):  # a bad config fails, it is not timed
         module.one("train", "paper", [*small, "agents=0"])
+    pytest.importorskip("numba")
+    from qpatrol import run
+
+    times = module.loop_costs("paper", [*small, "engine=numba"], 1)
+    assert set(times) == {"api", "one-call", "train"}
+    assert all(len(t) == 1 and t[0] > 0 for t in times.values())
+    assert run.COMPILED_CALL_SECONDS == 1.0 and run.COMPILED_GROUP_STEPS == 4096  # restored
