@@ -143,6 +143,7 @@ def split(result: RunResult, pieces: Sequence[Piece]) -> list[RunResult]:
                 ],
                 engine=result.engine,
                 engine_note=result.engine_note,
+                loop=result.loop,
             )
         )
     return out

@@ -114,6 +114,30 @@ def time_core(cfg: Config) -> tuple[float, RunResult]:
     return seconds, result
 
 
+def time_train(cfg: Config) -> float:
+    """Seconds of ``cfg`` end to end through ``qpatrol train``'s path
+    (:func:`qpatrol.run.train`: the map loaded, the loop run with train's checkpointer,
+    which saves every 60 s and on Ctrl-C, the run folder written into a temporary
+    folder, the checkpoint discarded), with the garbage collector as train has it (on).
+    The engine is warm (:func:`time_core` ran first)."""
+    import shutil
+    import tempfile
+    from pathlib import Path
+
+    from qpatrol.checkpoint import location
+    from qpatrol.run import train, train_checkpointer
+
+    tmp = Path(tempfile.mkdtemp(prefix="qpatrol-bench-"))
+    try:
+        out = tmp / "run"
+        t = time.perf_counter()
+        prepared = prepare(cfg)
+        train(cfg, out, train_checkpointer(cfg, prepared[0], location(out)), prepared)
+        return time.perf_counter() - t
+    finally:
+        shutil.rmtree(tmp, ignore_errors=True)
+
+
 def time_reference(cfg: Config) -> tuple[float, int]:
     """``(seconds, agent-steps)`` of the plain-Python loop on run 0 of ``cfg``."""
     m, p = prepare(cfg)
@@ -144,7 +168,11 @@ def bench(cfg: Config) -> dict[str, Any]:
     The reference loop is timed just before the core and just after it, and its rate is
     that of both timings together, so that a machine whose speed drifts (a shared one)
     weighs the same on both sides of the ratio; ``reference_drift`` is the relative
-    change of its rate from the first timing to the second."""
+    change of its rate from the first timing to the second. Then the same workload is
+    timed end to end as ``qpatrol train`` runs it (:func:`time_train`):
+    ``train_seconds``, ``train_agent_steps_per_s`` and ``train_overhead`` (its time
+    over the core's, minus 1: checkpointer, progress, map loading and the writing of
+    the run folder). ``peak_rss_bytes`` is read before that timing (the core's)."""
     ref_before, ref_steps = time_reference(cfg)
     seconds, result = time_core(cfg)
     ref_after, _ = time_reference(cfg)
@@ -153,13 +181,14 @@ def bench(cfg: Config) -> dict[str, Any]:
     ref_rate = 2 * ref_steps / (ref_before + ref_after)
     peak = resource.getrusage(resource.RUSAGE_SELF).ru_maxrss
     peak_bytes = peak if sys.platform == "darwin" else peak * 1024
-    return {
+    out = {
         "runs": cfg["runs"],
         "agents": cfg["agents"],
         "steps": cfg["steps"],
         "map": result.map.name,
         "engine": result.engine,
         "engine_note": result.engine_note,
+        "loop": result.loop,
         "threads": used_threads(cfg, result),
         "seconds": seconds,
         "agent_steps": agent_steps,
@@ -174,6 +203,12 @@ def bench(cfg: Config) -> dict[str, Any]:
         "memory_limit_gib": cfg["memory.limit_gib"],
         "peak_rss_bytes": peak_bytes,
     }
+    del result  # the train below allocates its own batch
+    train_seconds = time_train(cfg)
+    out["train_seconds"] = train_seconds
+    out["train_agent_steps_per_s"] = agent_steps / train_seconds
+    out["train_overhead"] = train_seconds / seconds - 1.0
+    return out
 
 
 def used_threads(cfg: Config, result: RunResult) -> int:
@@ -188,14 +223,25 @@ def used_threads(cfg: Config, result: RunResult) -> int:
 def report(b: dict[str, Any]) -> str:
     """The human-readable lines of a :func:`bench` result."""
     path = b["engine"] + (f" ({b['engine_note']})" if b["engine_note"] else "")
+    loop = f" (loop {b['loop']})" if b.get("loop") else ""
     return "\n".join(
         [
             f"workload   {b['runs']} runs x {b['agents']} agents x {b['steps']} steps on "
-            f"{b['map']}, engine {path}, {b['threads']} thread{'s' if b['threads'] > 1 else ''}",
+            f"{b['map']}, engine {path}, {b['threads']} thread{'s' if b['threads'] > 1 else ''}"
+            + loop,
             f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"(plain Python, qpatrol/reference.py; before and after: {b['reference_drift']:+.0%})",
+            *(
+                [
+                    f"train      {b['train_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
+                    f"({b['train_seconds']:.2f} s end to end as qpatrol train runs it, files "
+                    f"written: {b['train_overhead']:+.0%} on the core)"
+                ]
+                if "train_seconds" in b
+                else []
+            ),
             f"ratio      {b['ratio']:10.2f} x"
             + ("" if b.get("gc_during_timings", True) else "  (both timed with gc off, as timeit)"),
             *(

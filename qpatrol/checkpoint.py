@@ -110,9 +110,10 @@ class Checkpointer:
     """
 
     #: True: the loop calls :meth:`tick` after every team step. False (the default): the
-    #: compiled engine calls it after each block of steps it computes at once (at most
-    #: 65,536 agent-steps, a few milliseconds), so a save or a stop comes at the end of
-    #: that block (the numpy engine ticks after every step either way).
+    #: compiled engine calls it after each block of steps it computes at once (the
+    #: blocks it runs without a checkpointer, each call at most about a second:
+    #: :data:`qpatrol.run.COMPILED_CALL_SECONDS`), so a save or a stop comes at the end
+    #: of that block (the numpy engine ticks after every step either way).
     every_step: bool = False
 
     def __init__(

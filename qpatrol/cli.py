@@ -212,7 +212,7 @@ def train(
     gives the same files as an uninterrupted run.
     """
     from qpatrol import checkpoint as ck
-    from qpatrol.run import default_out_dir, prepare, simulate, write_run
+    from qpatrol import run as run_mod
 
     started = provenance.now()
     overrides = list(set_ or [])
@@ -222,7 +222,7 @@ def train(
         fail(f"--checkpoint-every: got {checkpoint_every}; allowed: a number of seconds >= 0")
     try:
         cfg = config_mod.load_config(config, overrides)
-        target = out or default_out_dir(cfg, config)
+        target = out or run_mod.default_out_dir(cfg, config)
         cp_dir = ck.location(target)
         if resume:
             if target.exists():
@@ -235,15 +235,12 @@ def train(
                     f"{cp_dir} holds an interrupted run; pass --resume to continue it or "
                     "--force to start over"
                 )
-        prepared = prepare(cfg)
-        cp = ck.Checkpointer(
+        prepared = run_mod.prepare(cfg)
+        cp = run_mod.train_checkpointer(
+            cfg,
+            prepared[0],
             cp_dir,
             every=checkpoint_every,
-            key={
-                "config": cfg.digest(),
-                "map": provenance.map_entry(prepared[0].text, prepared[0].name)["sha256"],
-                "qpatrol": __version__,
-            },
             info={"command": provenance.command(), "steps": cfg["steps"], "started": started},
         )
         if resume:
@@ -265,8 +262,9 @@ def train(
         meta["resumed"] = {"from_step": snap.position, "checkpoint_saved": snap.saved}
     bar = Bar(f"train {config.name}", quiet=quiet)
     try:
-        with cp.signals():
-            result = simulate(cfg, progress=bar, prepared=prepared, checkpoint=cp)
+        result = run_mod.train(
+            cfg, target, cp, prepared=prepared, progress=bar, meta=meta, replace=force
+        )
     except ck.Interrupted as e:
         bar.close()
         again = provenance.command()
@@ -276,13 +274,10 @@ def train(
             f"{e.folder}; continue with: {again}",
             code=128 + int(e.signum),
         )
-    bar.close()
-    try:
-        write_run(result, target, replace=force, meta=meta)
     except ConfigError as e:
-        cp.discard()
+        bar.close()
         fail(str(e))
-    cp.discard()
+    bar.close()
     if not quiet:
         _print_summary(result.summary)
     typer.echo(f"wrote {target}")

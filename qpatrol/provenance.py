@@ -10,10 +10,16 @@ Every folder qpatrol writes (a run, a sweep point, a sweep, a reproduction) gets
     overrides   the ``--set KEY=VALUE`` overrides
     started     start time, ISO 8601 with UTC offset; ended: end time
     host        {"cores": ...}
-    engine      the simulator engine ("numpy")
     python, numpy  versions
     map         {"name", "file", "sha256"}: the map used, copied into the folder as
                 ``map.txt`` (run folders)
+    engine      (run folders) how the time loop ran, :func:`engine_entry`:
+                {"asked": config key ``engine`` (auto, numpy or numba),
+                 "ran": the engine that ran (numpy or numba),
+                 "loop": that engine's loop (numba: any, qlearning, qlearning-solo or
+                         qlearning-team; numpy: general, its one step),
+                 "note": why "ran" is not "asked" ("" when it is, or when auto took
+                         numba), e.g. "fallback from numba: policy ..."}
 
 Times differ between two runs of the same config, so ``meta.json`` is the one file
 of a run folder that is not byte-identical between reruns.
@@ -37,7 +43,6 @@ from qpatrol import __version__
 
 META_FILE = "meta.json"
 MAP_FILE = "map.txt"
-ENGINE = "numpy"
 
 #: The command line of the current ``qpatrol`` invocation (set by the CLI).
 _COMMAND: list[str] | None = None
@@ -103,12 +108,17 @@ def collect(
         "started": started or now(),
         "ended": None,
         "host": {"cores": os.cpu_count()},
-        "engine": ENGINE,
         "python": platform.python_version(),
         "numpy": numpy.__version__,
     }
     meta.update(extra)
     return meta
+
+
+def engine_entry(asked: str, ran: str, loop: str, note: str = "") -> dict[str, str]:
+    """The ``engine`` field of a run folder's ``meta.json`` (see the module's docstring):
+    the engine the config asked for, the one that ran, its loop, and why they differ."""
+    return {"asked": asked, "ran": ran, "loop": loop, "note": note}
 
 
 def map_entry(text: str, name: str) -> dict[str, Any]:

@@ -24,7 +24,7 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
-from qpatrol.checkpoint import Checkpointer
+from qpatrol.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.config import Config, ConfigError
 from qpatrol.engines import numpy_loop
 from qpatrol.engines import threads as engine_threads
@@ -56,6 +56,12 @@ class RunResult:
             ``record.trajectory``).
         timeline: idleness in windows of each run (None unless ``record.timeline``).
         summary: one dict of measures per run.
+        engine: the engine that ran the time loop (``numpy`` or ``numba``).
+        engine_note: why it is not the one the config asked for ("" when it is).
+        loop: the loop of that engine that ran: on numba the compiled loop's name
+            (:func:`qpatrol.engines.compiled_loop`: ``any``, ``qlearning``,
+            ``qlearning-solo``, ``qlearning-team``), on numpy ``general`` (its one step,
+            :mod:`qpatrol.engines.numpy_loop`).
     """
 
     config: Config
@@ -73,6 +79,7 @@ class RunResult:
     summary: list[dict[str, Any]]
     engine: str = "numpy"
     engine_note: str = ""
+    loop: str = ""
 
 
 #: Most Q-update rows ``record.transitions`` may keep in memory for one batch.
@@ -214,9 +221,9 @@ def _batch(
     total = cfg["steps"]
     args = (state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress)
     if engine == "numba":
-        _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
+        loop = _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
     else:
-        numpy_loop.run(*args, checkpoint)
+        loop = numpy_loop.run(*args, checkpoint)
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
@@ -237,6 +244,7 @@ def _batch(
         summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
         engine=engine,
         engine_note=note,
+        loop=loop,
     )
 
 
@@ -285,14 +293,14 @@ def join(results: list[RunResult]) -> RunResult:
         summary=[s for r in results for s in r.summary],
         engine=first.engine,
         engine_note=first.engine_note,
+        loop=first.loop,
     )
 
 
-#: Agent-steps per call of the compiled loop: short enough that progress, checkpoints
-#: and Ctrl-C are served within a fraction of a second and the uniforms of a call stay
-#: in cache, long enough to hide the call; and at least COMPILED_MIN_STEPS team steps,
-#: so each run's tables stay in cache for a while and the per-run draws of uniforms come
-#: in long blocks.
+#: Agent-steps per call of the compiled loop: long enough to hide the call, short enough
+#: that the uniforms of a call stay in cache; and at least COMPILED_MIN_STEPS team
+#: steps, so each run's tables stay in cache for a while and the per-run draws of
+#: uniforms come in long blocks.
 COMPILED_BLOCK = 1 << 16
 COMPILED_MIN_STEPS = 512
 #: Large batches (more than COMPILED_BLOCK agent-steps in COMPILED_MIN_STEPS team steps)
@@ -300,6 +308,46 @@ COMPILED_MIN_STEPS = 512
 #: steps at a time: a run's tables are then loaded into cache once per 4,096 steps, not
 #: once per 512, and its uniforms are drawn just before they are used.
 COMPILED_GROUP_STEPS = 4096
+#: Longest a call of the compiled loop should take, in seconds: progress, a due
+#: checkpoint and Ctrl-C wait for the end of a call. A batch so large that a call of its
+#: block takes longer gets shorter blocks (halved down to COMPILED_MIN_STEPS team steps,
+#: :func:`_next_block`); any block gives the same numbers.
+COMPILED_CALL_SECONDS = 1.0
+
+
+def compiled_schedule(
+    n_runs: int, n_agents: int, wants_updates: bool, every_step: bool = False
+) -> tuple[int, int]:
+    """``(block, group)``: the team steps of a call of the compiled loop and the runs of
+    a group within it (the runs of a call are advanced group after group), the same with
+    or without a checkpointer, so that ``qpatrol train`` runs the loop as the Python API,
+    ``sweep``, ``reproduce`` and ``bench`` do. ``every_step`` (a checkpointer that wants
+    to see every team step, tests only): one team step per call."""
+    R, K = n_runs, n_agents
+    if every_step:
+        return 1, R
+    if wants_updates:  # the update buffers hold a row per agent-step of a block
+        return max(1, (COMPILED_BLOCK // 8) // (R * K)), R
+    if R * K * COMPILED_MIN_STEPS > COMPILED_BLOCK:
+        return COMPILED_GROUP_STEPS, max(1, COMPILED_BLOCK // (K * COMPILED_GROUP_STEPS))
+    return max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (R * K)), R
+
+
+def _next_block(block: int, taken: int, seconds: float, largest: int) -> int:
+    """The team steps of the next call, given that the last one took ``seconds`` for
+    ``taken`` steps: the largest of ``largest``, ``largest // 2``, ... that fits in
+    COMPILED_CALL_SECONDS at that speed, but not below COMPILED_MIN_STEPS (or
+    ``largest`` when that is smaller). So the block shrinks when calls are slow (a very
+    large batch, a slower strategy) and grows back after one slow call (the compile or
+    the loading of the loop, which the first call pays)."""
+    if taken <= 0 or seconds <= 0:
+        return block
+    fit = taken * COMPILED_CALL_SECONDS / seconds
+    floor = min(largest, COMPILED_MIN_STEPS)
+    b = largest
+    while b > fit and b // 2 >= floor:
+        b //= 2
+    return b
 
 
 def _compiled_loop(
@@ -316,33 +364,33 @@ def _compiled_loop(
     progress: Progress | None,
     checkpoint: Checkpointer | None,
     threads: int = 1,
-) -> None:
-    """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
-    results as :func:`qpatrol.engines.numpy_loop.run`). A checkpointer is ticked after
-    each block (of at most COMPILED_BLOCK agent-steps then), or after every team step
-    when it asks for that (``every_step``). With ``threads`` > 1 the runs of a block
-    are cut into that many lanes, each advanced by its own thread
-    (:mod:`qpatrol.engines.threads`): the same numbers."""
+) -> str:
+    """Steps ``first..total`` on the compiled engine, in calls of blocks of team steps
+    (same objects, same results as :func:`qpatrol.engines.numpy_loop.run`, for any
+    block). The blocks are :func:`compiled_schedule`'s whether or not a checkpointer
+    is given, shortened when a call would take more than COMPILED_CALL_SECONDS
+    (:func:`_next_block`); ``progress`` is told and a checkpointer ticked after each
+    call (after every team step when it asks for that: ``every_step``), so a due
+    checkpoint or a Ctrl-C is served within about a second. With ``threads`` > 1 the
+    runs of a call are cut into that many lanes, each advanced by its own thread
+    (:mod:`qpatrol.engines.threads`): the same numbers. Returns the compiled loop's
+    name (``numba_core.SPEC_NAMES``)."""
+    import time
+
     from qpatrol.engines import numba_core
 
     R, K = state.n_runs, p.n_agents
-    block = max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (R * K))
-    group = R  # runs per call
-    if R * K * COMPILED_MIN_STEPS > COMPILED_BLOCK:
-        block = COMPILED_GROUP_STEPS
-        group = max(1, COMPILED_BLOCK // (K * block))
-    if rec.wants_updates:  # the update buffers hold a row per agent-step of a block
-        block, group = max(1, (COMPILED_BLOCK // 8) // (R * K)), R
-    if checkpoint is not None:  # it may save (or stop) after any call
-        group = R
-        block = 1 if checkpoint.every_step else max(1, min(block, COMPILED_BLOCK // (R * K)))
+    every_step = checkpoint is not None and checkpoint.every_step
+    block, group = compiled_schedule(R, K, rec.wants_updates, every_step)
+    largest = block = min(block, total)
     loop = numba_core.Loop(
-        state, p, strategy, watch, tail, rec, min(block, total), timeline, words=streams.words
+        state, p, strategy, watch, tail, rec, block, timeline, words=streams.words
     )
-    every = max(1, total // 200)
+    every = max(1, total // 200)  # progress of one-step calls
     i = first
     bufs: dict[int, np.ndarray] = {}  # the uniforms' buffers, one per lane, refilled per call
     while i < total and state.active.any():
+        began = time.perf_counter()
         if loop.draws_itself:  # the kernels draw from the streams' words, in place
             streams.words()  # (the generators fall behind again: a checkpoint caught them up)
             n = min(block, total - i)
@@ -364,12 +412,15 @@ def _compiled_loop(
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken
+        seconds = time.perf_counter() - began
         if progress is not None and (block > 1 or i % every == 0):
             progress(i, total)
         if checkpoint is not None:
             checkpoint.tick(i, (state, strategy, watch, streams, rec, tail, timeline))
         if taken < n:
             break
+        block = _next_block(block, taken, seconds, largest)
+    return numba_core.SPEC_NAMES[loop.spec]
 
 
 def _buffer(bufs: dict[int, np.ndarray], key: int, shape: tuple[int, ...]) -> np.ndarray:
@@ -438,9 +489,9 @@ def write_run(
     check_finite(result)
     info = dict(meta) if meta is not None else provenance.collect()
     info["map"] = provenance.map_entry(result.map.text, result.map.name)
-    info["loop_engine"] = result.engine
-    if result.engine_note:
-        info["loop_engine_note"] = result.engine_note
+    info["engine"] = provenance.engine_entry(
+        result.config["engine"], result.engine, result.loop, result.engine_note
+    )
     with atomic.staged_dir(out, replace=replace) as tmp:
         (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
         (tmp / "config.yaml").write_text(result.config.to_yaml())
@@ -467,6 +518,57 @@ def write_run(
             (tmp / "timeline.csv").write_text(to_csv_text(result.timeline))
         (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
     return out
+
+
+def train_checkpointer(
+    cfg: Config,
+    m: Map,
+    folder: str | Path,
+    every: float = DEFAULT_EVERY,
+    info: dict[str, Any] | None = None,
+) -> Checkpointer:
+    """The checkpointer of ``qpatrol train``: saves in ``folder`` every ``every``
+    seconds and on Ctrl-C/SIGTERM, and resumes only a checkpoint of the same resolved
+    config, map file and qpatrol version."""
+    from qpatrol import __version__
+
+    key = {
+        "config": cfg.digest(),
+        "map": provenance.map_entry(m.text, m.name)["sha256"],
+        "qpatrol": __version__,
+    }
+    return Checkpointer(folder, every=every, key=key, info=info)
+
+
+def train(
+    cfg: Config,
+    out: str | Path,
+    checkpoint: Checkpointer,
+    prepared: tuple[Map, world.Params] | None = None,
+    progress: Progress | None = None,
+    meta: dict[str, Any] | None = None,
+    replace: bool = False,
+) -> RunResult:
+    """What ``qpatrol train`` does once its arguments are checked (and ``qpatrol bench``
+    times): :func:`simulate` with ``checkpoint`` (continued from the checkpoint it
+    loaded, if any; SIGINT and SIGTERM make it save and stop), then :func:`write_run`
+    to ``out``, then the checkpoint is discarded. The compiled loop runs in the blocks
+    it runs in without a checkpointer (see :func:`compiled_schedule`).
+
+    Raises:
+        Interrupted: a signal stopped the run (the checkpoint is kept).
+        ConfigError: the Q-values are not finite (nothing written, checkpoint gone);
+        another error of the writing keeps the checkpoint.
+    """
+    with checkpoint.signals():
+        result = simulate(cfg, progress=progress, prepared=prepared, checkpoint=checkpoint)
+    try:
+        write_run(result, out, replace=replace, meta=meta)
+    except ConfigError:
+        checkpoint.discard()  # resuming would give the same non-finite values
+        raise
+    checkpoint.discard()
+    return result
 
 
 def _save_npz(path: Path, **arrays: np.ndarray) -> None:

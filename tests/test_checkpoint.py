@@ -183,6 +183,131 @@ def test_compiled_engine_ticks_after_blocks_and_resumes_the_same(tmp_path: Path)
     assert rest.episodes.equals(whole.episodes) and rest.trajectory.equals(whole.trajectory)
 
 
+def folder(result, path: Path) -> dict[str, bytes]:
+    """Every file of ``result``'s run folder (meta.json aside): name -> bytes."""
+    from qpatrol.run import write_run
+
+    out = write_run(result, path, meta={"started": "-", "ended": "-"})
+    return {p.name: p.read_bytes() for p in sorted(out.iterdir()) if p.name != "meta.json"}
+
+
+@pytest.mark.parametrize(
+    "flat",
+    [
+        {"agents": 1, "runs": 130, "battery": {"enabled": False}},  # lone kernel, groups
+        {"agents": 3, "runs": 5, "battery": {"enabled": False}},  # team kernel
+        {"agents": 2, "runs": 3},  # the general loop (battery), uniforms drawn by groups
+        {"agents": 2, "runs": 3, "battery": {"enabled": False}, "record": {"watch": [34]}},
+    ],
+    ids=["solo", "team", "any", "updates"],
+)
+def test_compiled_block_sizes_do_not_change_results(tmp_path: Path, monkeypatch, flat):
+    """The compiled loop's calls may have any number of team steps (the schedule sizes
+    them by wall time): calls of 600, then 1, 7, 333, ... steps, cycling, write the
+    files of the default schedule, byte for byte."""
+    pytest.importorskip("numba")
+    from qpatrol import run
+
+    cfg = from_mapping({"map": "map_b", "seed": 5, "steps": 1500, "engine": "numba", **flat})
+    whole = folder(simulate(cfg), tmp_path / "a")
+    sizes = [1, 7, 333, 2, 600, 64]
+    seen: list[int] = []
+    schedule = run.compiled_schedule
+
+    def first_600(*args, **kwargs):
+        block, group = schedule(*args, **kwargs)
+        return min(block, 600), group
+
+    def odd_blocks(block, taken, seconds, largest):
+        seen.append(min(sizes[len(seen) % len(sizes)], largest))
+        return seen[-1]
+
+    monkeypatch.setattr(run, "compiled_schedule", first_600)
+    monkeypatch.setattr(run, "_next_block", odd_blocks)
+    assert folder(simulate(cfg), tmp_path / "b") == whole
+    assert len(set(seen)) > 2  # the sizes did vary
+
+
+def test_next_block_fits_calls_in_the_wall_time_bound(monkeypatch):
+    """A call slower than COMPILED_CALL_SECONDS halves the block (down to
+    COMPILED_MIN_STEPS); a fast one brings it back to the schedule's."""
+    from qpatrol import run
+
+    monkeypatch.setattr(run, "COMPILED_CALL_SECONDS", 1.0)
+    assert run._next_block(4096, 4096, 0.3, 4096) == 4096  # fits
+    assert run._next_block(4096, 4096, 3.0, 4096) == 1024  # 1,365 steps fit: 1,024
+    assert run._next_block(4096, 4096, 100.0, 4096) == run.COMPILED_MIN_STEPS
+    assert run._next_block(512, 512, 0.01, 4096) == 4096  # the compile is paid: back
+    assert run._next_block(100, 100, 100.0, 100) == 100  # below the floor already
+    assert run._next_block(8, 8, 1e-6, 8) == 8  # never beyond the schedule
+    # the same schedule with or without a checkpointer; one step when it asks for that
+    assert run.compiled_schedule(2048, 1, False) == (4096, 16)
+    assert run.compiled_schedule(2, 2, False) == (16384, 2)
+    assert run.compiled_schedule(2, 2, True) == (2048, 2)
+    assert run.compiled_schedule(2048, 1, False, every_step=True) == (1, 2048)
+
+
+def test_slow_calls_are_shortened_and_ticked_after_each(tmp_path: Path, monkeypatch):
+    """With calls slower than the bound (here: any call), a checkpointer is ticked after
+    blocks of the smallest size, on the compiled engine, and a stop there resumes to the
+    files of an uninterrupted run; with a loose bound it is ticked after the schedule's
+    blocks (4,096 steps for 130 lone robots), as a run without checkpointer calls it."""
+    pytest.importorskip("numba")
+    from qpatrol import run
+
+    flat = {"map": "map_b", "seed": 3, "steps": 9000, "runs": 130, "agents": 1}
+    cfg = from_mapping({**flat, "engine": "numba", "battery": {"enabled": False}})
+    whole = folder(simulate(cfg), tmp_path / "whole")
+    ticks: list[int] = []
+
+    class StopAt(ck.Checkpointer):
+        def tick(self, position, payload):
+            ticks.append(position)
+            if len(ticks) == 3:
+                self.request_stop()
+            super().tick(position, payload)
+
+    monkeypatch.setattr(run, "COMPILED_CALL_SECONDS", 0.0)
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(tmp_path / "cp", every=0))
+    small = run.COMPILED_MIN_STEPS
+    assert ticks == [4096, 4096 + small, 4096 + 2 * small]
+    resumed = ck.Checkpointer(tmp_path / "cp", every=0)
+    assert resumed.load().position == ticks[-1]
+    assert folder(simulate(cfg, checkpoint=resumed), tmp_path / "rest") == whole
+    monkeypatch.setattr(run, "COMPILED_CALL_SECONDS", 1e9)
+    ticks.clear()
+    with pytest.raises(ck.Interrupted):
+        simulate(cfg, checkpoint=StopAt(tmp_path / "cp2", every=0))
+    assert ticks == [4096, 8192, 9000]
+
+
+def test_periodic_checkpoints_come_on_time_on_the_compiled_engine(tmp_path: Path, monkeypatch):
+    """A checkpointer due every 3.5 (fake) seconds, its clock a second ahead at each
+    call of the compiled loop (blocks of 4,096 steps for 16 lone robots): it saves at
+    the end of the first call after each 3.5 s."""
+    pytest.importorskip("numba")
+    from qpatrol import run
+
+    monkeypatch.setattr(run, "COMPILED_CALL_SECONDS", 1e9)  # the schedule's blocks only
+    flat = {"map": "map_b", "seed": 3, "steps": 60_000, "runs": 16, "agents": 1}
+    cfg = from_mapping({**flat, "engine": "numba", "battery": {"enabled": False}})
+    clock = Clock()
+    saved = []
+
+    class Ticking(ck.Checkpointer):
+        def tick(self, position, payload):
+            clock.t += 1.0  # each call of the loop "takes" a second
+            super().tick(position, payload)
+
+        def save(self, position, payload):
+            saved.append((clock.t, position))
+            super().save(position, payload)
+
+    simulate(cfg, checkpoint=Ticking(tmp_path / "cp", every=3.5, clock=clock))
+    assert saved == [(4.0, 4 * 4096), (8.0, 8 * 4096), (12.0, 12 * 4096)]
+
+
 # --------------------------------------------------------------------- train, killed
 
 
@@ -281,3 +406,43 @@ def test_resume_without_checkpoint(setup, tmp_path: Path, capsys):
     assert main("train", cfg, "--out", tmp_path / "x", "--resume") == 2
     assert "no checkpoint to resume from" in capsys.readouterr().err
     assert not (tmp_path / "x").exists()
+
+
+def test_sigint_on_the_compiled_engine_stops_soon_and_resumes_byte_identical(tmp_path: Path):
+    """`qpatrol train` on the compiled engine, in the blocks the Python API uses (4,096
+    team steps of 256 lone robots a call): a SIGINT is served at the end of the call it
+    comes in, the checkpoint is at a call's end, and the resumed run writes the files of
+    an uninterrupted one."""
+    pytest.importorskip("numba")
+    flat = {
+        "map": "map_b",
+        "agents": 1,
+        "runs": 256,
+        "seed": 4,
+        "steps": 100_000,
+        "engine": "numba",
+        "threads": 1,
+        "battery": {"enabled": False},
+    }
+    cfg = tmp_path / "big.yaml"
+    cfg.write_text(yaml.safe_dump(flat))
+    ref, out = tmp_path / "ref", tmp_path / "run"
+    assert main("train", cfg, "--out", ref, "-q") == 0
+    folder = ck.location(out)
+    proc = start_train(cfg, out)
+    wait_for_checkpoint(proc, folder)
+    sent = time.monotonic()
+    proc.send_signal(signal.SIGINT)
+    _, err = proc.communicate(timeout=60)
+    latency = time.monotonic() - sent
+    assert proc.returncode == 130, err
+    assert "interrupted at team step" in err
+    at = position_of(folder)
+    assert 0 < at < flat["steps"] and at % 512 == 0  # at a call's end, halfway
+    assert latency < 10  # a call lasts about a second at most (the process exits too)
+    assert main("train", cfg, "--out", out, "-q", "--resume") == 0
+    names = sorted(p.name for p in ref.iterdir())
+    assert names == sorted(p.name for p in out.iterdir())
+    for name in names:
+        if name != "meta.json":
+            assert (ref / name).read_bytes() == (out / name).read_bytes(), name

@@ -231,3 +231,54 @@ def test_oversized_transition_log_is_refused(tmp_path: Path):
     res = invoke("train", tiny_config(tmp_path), "--set", "steps=10000000", "--out", tmp_path / "o")
     assert res.exit_code == 2 and "record.transitions: up to" in res.stderr
     assert not (tmp_path / "o").exists()
+
+
+def _engine_of(tmp_path: Path, name: str, *sets: str) -> dict:
+    cfg = tiny_config(tmp_path, battery={"enabled": False}, record={})
+    args = [a for s in sets for a in ("--set", s)]
+    res = invoke("train", cfg, "--out", tmp_path / name, "-q", *args)
+    assert res.exit_code == 0, res.output
+    return json.loads((tmp_path / name / "meta.json").read_text())["engine"]
+
+
+def test_meta_json_names_the_engine_that_ran_and_why(tmp_path: Path, monkeypatch):
+    """``meta.json``'s ``engine``: the engine asked for, the one that ran, its loop, and
+    why they differ, on both engines and each fallback."""
+    pytest.importorskip("numba")
+    from qpatrol import engines
+
+    big = "steps=4000"  # 32,000 agent-steps: auto takes numba
+    assert _engine_of(tmp_path, "numba", "engine=numba") == {
+        "asked": "numba",
+        "ran": "numba",
+        "loop": "qlearning-team",
+        "note": "",
+    }
+    assert _engine_of(tmp_path, "auto", "engine=auto", big, "agents=1", "runs=8") == {
+        "asked": "auto",
+        "ran": "numba",
+        "loop": "qlearning-solo",
+        "note": "",
+    }
+    recorded = _engine_of(tmp_path, "rec", "engine=numba", "record.watch=[34]")
+    assert recorded["loop"] == "qlearning"
+    battery = _engine_of(tmp_path, "battery", "engine=numba", "battery.enabled=on")
+    assert battery["loop"] == "any"
+    assert _engine_of(tmp_path, "numpy", "engine=numpy") == {
+        "asked": "numpy",
+        "ran": "numpy",
+        "loop": "general",
+        "note": "",
+    }
+    general = _engine_of(tmp_path, "general", "engine=numpy", "policy=random")
+    assert general["loop"] == "general"
+    small = _engine_of(tmp_path, "small", "engine=auto", "steps=100")
+    assert (small["asked"], small["ran"]) == ("auto", "numpy")
+    assert small["note"].startswith("auto: a small batch")
+    monkeypatch.setattr(engines, "EVAP_POWERS_MAX", 50)  # evap's table would not fit
+    evap = _engine_of(tmp_path, "evap", "engine=numba", "policy=evap", "steps=200")
+    assert (evap["asked"], evap["ran"], evap["loop"]) == ("numba", "numpy", "general")
+    assert evap["note"].startswith("fallback from numba: evap with evaporation")
+    monkeypatch.setattr(engines, "numba_installed", lambda: False)
+    missing = _engine_of(tmp_path, "missing", "engine=auto", big)
+    assert (missing["ran"], missing["note"]) == ("numpy", "numba not installed")

@@ -3,7 +3,7 @@
 Configs run through both loops: those of the compiled strategies
 (:data:`qpatrol.engines.COMPILED_POLICIES`) must run compiled, the rest must fall back
 to the numpy engine and say so. Every file of the run folder is compared byte for byte;
-in ``meta.json`` only ``loop_engine``/``loop_engine_note`` (which loop ran) may differ.
+in ``meta.json`` only ``engine`` (which engine and loop ran) may differ.
 """
 
 from __future__ import annotations
@@ -24,7 +24,7 @@ from qpatrol.strategies import NAMES
 pytest.importorskip("numba")
 
 META = {"started": "-", "ended": "-"}
-ENGINE_FIELDS = ("loop_engine", "loop_engine_note")
+ENGINE_FIELDS = ("engine",)
 
 
 def both(flat: dict, tmp_path: Path, strategy: bool = False) -> tuple[str, str]:

@@ -66,6 +66,30 @@ def test_bench_command_json():
         assert key in b
     assert b["agent_steps"] == 600 and b["bytes_per_run"] > 0 and b["ratio"] > 0
     assert b["threads"] == 1  # a small batch: numpy, one thread
+    # end to end as `qpatrol train` runs it: slower than the core (it writes the files)
+    assert b["train_seconds"] > b["seconds"] > 0 and b["loop"] == "general"
+    assert b["train_agent_steps_per_s"] == pytest.approx(600 / b["train_seconds"])
+    assert b["train_overhead"] == pytest.approx(b["train_seconds"] / b["seconds"] - 1)
+
+
+def test_bench_times_train_through_trains_own_path(monkeypatch):
+    """The bench's train timing goes through :func:`qpatrol.run.train` (what `qpatrol
+    train` calls) with train's checkpointer, and writes a run folder."""
+    from qpatrol import bench, run
+
+    seen = []
+    real = run.train
+
+    def spy(cfg, out, checkpoint, *args, **kwargs):
+        result = real(cfg, out, checkpoint, *args, **kwargs)
+        seen.append((type(checkpoint).__name__, sorted(p.name for p in out.iterdir())))
+        assert checkpoint.every == 60 and not checkpoint.folder.exists()
+        return result
+
+    monkeypatch.setattr(run, "train", spy)
+    b = bench.bench(bench.workload(1, 2, 300, engine="numpy"))
+    assert seen and seen[0][0] == "Checkpointer" and "summary.json" in seen[0][1]
+    assert b["train_seconds"] > 0
 
 
 def test_bench_reports_the_threads_that_ran():

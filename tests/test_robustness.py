@@ -428,7 +428,8 @@ def test_meta_json_and_map_copy(run, tmp_path):
     res = run("train", tiny(tmp_path, steps=30), "--set", "seed=4", "--out", tmp_path / "o", "-q")
     assert res.code == 0
     meta = json.loads((tmp_path / "o" / "meta.json").read_text())
-    assert meta["qpatrol"] and meta["engine"] == "numpy" and meta["host"]["cores"] >= 1
+    assert meta["qpatrol"] and meta["host"]["cores"] >= 1
+    assert meta["engine"]["ran"] == "numpy" and meta["engine"]["asked"] == "auto"
     assert meta["overrides"] == ["seed=4"]
     assert meta["command"].startswith("qpatrol train ") and "seed=4" in meta["command"]
     assert meta["started"] <= meta["ended"]

@@ -33,9 +33,11 @@ def run(
     total: int,
     progress: Callable[[int, int], None] | None,
     checkpoint: Checkpointer | None,
-) -> None:
+) -> str:
     """Team steps ``first..total`` of the batch, in place (stops early once no run is
-    active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step."""
+    active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step.
+    Returns the name of the step that ran, ``general`` (:func:`advance` on every step,
+    the numpy engine's only step), for ``meta.json``'s ``engine.loop``."""
     from qpatrol.run import advance  # run.py imports this module
 
     quota = bool(p.episodes)  # only an episode quota makes runs inactive
@@ -51,3 +53,4 @@ def run(
             progress(i + 1, total)
         if checkpoint is not None:
             checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
+    return "general"
