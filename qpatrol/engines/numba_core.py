@@ -30,7 +30,11 @@ the right of way), entering cells and eating
 (:mod:`~qpatrol.engines.compiled.observe`). Their arguments are bundled as the numpy
 engine's objects are (:mod:`~qpatrol.engines.compiled.bundles`: ``Params``,
 ``World``, ``Meas``, ``Out``, ``Work``), the very arrays, so a phase names what it
-reads.
+reads. The phases the general loop calls once a step (and the kernels only off their
+common path: episodes, the traffic rules' passes) are compiled as functions of their
+own, once for every loop that calls them (numba inlining them into each loop made the
+cold compile of the general loop about a third longer); the per-robot ones (entering
+a cell, the measures' visit, the Q-update) are inlined.
 
 The loop is compiled without numba's reference counting (``_nrt=False``): it
 allocates nothing (its working arrays come from :func:`bundles.work`), and every call
@@ -513,6 +517,17 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
 # kernels, which inline the choice and the streams' draws) also follow the files of
 # qpatrol.engines.compiled
 for _f in (
+    episodes.end,
+    stations.begin,
+    stations.ask,
+    stations.pay,
+    stations.end,
+    moves.open_moves,
+    moves.resolve,
+    moves.waits,
+    moves.pass_token,
+    observe.timeline,
+    enter.all_enter,
     moves.priority,
     moves.push_path,
     stations.kept_out,

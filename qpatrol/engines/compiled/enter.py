@@ -61,7 +61,7 @@ def group_enters(r, g, c0, c1, asked, t, p, s):
     return a, ate, reward
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def all_enter(r, t, p, s, w):
     """Each robot of run ``r`` that moved enters its cell (:func:`group_enters`, its
     group the team's with communication, else its own): ``s.head``, ``w.eaten``,

@@ -10,7 +10,7 @@ from __future__ import annotations
 from numba import njit
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def end(r, t, p, s, ep_buf, n_ep, ended):
     """Episodes of run ``r`` at step ``t``: each group whose dots are all eaten, or whose
     episode reached ``p.max_ep`` steps, ends (a row of ``ep_buf`` ``[E, EP_COLS]``: run,

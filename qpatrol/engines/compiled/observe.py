@@ -62,7 +62,7 @@ def trail(r, t, pos_r, o):
             o.tail_pos[r, slot, k] = pos_r[k]
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def timeline(r, t, tl_window, pos_r, moved, o, n_tl):
     """Timeline.observe: its own last visits ``o.tl_last`` ``[R, C]``, peaks inside t's
     window; a window that closes (``Timeline._close``) is a row of ``o.tl_buf`` (run,

@@ -48,7 +48,7 @@ def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     return -1
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def begin(r, t, p, s, w):
     """battery.begin: the charging countdown, robots that need a station join the
     queue, and the queue is served (:func:`qpatrol.battery._assign_stations`: first
@@ -106,7 +106,7 @@ def begin(r, t, p, s, w):
             mode[r, k] = HOMING
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def ask(r, p, s, w):
     """``w.ask`` of the robots homing (battery.homing_ask: along the station's
     shortest paths, held back from an occupied pocket, yielding inside it) and queued
@@ -163,7 +163,7 @@ def ask(r, p, s, w):
                 w.yielding[k] = True
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def pay(r, p, s, w):
     """A move costs one unit of charge; yielding (pushed aside, or out of a pocket) is
     free, and a robot homing or queued that was pushed is credited the detour
@@ -186,7 +186,7 @@ def pay(r, p, s, w):
             charge[r, k] = min(charge[r, k] + credit, p.capacity)
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def end(r, p, s, w):
     """battery.end: departed robots release their stations, arrivals start charging
     (or, with no charging time, are full at once and depart)."""
