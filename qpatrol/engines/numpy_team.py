@@ -38,7 +38,7 @@ from qpatrol import traffic
 from qpatrol.engines.deferred import Deferred
 from qpatrol.engines.flat import FIRST_OF_CODE, any4, code, max4, pick, view
 from qpatrol.measures import Measures
-from qpatrol.records import Recorder, Tail
+from qpatrol.records import Recorder, Tail, update_cols
 from qpatrol.timeline import Timeline
 from qpatrol.world import Params, State, _end_episodes, per_row
 
@@ -413,20 +413,11 @@ class Team:
         self.q1[idx] = q_after
         self.n1[idx] = n_after
         if rec.wants_updates:
-            cols = {
-                "cell": ca,
-                "heading": ha,
-                "action": aa,
-                "reward": reward,
-                "next_cell": cb,
-                "next_heading": hb,
-                "alpha": alpha,
-                "q_before": q_before,
-                "q_after": q_after,
-                "bootstrap": bootstrap,
-                "dot": self._dense(mv, ate, False).take(done),
-                "q_row": self.q2.take(first + ca * 4 + ha, axis=0),
-            }
+            dot = self._dense(mv, ate, False).take(done)
+            q_row = self.q2.take(first + ca * 4 + ha, axis=0)
+            cols = update_cols(
+                ca, ha, aa, reward, cb, hb, alpha, q_before, q_after, bootstrap, dot, q_row
+            )
             rec.updates(t, self.run_of.take(done), self.k_of.take(done), cols)
 
     def _measure(
