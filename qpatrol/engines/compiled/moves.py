@@ -209,7 +209,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
         w.as_asked[k] = False
 
 
-@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
     """:func:`qpatrol.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for
     none): without collision avoidance every robot moves as asked; with it the holder
@@ -254,7 +254,7 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
     return push_failed
 
 
-@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def waits(r, battery, s, w):
     """After the moves: each robot that asked and did not move as asked waits one step
     more (``s.wait``), and ``w.blocked_by`` names the robot in its way; a queued or
@@ -274,7 +274,7 @@ def waits(r, battery, s, w):
     return waiting, longest
 
 
-@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w):
     """:func:`qpatrol.traffic.pass_token` of run ``r`` after its moves: the holder keeps
     the right of way while it moves as asked (at most ``diameter`` steps); a holder whose
