@@ -46,6 +46,20 @@ EPISODE_COLUMNS = [
 ]
 
 
+def update_cols(
+    cell, heading, action, reward, next_cell, next_heading, alpha, q_before, q_after,
+    bootstrap, dot, q_row,
+) -> dict[str, np.ndarray]:  # fmt: skip
+    """The columns :meth:`Recorder.updates` takes, by name, from arrays ``[B]`` (and
+    ``q_row`` ``[B, 4]``), in its order."""
+    return {
+        "cell": cell, "heading": heading, "action": action, "reward": reward,
+        "next_cell": next_cell, "next_heading": next_heading, "alpha": alpha,
+        "q_before": q_before, "q_after": q_after, "bootstrap": bootstrap, "dot": dot,
+        "q_row": q_row,
+    }  # fmt: skip
+
+
 class Recorder:
     """Collects Q-updates (all, and those of watched cells) and episode ends.
 

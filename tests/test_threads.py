@@ -196,8 +196,9 @@ def test_lane_buffers_hold_their_own_runs(monkeypatch, lanes_seen):
     for lane in (1, 2):
         runs, args = loop._lanes[lane]
         assert runs == 3
-        for j in (loop.ep_at, loop.up_at, loop.up_f_at):
-            assert args[j].shape[0] * 3 == first[j].shape[0] > 0
+        for name in ("ep_buf", "up_int", "up_float"):
+            mine, whole = getattr(args[loop.out_at], name), getattr(first[loop.out_at], name)
+            assert mine.shape[0] * 3 == whole.shape[0] > 0
         assert all(a is not b for a, b in zip(args[-1], first[-1], strict=True))
 
 
@@ -249,9 +250,15 @@ def test_lanes_share_nothing_they_write(monkeypatch, policy, battery):
         for f, name in enumerate(self.pack._fields):
             if f not in self.pack_per_run:
                 shared.append((name, self.pack[f], self.pack[f].copy()))
-        for j, a in enumerate(self.args):  # the world's constants (map, battery, ...)
-            if j not in self.per_run and j not in self._own and isinstance(a, np.ndarray):
-                shared.append((f"argument {j}", a, a.copy()))
+        out = self.args[self.out_at]  # each lane's own: its output rows, working arrays
+        own = {id(getattr(out, b)) for b in ("ep_buf", "up_int", "up_float", "tl_buf")}
+        for j, a in enumerate(self.args[:-1]):  # the world's constants (map, battery, ...)
+            if a is self.pack:
+                continue
+            named = a._asdict().items() if isinstance(a, tuple) else [(f"argument {j}", a)]
+            for name, x in named:
+                if isinstance(x, np.ndarray) and id(x) not in self._per_run | own:
+                    shared.append((name, x, x.copy()))
 
     monkeypatch.setattr(numba_core.Loop, "__init__", spy)
     flat = {**BASE, "runs": 3, "agents": 3, "policy": policy, "battery.enabled": battery}

@@ -22,6 +22,7 @@ import numpy as np
 
 from qpatrol import learner
 from qpatrol.maps import DIRECTIONS
+from qpatrol.records import update_cols
 from qpatrol.strategies import base
 from qpatrol.world import per_row
 
@@ -125,25 +126,11 @@ class Strategy(base.Strategy):
         self.q[rr, kk, ca, ha, aa] = q_after
         self.n[rr, kk, ca, ha, aa] = n_after
         if rec is not None and rec.wants_updates:
-            rec.updates(
-                out.t,
-                rr,
-                kk,
-                {
-                    "cell": ca,
-                    "heading": ha,
-                    "action": aa,
-                    "reward": reward,
-                    "next_cell": cb,
-                    "next_heading": hb,
-                    "alpha": alpha,
-                    "q_before": q_before,
-                    "q_after": q_after,
-                    "bootstrap": bootstrap,
-                    "dot": out.eaten[rr, kk],
-                    "q_row": self.q[rr, kk, ca, ha],
-                },
+            dot, q_row = out.eaten[rr, kk], self.q[rr, kk, ca, ha]
+            cols = update_cols(
+                ca, ha, aa, reward, cb, hb, alpha, q_before, q_after, bootstrap, dot, q_row
             )
+            rec.updates(out.t, rr, kk, cols)
 
     def tables(self) -> dict[str, np.ndarray]:
         return {"q": self.q, "n": self.n.astype(np.int64)}

@@ -48,6 +48,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qpatrol import learner
+from qpatrol.records import update_cols
 from qpatrol.strategies import base
 
 if TYPE_CHECKING:
@@ -248,25 +249,16 @@ class Strategy(base.Strategy):
             self.q[idx] = q_after
             self.n[idx] = n_after
             if rec is not None and rec.wants_updates:
-                rec.updates(
-                    out.t,
-                    rr,
-                    np.full(rr.size, k),
-                    {
-                        "cell": ca,
-                        "heading": ha[rr, k],
-                        "action": aa,
-                        "reward": reward[rr, k],
-                        "next_cell": c2,
-                        "next_heading": hb[rr, k],
-                        "alpha": alpha,
-                        "q_before": q_before,
-                        "q_after": q_after,
-                        "bootstrap": bootstrap,
-                        "dot": out.eaten[rr, k],
-                        "q_row": self.q[rr, pk, ca, ha[rr, k], fa],
-                    },
+                hk, rk, dot, q_row = (
+                    ha[rr, k],
+                    reward[rr, k],
+                    out.eaten[rr, k],
+                    self.q[rr, pk, ca, ha[rr, k], fa],
                 )
+                cols = update_cols(
+                    ca, hk, aa, rk, c2, hb[rr, k], alpha, q_before, q_after, bootstrap, dot, q_row
+                )
+                rec.updates(out.t, rr, np.full(rr.size, k), cols)
 
     def tables(self) -> dict[str, np.ndarray]:
         return {"q": self.q, "n": self.n.astype(np.int64)}

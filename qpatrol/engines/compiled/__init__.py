@@ -80,172 +80,74 @@ def unpack(strategy, p: Pack, state=None) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(
-    code,
-    r,
-    i,
-    t,
-    u,
-    nbrs,
-    wall_legal,
-    dot_value,
-    communication,
-    battery,
-    pocket_of,
-    pos,
-    head,
-    last,
-    reserved,
-    open_mask,
-    choosing,
-    ask,
-    sp,
-):
-    """``ask[k]`` (int ``[K]``) for each robot of run ``r`` at team step ``t``, step
-    ``i`` of the block (``u`` float ``[R, T, K, 2]``); -1 for robots not choosing.
+def act(code, r, i, t, u, battery, p, s, w, sp):
+    """``w.ask[k]`` (int ``[K]``) for each robot of run ``r`` at team step ``t``, step
+    ``i`` of the block (``u`` float ``[R, T, K, 2]``); -1 for robots not choosing
+    (``w.choosing``).
 
-    The world as the step starts: ``pos``, ``head`` int ``[R, K]``, ``last`` int
-    ``[R, G, C]`` (the groups' last visits), ``reserved`` int ``[R, H]`` (stations'
-    holders); ``open_mask``: bool ``[K, 4]``, the world's open moves (every legal move
-    where none is open); ``sp``: the strategy's :class:`Pack`."""
+    ``p``, ``s``, ``w``: the loop's ``Params``, ``World`` (the world as the step
+    starts) and ``Work`` (:mod:`qpatrol.engines.compiled.bundles`), ``w.open_mask`` bool
+    ``[K, 4]`` the world's open moves (every legal move where none is open); ``sp``:
+    the strategy's :class:`Pack`."""
+    nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
-        qlearning.act(r, i, u, pos, head, open_mask, choosing, ask, sp.row_f, sp.ipar, sp.q)
+        qlearning.act(r, i, u, pos, s.head, open_mask, choosing, ask, sp.row_f, sp.ipar, sp.q)
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
-            r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp
+            r,
+            i,
+            t,
+            u,
+            nbrs,
+            p.dot_value,
+            p.communication,
+            pos,
+            s.head,
+            open_mask,
+            choosing,
+            ask,
+            sp,
         )
     elif code == RANDOM:
         random.act(r, i, u, open_mask, choosing, ask)
     elif code == CONSCIENTIOUS:
         conscientious.act(r, i, u, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
     elif code == SHARED_CONSCIENTIOUS:
-        shared_conscientious.act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask)
+        shared_conscientious.act(
+            r, i, u, nbrs, p.communication, pos, s.last, open_mask, choosing, ask
+        )
     elif code == EVAP:
         evap.act(
-            r,
-            i,
-            t,
-            u,
-            nbrs,
-            communication,
-            pos,
-            open_mask,
-            choosing,
-            ask,
-            sp.cell_f,
-            sp.cell_i,
-            sp.fpar,
-        )
+            r, i, t, u, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
+            sp.cell_i, sp.fpar,
+        )  # fmt: skip
     elif code == CYCLIC or code == PARTITION:
         follow.act(
-            r,
-            t,
-            nbrs,
-            battery,
-            pocket_of,
-            pos,
-            reserved,
-            choosing,
-            ask,
-            sp.ipar,
-            sp.robot_i,
-            sp.table_i,
-            sp.row_i,
-            sp.dist,
-        )
+            r, t, nbrs, battery, p.pocket_of, pos, s.reserved, choosing, ask, sp.ipar,
+            sp.robot_i, sp.table_i, sp.row_i, sp.dist,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(
-    code,
-    r,
-    t,
-    nbrs,
-    wall_legal,
-    dot_value,
-    has_dot,
-    communication,
-    pos,
-    prev_pos,
-    prev_head,
-    moved,
-    ask,
-    as_asked,
-    choosing,
-    reward,
-    eaten,
-    blocked_by,
-    ended,
-    active,
-    sp,
-    record_all,
-    watched,
-    up_int,
-    up_float,
-    n_up,
-):
+def learn(code, r, t, p, s, w, sp, o, n_up):
     """After the team step ``t`` of run ``r``: the strategy learns. Returns the number
-    of Q-update rows written to ``up_int``/``up_float``.
+    of Q-update rows written to ``o.up_int``/``o.up_float``.
 
-    The outcome (:class:`qpatrol.world.Outcome` for one run): ``pos`` int ``[R, K]``
-    after the step; per robot ``[K]``: ``prev_pos``, ``prev_head``, ``moved``, ``ask``
-    (the move asked for, -1 none), ``as_asked`` (made it), ``choosing`` (the strategy
-    chose it), ``reward``, ``eaten``, ``blocked_by`` (the robot in the way, -1 none);
-    ``ended`` bool ``[G]``: the group's episode ended this step; ``active`` bool ``[R]``:
-    the runs that go on after it (an episode quota may have stopped run ``r``)."""
+    The outcome (:class:`qpatrol.world.Outcome` for one run) is ``s.pos`` after the
+    step and ``w``'s per-robot arrays ``[K]``: ``prev_pos``, ``prev_head``, ``moved``,
+    ``ask`` (the move asked for, -1 none), ``as_asked`` (made it), ``choosing`` (the
+    strategy chose it), ``reward``, ``eaten``, ``blocked_by`` (the robot in the way, -1
+    none); ``w.ended`` bool ``[G]``: the group's episode ended this step; ``s.active``
+    bool ``[R]``: the runs that go on after it (an episode quota may have stopped run
+    ``r``)."""
     if code == QLEARNING:
-        n_up = qlearning.learn(
-            r,
-            t,
-            nbrs,
-            wall_legal,
-            prev_pos,
-            prev_head,
-            ask,
-            as_asked,
-            choosing,
-            reward,
-            eaten,
-            sp.row_f,
-            sp.ipar,
-            sp.q,
-            sp.n,
-            record_all,
-            watched,
-            up_int,
-            up_float,
-            n_up,
-        )
+        n_up = qlearning.learn(r, t, p, w, sp, o, n_up)
     elif code == QLEARNING_IDLENESS:
-        n_up = qlearning_idleness.learn(
-            r,
-            t,
-            nbrs,
-            wall_legal,
-            dot_value,
-            has_dot,
-            communication,
-            pos,
-            prev_pos,
-            prev_head,
-            moved,
-            ask,
-            as_asked,
-            choosing,
-            eaten,
-            ended,
-            active,
-            sp,
-            record_all,
-            watched,
-            up_int,
-            up_float,
-            n_up,
-        )
+        n_up = qlearning_idleness.learn(r, t, p, s, w, sp, o, n_up)
     elif code == CONSCIENTIOUS:
-        conscientious.learn(r, t, pos, moved, sp.cell_i)
+        conscientious.learn(r, t, s.pos, w.moved, sp.cell_i)
     elif code == EVAP:
-        evap.learn(r, t, communication, pos, moved, sp.cell_f, sp.cell_i, sp.fpar)
+        evap.learn(r, t, p.communication, s.pos, w.moved, sp.cell_f, sp.cell_i, sp.fpar)
     elif code == CYCLIC or code == PARTITION:
-        follow.learn(r, blocked_by, sp.robot_i)
+        follow.learn(r, w.blocked_by, sp.robot_i)
     return n_up

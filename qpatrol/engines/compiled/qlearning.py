@@ -15,8 +15,9 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import pick
+from qpatrol.engines.compiled.choice import MASKED, pick
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.engines.compiled.updates import record, wanted
 
 
 def pack(strategy) -> Pack:
@@ -72,69 +73,50 @@ def act(r, i, u, pos, head, open_mask, choosing, ask, row_f, ipar, q):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(
-    r,
-    t,
-    nbrs,
-    wall_legal,
-    prev_pos,
-    prev_head,
-    ask,
-    as_asked,
-    choosing,
-    reward,
-    eaten,
-    row_f,
-    ipar,
-    q,
-    n,
-    record_all,
-    watched,
-    up_int,
-    up_float,
-    n_up,
-):
+def update(q_f, n_f, at0, at1, m1, reward, gamma):
+    """The Q-learning update of one robot, on its tables flat (``q_f`` float64, ``n_f``
+    int32): ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max_{a' legal} Q(s', a') - Q(s,
+    a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+3``, the greatest taken
+    with no branch per move (``m1``: ``MASKED`` of the legal moves of s'). Returns
+    ``(max Q(s', .), alpha, Q(s, a) before)``."""
+    top = max(
+        max(q_f[at1] + m1[0], q_f[at1 + 1] + m1[1]),
+        max(q_f[at1 + 2] + m1[2], q_f[at1 + 3] + m1[3]),
+    )
+    target = reward + gamma * top
+    q_sa = q_f[at0]
+    n_after = n_f[at0] + 1
+    alpha = 1.0 / n_after
+    q_f[at0] = q_sa + alpha * (target - q_sa)
+    n_f[at0] = n_after
+    return top, alpha, q_sa
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def learn(r, t, p, w, sp, o, n_up):
     """The update of every robot of run ``r`` that made the move it chose, in robot
-    order; Q-updates recorded as :meth:`qpatrol.records.Recorder.updates` wants them.
-    Returns the number of update rows now written."""
-    gamma = row_f[r, 0]
-    use_heading = ipar[0] != 0
-    for k in range(prev_pos.shape[0]):
-        if not as_asked[k] or not choosing[k]:
+    order (:func:`update`); Q-updates recorded as :meth:`qpatrol.records.Recorder.updates`
+    wants them. ``p``, ``w``, ``o``: the loop's ``Params``, ``Work`` and ``Out``
+    (:mod:`qpatrol.engines.compiled.bundles`). Returns the number of update rows now
+    written."""
+    gamma = sp.row_f[r, 0]
+    use_heading = sp.ipar[0] != 0
+    q_f, n_f = sp.q[r].reshape(-1), sp.n[r].reshape(-1)
+    n_cells = p.nbrs.shape[0]
+    for k in range(w.prev_pos.shape[0]):
+        if not w.as_asked[k] or not w.choosing[k]:
             continue
-        ca = prev_pos[k]
-        ha = prev_head[k] if use_heading else 0
-        aa = ask[k]
-        cb = nbrs[ca, aa]
+        ca = w.prev_pos[k]
+        ha = w.prev_head[k] if use_heading else 0
+        aa = w.ask[k]
+        cb = p.nbrs[ca, aa]
         hb = aa if use_heading else 0
-        top = -np.inf
-        for d in range(4):
-            if wall_legal[cb, d] and q[r, k, cb, hb, d] > top:
-                top = q[r, k, cb, hb, d]
-        target = reward[k] + gamma * top
-        q_sa = q[r, k, ca, ha, aa]
-        n_after = n[r, k, ca, ha, aa] + 1
-        alpha = 1.0 / n_after
-        q[r, k, ca, ha, aa] = q_sa + alpha * (target - q_sa)
-        n[r, k, ca, ha, aa] = n_after
-        if record_all or watched[ca]:  # Recorder.updates
-            ri = up_int[n_up]
-            ri[0] = r
-            ri[1] = t
-            ri[2] = k
-            ri[3] = ca
-            ri[4] = ha
-            ri[5] = aa
-            ri[6] = cb
-            ri[7] = hb
-            ri[8] = 1 if eaten[k] else 0
-            rf = up_float[n_up]
-            rf[0] = reward[k]
-            rf[1] = alpha
-            rf[2] = q_sa
-            rf[3] = q[r, k, ca, ha, aa]
-            rf[4] = gamma * top
-            for d in range(4):
-                rf[5 + d] = q[r, k, ca, ha, d]
-            n_up += 1
+        at = ((k * n_cells + ca) * 4 + ha) * 4  # Q(ca, ha, .), flat
+        at1 = ((k * n_cells + cb) * 4 + hb) * 4  # Q(cb, hb, .)
+        m1 = MASKED[p.cell_moves[cb]]
+        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, m1, w.reward[k], gamma)
+        if wanted(o, ca):
+            ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
+            floats = (w.reward[k], alpha, q_sa, q_f[at + aa], gamma * top)
+            n_up = record(o, n_up, ints, floats, q_f[at : at + 4])
     return n_up

@@ -33,6 +33,7 @@ from numba import njit
 
 from qpatrol.engines.compiled.choice import greatest
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.engines.compiled.updates import record, wanted
 
 GAMMA, ALPHA, EPSILON, CAP, SCALE = range(5)
 EXPLORE_STEPS, DOT, KNOWN, USE_HEADING, USE_IDLE, SHARED, N_FEAT = range(7)
@@ -156,37 +157,24 @@ def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosi
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(
-    r,
-    t,
-    nbrs,
-    wall_legal,
-    dot_value,
-    has_dot,
-    communication,
-    pos,
-    prev_pos,
-    prev_head,
-    moved,
-    ask,
-    as_asked,
-    choosing,
-    eaten,
-    ended,
-    active,
-    sp,
-    record_all,
-    watched,
-    up_int,
-    up_float,
-    n_up,
-):
+def learn(r, t, p, s, w, sp, o, n_up):
     """After team step ``t`` of run ``r``: pay the robots that entered a cell, update the
     maps (``Strategy.rewards``), then the Q-update of every robot that made the move it
     chose, in robot order, recorded as :meth:`qpatrol.records.Recorder.updates` wants
-    them. ``ended`` bool ``[G]``: the group's episode ended (every dot back); ``active``
-    bool ``[R]``: a run that stopped keeps the slots its robots would see next. Returns
-    the number of update rows now written."""
+    them. ``p``, ``s``, ``w``, ``o``: the loop's ``Params``, ``World``, ``Work`` and
+    ``Out`` (:mod:`qpatrol.engines.compiled.bundles`); ``w.ended`` bool ``[G]``: the
+    group's episode ended (every dot back); ``s.active`` bool ``[R]``: a run that
+    stopped keeps the slots its robots would see next. Returns the number of update
+    rows now written."""
+    nbrs, wall_legal, dot_value, has_dot = p.nbrs, p.wall_legal, p.dot_value, p.has_dot
+    communication, pos, active, moved, ended = p.communication, s.pos, s.active, w.moved, w.ended
+    prev_pos, prev_head, ask, as_asked, choosing = (
+        w.prev_pos,
+        w.prev_head,
+        w.ask,
+        w.as_asked,
+        w.choosing,
+    )
     q, n, last, dots, feat, rew = sp.q, sp.n, sp.cell_i, sp.cell_b, sp.robot_i, sp.cell_f
     fpar, ipar = sp.fpar, sp.ipar
     n_agents = pos.shape[1]
@@ -238,24 +226,8 @@ def learn(
         alpha = alpha_par if alpha_par > 0 else 1.0 / n_after
         q[r, pk, ca, sa, aa] = q_sa + alpha * (target - q_sa)
         n[r, pk, ca, sa, aa] = n_after
-        if record_all or watched[ca]:  # Recorder.updates
-            ri = up_int[n_up]
-            ri[0] = r
-            ri[1] = t
-            ri[2] = k
-            ri[3] = ca
-            ri[4] = ha
-            ri[5] = aa
-            ri[6] = cb
-            ri[7] = hb
-            ri[8] = 1 if eaten[k] else 0
-            rf = up_float[n_up]
-            rf[0] = rew[r, 0, k]
-            rf[1] = alpha
-            rf[2] = q_sa
-            rf[3] = q[r, pk, ca, sa, aa]
-            rf[4] = bootstrap
-            for d in range(4):
-                rf[5 + d] = q[r, pk, ca, sa, d]
-            n_up += 1
+        if wanted(o, ca):
+            ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
+            floats = (rew[r, 0, k], alpha, q_sa, q[r, pk, ca, sa, aa], bootstrap)
+            n_up = record(o, n_up, ints, floats, q[r, pk, ca, sa])
     return n_up

@@ -1,0 +1,185 @@
+"""The compiled loop's arguments, bundled as the numpy engine's objects are.
+
+The loop (:func:`qpatrol.engines.numba_core.run_block`) and its phases (``moves``,
+``stations``, ``enter``, ``episodes``, ``observe`` in this package) take these
+named tuples instead of some eighty arrays one by one: numba passes a tuple of arrays
+field by field, so a field costs what an argument did, and each phase names what it
+reads (``p.nbrs``, ``s.pos``). ``R`` runs, ``K`` robots, ``C`` cells, ``G`` dot groups,
+``H`` stations. Every field holds the very array of the numpy objects
+(:class:`qpatrol.world.State`, :class:`qpatrol.measures.Measures`, ...), updated in
+place, or a tiny placeholder where a feature is off.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+from typing import NamedTuple
+
+import numpy as np
+
+from qpatrol.world import State
+
+
+class Params(NamedTuple):
+    """The batch's constants (:class:`qpatrol.world.Params`).
+
+    Attributes:
+        nbrs: int64 ``[C, 4]``, each cell's neighbour N, E, S, W (-1: wall).
+        wall_legal: bool ``[C, 4]``, the legal moves.
+        cell_moves: int64 ``[C]``, the legal moves as 4 bits
+            (:func:`qpatrol.engines.compiled.choice.legal_bits`), read with ``MASKED``.
+        dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
+        reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
+            idle horizon, lambda).
+        communication, avoid: one dot group for the team; collision avoidance.
+        diameter, max_ep, quota: right-of-way limit, episode steps (0: none),
+            episodes per run (0: none).
+        battery ... charge_steps: the battery's rules (:mod:`qpatrol.battery`):
+            stations ``homes`` ``[H]``, ``home_dist``/``home_dir`` ``[H, C]``,
+            ``nearest`` ``[C]``, ``depart_len`` ``[H]``, pockets ``pocket_of``,
+            ``pocket_depth`` ``[C]``, ``pocket_entry`` ``[H]``, and scalars.
+    """
+
+    nbrs: np.ndarray
+    wall_legal: np.ndarray
+    cell_moves: np.ndarray
+    dot_value: np.ndarray
+    has_dot: np.ndarray
+    n_dots: int
+    reward_w: np.ndarray
+    communication: bool
+    avoid: bool
+    diameter: int
+    max_ep: int
+    quota: int
+    battery: bool
+    homes: np.ndarray
+    home_dist: np.ndarray
+    home_dir: np.ndarray
+    nearest: np.ndarray
+    depart_len: np.ndarray
+    pocket_of: np.ndarray
+    pocket_depth: np.ndarray
+    pocket_entry: np.ndarray
+    capacity: int
+    margin: int
+    charge_steps: int
+
+
+#: The runs' state: the arrays of :class:`qpatrol.world.State` (all its fields but the
+#: step ``t``), ``[R, ...]``, by the same names: robots' ``pos``, ``head``, ``wait``
+#: ``[R, K]``; ``occ`` ``[R, C]`` (robot on a cell, -1); per group ``dots``, ``last``
+#: ``[R, G, C]`` and the episode's ``dots_left``, ``ep_dots``, ``ep_visits``,
+#: ``ep_start``, ``ep_count`` ``[R, G]``, ``ep_seen`` ``[R, G, C]``, ``ep_seen_state``
+#: ``[R, G, C, 4]``; the right of way ``token``, ``token_held``, ``active``,
+#: ``steps_done`` ``[R]``; the battery's ``charge``, ``mode``, ``rest``, ``goal``,
+#: ``queued_since``, ``depart_left`` ``[R, K]`` and ``reserved`` ``[R, H]``.
+World = NamedTuple(  # noqa: UP014 (its fields are State's, not written again here)
+    "World", [(f.name, np.ndarray) for f in dataclasses.fields(State) if f.name != "t"]
+)
+
+
+class Meas(NamedTuple):
+    """The measures (:class:`qpatrol.measures.Measures`): ``last`` ``[R, C]`` (last
+    visit), ``visits``, ``window_visits`` ``[R, K, C]``, and per run ``[R]`` the sums
+    ``last_sum``, ``idle_total``, ``worst``, ``measured``, ``gap_sum``, ``gap_count``,
+    ``gap_max``, ``max_wait``, ``wait_total``, ``min_charge``; ``warmup`` (steps)."""
+
+    last: np.ndarray
+    last_sum: np.ndarray
+    visits: np.ndarray
+    window_visits: np.ndarray
+    idle_total: np.ndarray
+    worst: np.ndarray
+    measured: np.ndarray
+    gap_sum: np.ndarray
+    gap_count: np.ndarray
+    gap_max: np.ndarray
+    max_wait: np.ndarray
+    wait_total: np.ndarray
+    warmup: int
+    min_charge: np.ndarray
+
+
+class Out(NamedTuple):
+    """The recorders and the loop's output rows.
+
+    Attributes:
+        tail_pos: int64 ``[R, N, K]``, the trajectory ring (``tail_n`` steps, 0: off).
+        ep_buf: int64 ``[E, EP_COLS]``, the episodes that ended.
+        record_all, watched: Q-updates of every robot, or of the ``watched`` cells
+            (bool ``[C]``), as rows of ``up_int`` ``[U, UP_INT]`` and ``up_float``
+            ``[U, UP_FLOAT]``.
+        tl_window ... tl_steps: the idleness timeline (:class:`qpatrol.timeline.Timeline`,
+            0: off), each closed window a row of ``tl_buf`` ``[W, 6]``.
+    """
+
+    tail_pos: np.ndarray
+    tail_n: int
+    ep_buf: np.ndarray
+    record_all: bool
+    watched: np.ndarray
+    up_int: np.ndarray
+    up_float: np.ndarray
+    tl_window: int
+    tl_last: np.ndarray
+    tl_last_sum: np.ndarray
+    tl_idle_sum: np.ndarray
+    tl_worst: np.ndarray
+    tl_steps: np.ndarray
+    tl_buf: np.ndarray
+
+
+class Work(NamedTuple):
+    """The loop's working arrays for one run's step (:func:`work`), most of them the
+    step's outcome (:class:`qpatrol.world.Outcome`): per robot ``[K]`` the cell wanted
+    and the move asked (-1: none), the cell and heading before the step, moved, moved
+    as asked, reward, eaten, the robot in the way (-1), the strategy chose, yielding,
+    held back; ``order``, ``key`` ``[K]`` for sorting; ``open_mask`` bool ``[K, 4]``;
+    ``ended`` bool ``[G]`` (the group's episode ended); and the push search's
+    ``parent``, ``seen``, ``queue``, ``path`` ``[C]`` (``parent`` -2 between calls);
+    ``sink`` float64 ``[1]`` keeps a warming read."""
+
+    want: np.ndarray
+    ask: np.ndarray
+    prev_pos: np.ndarray
+    prev_head: np.ndarray
+    moved: np.ndarray
+    as_asked: np.ndarray
+    reward: np.ndarray
+    eaten: np.ndarray
+    blocked_by: np.ndarray
+    choosing: np.ndarray
+    yielding: np.ndarray
+    held_back: np.ndarray
+    order: np.ndarray
+    key: np.ndarray
+    open_mask: np.ndarray
+    ended: np.ndarray
+    parent: np.ndarray
+    seen: np.ndarray
+    queue: np.ndarray
+    path: np.ndarray
+    sink: np.ndarray
+
+
+def work(n_agents: int, n_groups: int, n_cells: int) -> Work:
+    """The working arrays, allocated once per batch and lane (the loop allocates
+    nothing: it is compiled without numba's reference counting)."""
+    i8, b1, k = np.int64, np.bool_, n_agents
+    return Work(
+        *(np.zeros(k, i8) for _ in range(4)),
+        np.zeros(k, b1),
+        np.zeros(k, b1),
+        np.zeros(k, np.float64),
+        np.zeros(k, b1),
+        np.zeros(k, i8),
+        *(np.zeros(k, b1) for _ in range(3)),
+        np.zeros(k, i8),
+        np.zeros(k, i8),
+        np.zeros((k, 4), b1),
+        np.zeros(n_groups, b1),
+        np.full(n_cells, -2, i8),
+        *(np.zeros(n_cells, i8) for _ in range(3)),
+        np.zeros(1, np.float64),
+    )

@@ -1,0 +1,305 @@
+"""The team's moves in the compiled loop: :mod:`qpatrol.traffic`, one run at a time.
+
+``open_moves`` (world.begin_step: each robot's open moves), ``resolve`` (the holder of
+the right of way first, pushing robots aside, then the others in priority order into
+cells empty at that moment), ``waits`` (who waits, who blocked whom) and
+``pass_token`` (the right of way for the next step). ``p``, ``s``, ``w``: the loop's
+:class:`~qpatrol.engines.compiled.bundles.Params`, ``World`` and ``Work``; ``r`` the run.
+"""
+
+from __future__ import annotations
+
+from numba import njit
+
+from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, kept_out
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def priority(wait, mode, depart_left, k, n_agents, t_mod):
+    """:func:`qpatrol.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
+    taken once per step: an integer division per robot cost more than the rest of
+    this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
+    if depart_left > 0:
+        cls = 3
+    elif mode == HOMING:
+        cls = 2
+    elif mode == PATROL:
+        cls = 1
+    else:
+        cls = 0
+    back = k - t_mod  # (k - t) % n_agents, without a division
+    if back < 0:
+        back += n_agents
+    turn = (n_agents - 1) - back
+    return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r):
+    """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
+    charging robots, nor (battery on) cells of held pockets.
+
+    Fills ``w.path[:m]`` with ``[start, ..., empty]`` and returns m (0: none).
+    ``w.parent`` (-2 everywhere) and ``w.seen`` are scratch arrays ``[C]`` left clean.
+    """
+    parent, seen, queue, path = w.parent, w.seen, w.queue, w.path
+    if battery and mode_r[occ_r[start]] == CHARGING:
+        return 0
+    n_seen = 0
+    seen[n_seen] = start
+    n_seen += 1
+    parent[start] = -1
+    head = 0
+    tail = 0
+    queue[tail] = start
+    tail += 1
+    m = 0
+    while head < tail and m == 0:
+        c = queue[head]
+        head += 1
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb < 0 or nb == own or parent[nb] != -2:
+                continue
+            if battery:
+                if kept_out(nb, pocket_of, reserved_r):
+                    continue
+                j = occ_r[nb]
+                if j >= 0 and mode_r[j] == CHARGING:
+                    continue
+            parent[nb] = c
+            seen[n_seen] = nb
+            n_seen += 1
+            if occ_r[nb] < 0:
+                x = nb
+                while x != start:
+                    path[m] = x
+                    m += 1
+                    x = parent[x]
+                path[m] = start
+                m += 1
+                break
+            queue[tail] = nb
+            tail += 1
+    for i in range(n_seen):
+        parent[seen[i]] = -2
+    # reverse to start -> empty
+    for i in range(m // 2):
+        path[i], path[m - 1 - i] = path[m - 1 - i], path[i]
+    return m
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
+    """:func:`qpatrol.traffic.holder_step` of the right-of-way holder ``tok`` of a run
+    (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
+    else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
+    along :func:`push_path`. Returns whether the push failed (it did not move as
+    asked)."""
+    want, moved, as_asked, path = w.want, w.moved, w.as_asked, w.path
+    own = pos_r[tok]
+    dest = -1
+    m = 0
+    for ci in range(5):
+        if ci == 0:
+            cell = want[tok]
+        else:
+            cell = nbrs[own, ci - 1]
+            if cell < 0 or cell == want[tok]:
+                continue
+            if battery and kept_out(cell, pocket_of, reserved_r):
+                continue
+        if occ_r[cell] < 0:
+            dest = cell
+            m = 0
+            break
+        m = push_path(nbrs, occ_r, own, cell, w, battery, mode_r, pocket_of, reserved_r)
+        if m > 0:
+            dest = cell
+            break
+    if dest < 0:
+        return True
+    for x in range(m - 2, -1, -1):
+        jr = occ_r[path[x]]
+        occ_r[pos_r[jr]] = -1
+        occ_r[path[x + 1]] = jr
+        pos_r[jr] = path[x + 1]
+        moved[jr] = True
+        as_asked[jr] = want[jr] == path[x + 1]
+    occ_r[pos_r[tok]] = -1
+    occ_r[dest] = tok
+    pos_r[tok] = dest
+    moved[tok] = True
+    as_asked[tok] = dest == want[tok]
+    return not as_asked[tok]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _sort_by_key(order, key, n):
+    """Sort the robots ``order[:n]`` by ``key`` (indexed by robot), largest first, equal
+    keys keeping their places: an insertion sort (a team has a few robots)."""
+    for a in range(1, n):
+        x = order[a]
+        b = a - 1
+        while b >= 0 and key[order[b]] < key[x]:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = x
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
+    """Step 2 of :func:`qpatrol.traffic.resolve`: the robots that have not moved, in
+    ``order``, each into the cell it wants if that cell is empty at that moment, pass
+    after pass until a pass moves no one or leaves no one behind."""
+    progress = True
+    while progress:
+        progress = False
+        behind = False
+        for a in range(order.shape[0]):
+            k = order[a]
+            w = want[k]
+            if w >= 0 and not moved[k]:
+                if occ_r[w] < 0:
+                    occ_r[pos_r[k]] = -1
+                    occ_r[w] = k
+                    pos_r[k] = w
+                    moved[k] = True
+                    as_asked[k] = True
+                    progress = True
+                else:
+                    behind = True
+        progress = progress and behind
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def open_moves(r, tok, battery, avoid, p, s, w):
+    """world.begin_step of run ``r``: who chooses (patrolling robots), and each robot's
+    open moves ``w.open_mask`` (legal, not deeper into another robot's held station
+    pocket (battery.closed_cells), not into a robot's cell but for the holder of the
+    right of way ``tok``; every legal move where none is open, base.prefer_open); the
+    step's outcome cleared (``w.prev_pos``, ``prev_head``, ``moved``, ...)."""
+    nbrs, pocket_of, pocket_depth, occ = p.nbrs, p.pocket_of, p.pocket_depth, s.occ
+    for k in range(s.pos.shape[1]):
+        c = s.pos[r, k]
+        w.choosing[k] = s.mode[r, k] == PATROL
+        w.held_back[k] = False
+        w.yielding[k] = False
+        any_open = False
+        for d in range(4):
+            nb = nbrs[c, d]
+            ok = nb >= 0
+            if ok and battery:
+                hp = pocket_of[nb]
+                if hp >= 0:
+                    holder = s.reserved[r, hp]
+                    if holder >= 0 and holder != k:
+                        if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
+                            ok = False
+            if ok and avoid and k != tok and occ[r, nb] >= 0:
+                ok = False
+            w.open_mask[k, d] = ok
+            any_open = any_open or ok
+        if not any_open:
+            for d in range(4):
+                w.open_mask[k, d] = nbrs[c, d] >= 0
+        w.prev_pos[k] = c
+        w.prev_head[k] = s.head[r, k]
+        w.moved[k] = False
+        w.as_asked[k] = False
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
+    """:func:`qpatrol.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for
+    none): without collision avoidance every robot moves as asked; with it the holder
+    ``tok`` of the right of way moves first (:func:`holder_moves`), then the others
+    in priority order (``by_turn``: every robot patrols and none waits, so by turn
+    alone, robot ``t % K`` first), each into a cell empty at that moment. Sets
+    ``w.moved``, ``w.as_asked``; returns whether the holder's push failed."""
+    n_agents = s.pos.shape[1]
+    pos_r, occ_r, mode_r = s.pos[r], s.occ[r], s.mode[r]
+    want, moved, as_asked, order, key = w.want, w.moved, w.as_asked, w.order, w.key
+    push_failed = False
+    if not avoid:
+        for k in range(n_agents):
+            if want[k] >= 0:
+                pos_r[k] = want[k]
+                moved[k] = True
+                as_asked[k] = True
+        return push_failed
+    if tok >= 0 and want[tok] >= 0:
+        push_failed = holder_moves(
+            tok, p.nbrs, occ_r, pos_r, w, battery, mode_r, p.pocket_of, s.reserved[r]
+        )
+    if n_agents == 1:  # alone: the priority order is trivial
+        wk = want[0]
+        if wk >= 0 and not moved[0] and occ_r[wk] < 0:
+            occ_r[pos_r[0]] = -1
+            occ_r[wk] = 0
+            pos_r[0] = wk
+            moved[0] = True
+            as_asked[0] = True
+        return push_failed
+    if by_turn:
+        for a in range(n_agents):
+            k = t_mod + a
+            order[a] = k if k < n_agents else k - n_agents
+    else:
+        for k in range(n_agents):
+            key[k] = priority(s.wait[r, k], mode_r[k], s.depart_left[r, k], k, n_agents, t_mod)
+            order[k] = k
+        _sort_by_key(order, key, n_agents)
+    _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
+    return push_failed
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def waits(r, battery, s, w):
+    """After the moves: each robot that asked and did not move as asked waits one step
+    more (``s.wait``), and ``w.blocked_by`` names the robot in its way; a queued or
+    held-back robot waits too (battery). Returns ``(robots waiting, longest wait)``."""
+    waiting = 0
+    longest = 0
+    for k in range(s.pos.shape[1]):
+        failed = w.ask[k] >= 0 and not w.as_asked[k]
+        w.blocked_by[k] = s.occ[r, w.want[k]] if failed else -1
+        if battery and (s.mode[r, k] == QUEUED or w.held_back[k]):
+            failed = True
+        wk = s.wait[r, k] + 1 if failed else 0
+        s.wait[r, k] = wk
+        if wk > 0:
+            waiting += 1
+        longest = max(longest, wk)
+    return waiting, longest
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w):
+    """:func:`qpatrol.traffic.pass_token` of run ``r`` after its moves: the holder keeps
+    the right of way while it moves as asked (at most ``diameter`` steps); a holder whose
+    push failed hands it to the robot that blocked it, if that one waits; else it goes
+    to the waiting robot of highest priority at the next step (none: -1). Returns
+    ``(holder, steps it has held it)``."""
+    want, as_asked = w.want, w.as_asked
+    n_agents = want.shape[0]
+    best_k = -1
+    best_key = -1
+    for k in range(n_agents):
+        kk = -1
+        if want[k] >= 0 and not as_asked[k]:
+            kk = priority(s.wait[r, k], s.mode[r, k], s.depart_left[r, k], k, n_agents, t_next_mod)
+        if tok >= 0 and push_failed and k == tok:
+            kk = -1
+        if kk > best_key:
+            best_key = kk
+            best_k = k
+    new = best_k
+    if tok >= 0:
+        blocker = w.blocked_by[tok]
+        blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
+        if as_asked[tok] and held < diameter:
+            new = tok
+        elif push_failed and blocker_waits:
+            new = blocker
+    return new, (held + 1 if (new == tok and new >= 0) else 0)

@@ -1,0 +1,98 @@
+"""The measures in the compiled loop (:meth:`qpatrol.measures.Measures.observe`, the
+idleness timeline :class:`qpatrol.timeline.Timeline` and the trajectory ring), after
+each team step of a run."""
+
+from __future__ import annotations
+
+from numba import njit
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def visit(c, t, warmup, m_last_r, visits_k, window_visits_k, sums):
+    """Measures.observe of a robot's visit to cell ``c`` at step ``t``: the run's last
+    visits (``m_last_r`` ``[C]``) and the robot's visit counts (``visits_k``,
+    ``window_visits_k`` ``[C]``) take it; returns the run's ``sums`` ``(last_sum,
+    gap_sum, gap_count, gap_max, worst)`` updated (inside the window, step ``t`` >
+    ``warmup``, with the visit's gap and the worst idleness it ends)."""
+    last_sum, gap_sum, gap_count, gap_max, worst = sums
+    prev = m_last_r[c]
+    m_last_r[c] = t
+    last_sum += t - prev
+    visits_k[c] += 1
+    if t > warmup:
+        window_visits_k[c] += 1
+        gap = t - prev if prev > 0 else 0
+        gap_sum += gap
+        if prev > 0:
+            gap_count += 1
+        gap_max = max(gap_max, gap)
+        if t - 1 > warmup:
+            worst = max(worst, t - 1 - prev)
+    return last_sum, gap_sum, gap_count, gap_max, worst
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def sums_of(m, r):
+    """The run's sums that :func:`visit` updates, read from the measures ``m``."""
+    return m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def store_sums(m, r, sums):
+    """Store :func:`visit`'s sums of run ``r`` into the measures ``m``."""
+    m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r] = sums
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def step_measures(r, t, n_cells, sums_last, waiting, longest, m):
+    """The step's idleness (``n_cells t - last_sum``) and waits, inside the window."""
+    if t > m.warmup:
+        m.idle_total[r] += n_cells * t - sums_last
+        m.measured[r] += 1
+        m.max_wait[r] = max(m.max_wait[r], longest)
+        m.wait_total[r] += waiting
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def trail(r, t, pos_r, o):
+    """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells."""
+    if o.tail_n > 0:
+        slot = (t - 1) % o.tail_n
+        for k in range(pos_r.shape[0]):
+            o.tail_pos[r, slot, k] = pos_r[k]
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def timeline(r, t, tl_window, pos_r, moved, o, n_tl):
+    """Timeline.observe: its own last visits ``o.tl_last`` ``[R, C]``, peaks inside t's
+    window; a window that closes (``Timeline._close``) is a row of ``o.tl_buf`` (run,
+    window, first step, last step, idleness sum, worst). Returns the rows written."""
+    n_cells = o.tl_last.shape[1]
+    start = ((t - 1) // tl_window) * tl_window + 1
+    for k in range(pos_r.shape[0]):
+        if not moved[k]:
+            continue
+        c = pos_r[k]
+        prev = o.tl_last[r, c]
+        o.tl_last[r, c] = t
+        o.tl_last_sum[r] += t - prev
+        if t - 1 >= start:
+            o.tl_worst[r] = max(o.tl_worst[r], t - 1 - prev)
+    o.tl_idle_sum[r] += n_cells * t - o.tl_last_sum[r]
+    o.tl_steps[r] += 1
+    if t % tl_window == 0:
+        low = o.tl_last[r, 0]
+        for c in range(1, n_cells):
+            low = min(low, o.tl_last[r, c])
+        row = o.tl_buf[n_tl]
+        row[0] = r
+        row[1] = (t - 1) // tl_window
+        row[2] = t - o.tl_steps[r] + 1
+        row[3] = t
+        row[4] = o.tl_idle_sum[r]
+        row[5] = max(o.tl_worst[r], t - low)
+        n_tl += 1
+        o.tl_idle_sum[r] = 0
+        o.tl_worst[r] = 0
+        o.tl_steps[r] = 0
+    return n_tl

@@ -1,0 +1,219 @@
+"""The battery's phases in the compiled loop: :mod:`qpatrol.battery`, one run at a time.
+
+``begin`` (charging countdown, robots that need a station, the queue served first come
+first served), ``ask`` (the moves of robots homing or queued, which the strategy does
+not choose), ``pay`` (a move costs one unit, a detour is credited) and ``end``
+(departed robots release their station, arrivals start charging). ``p``, ``s``, ``w``:
+the loop's :class:`~qpatrol.engines.compiled.bundles.Params`, ``World`` and ``Work``;
+``r`` the run.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def kept_out(c, pocket_of, reserved_r):
+    """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    h = pocket_of[c]
+    return h >= 0 and reserved_r[h] >= 0
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
+    """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
+    if station < 0:
+        return -1
+    h = station
+    if pocket_of[c] == h:
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb >= 0 and (pocket_of[nb] != h or pocket_depth[nb] < pocket_depth[c]):
+                return d
+        return -1
+    if c != pocket_entry[h]:
+        return -1
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h and occ_r[nb] < 0:
+            return d
+    for d in range(4):
+        nb = nbrs[c, d]
+        if nb >= 0 and pocket_of[nb] != h:
+            return d
+    return -1
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def begin(r, t, p, s, w):
+    """battery.begin: the charging countdown, robots that need a station join the
+    queue, and the queue is served (:func:`qpatrol.battery._assign_stations`: first
+    come first served, ties by lower index; each the nearest free station it reaches)."""
+    n_agents = s.pos.shape[1]
+    mode, charge, order, key = s.mode, s.charge, w.order, w.key
+    for k in range(n_agents):
+        if mode[r, k] == CHARGING:
+            s.rest[r, k] -= 1
+            if s.rest[r, k] < 0:
+                s.rest[r, k] = 0
+                mode[r, k] = PATROL
+                charge[r, k] = p.capacity
+                s.depart_left[r, k] = 2 * p.depart_len[s.goal[r, k]]
+    any_queued = False
+    for k in range(n_agents):
+        if (
+            mode[r, k] == PATROL
+            and s.depart_left[r, k] == 0
+            and charge[r, k] <= p.nearest[s.pos[r, k]] + p.margin + 1
+        ):
+            mode[r, k] = QUEUED
+            s.queued_since[r, k] = t
+        if mode[r, k] == QUEUED:
+            any_queued = True
+    if not any_queued:
+        return
+    for k in range(n_agents):
+        order[k] = k
+        if mode[r, k] == QUEUED:
+            key[k] = s.queued_since[r, k] * n_agents + k
+        else:
+            key[k] = (1 << 50) * n_agents + k
+    for a in range(1, n_agents):
+        x = order[a]
+        b = a - 1
+        while b >= 0 and key[order[b]] > key[x]:
+            order[b + 1] = order[b]
+            b -= 1
+        order[b + 1] = x
+    for a in range(n_agents):
+        k = order[a]
+        if mode[r, k] != QUEUED:
+            break
+        best_h = -1
+        best_d = np.iinfo(np.int64).max
+        for h in range(p.homes.shape[0]):
+            dist = p.home_dist[h, s.pos[r, k]]
+            if s.reserved[r, h] < 0 and dist <= charge[r, k] and dist < best_d:
+                best_d = dist
+                best_h = h
+        if best_h >= 0:
+            s.reserved[r, best_h] = k
+            s.goal[r, k] = best_h
+            mode[r, k] = HOMING
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def ask(r, p, s, w):
+    """``w.ask`` of the robots homing (battery.homing_ask: along the station's
+    shortest paths, held back from an occupied pocket, yielding inside it) and queued
+    (battery.queued_ask: out of another robot's pocket); ``w.held_back`` and
+    ``w.yielding`` say which were held back or yield."""
+    n_agents = s.pos.shape[1]
+    pos, occ_r, reserved = s.pos, s.occ[r], s.reserved
+    nbrs, pocket_of, pocket_depth, pocket_entry = (
+        p.nbrs,
+        p.pocket_of,
+        p.pocket_depth,
+        p.pocket_entry,
+    )
+    for k in range(n_agents):
+        c = pos[r, k]
+        if s.mode[r, k] == HOMING:
+            gk = max(s.goal[r, k], 0)
+            direction = p.home_dir[gk, c]
+            entry = pocket_entry[gk]
+            if entry >= 0:
+                depth_others = -1
+                for j2 in range(n_agents):
+                    if j2 != k and pocket_of[pos[r, j2]] == gk:
+                        depth_others = max(depth_others, pocket_depth[pos[r, j2]])
+                occupied = depth_others >= 0
+                my_depth = pocket_depth[c] if pocket_of[c] == gk else 0
+                at_entry = c == entry
+                nxt = nbrs[c, max(direction, 0)]
+                entering = direction >= 0 and my_depth == 0 and not at_entry and nxt == entry
+                held = occupied and entering
+                yld = occupied and (at_entry or (depth_others > my_depth and my_depth > 0))
+                out = way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, gk)
+                if held:
+                    direction = -1
+                elif yld:
+                    direction = out
+                w.held_back[k] = held
+                w.yielding[k] = yld and out >= 0
+            w.ask[k] = direction
+        elif s.mode[r, k] == QUEUED:
+            station = -1
+            hp = pocket_of[c]
+            if hp >= 0:
+                holder = reserved[r, hp]
+                if holder >= 0 and holder != k:
+                    station = hp
+            for hh in range(p.homes.shape[0]):
+                if c == pocket_entry[hh] and reserved[r, hh] >= 0:
+                    if reserved[r, hh] != k:
+                        station = hh
+                        break
+            w.ask[k] = way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station)
+            if w.ask[k] >= 0:
+                w.yielding[k] = True
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def pay(r, p, s, w):
+    """A move costs one unit of charge; yielding (pushed aside, or out of a pocket) is
+    free, and a robot homing or queued that was pushed is credited the detour
+    (battery.credit_detour)."""
+    charge, mode = s.charge, s.mode
+    for k in range(s.pos.shape[1]):
+        if not w.moved[k]:
+            continue
+        if w.as_asked[k] and not w.yielding[k]:
+            charge[r, k] -= 1
+        elif mode[r, k] == HOMING or mode[r, k] == QUEUED:
+            gk = max(s.goal[r, k], 0)
+            if mode[r, k] == HOMING:
+                d_before = p.home_dist[gk, w.prev_pos[k]]
+                d_after = p.home_dist[gk, s.pos[r, k]]
+            else:
+                d_before = p.nearest[w.prev_pos[k]]
+                d_after = p.nearest[s.pos[r, k]]
+            credit = max(d_after - d_before, 0)
+            charge[r, k] = min(charge[r, k] + credit, p.capacity)
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def end(r, p, s, w):
+    """battery.end: departed robots release their stations, arrivals start charging
+    (or, with no charging time, are full at once and depart)."""
+    n_agents = s.pos.shape[1]
+    mode, goal, depart_left = s.mode, s.goal, s.depart_left
+    for k in range(n_agents):
+        if depart_left[r, k] > 0:
+            depart_left[r, k] -= 1
+            if depart_left[r, k] == 0 or w.ask[k] < 0:
+                s.reserved[r, goal[r, k]] = -1
+                goal[r, k] = -1
+                depart_left[r, k] = 0
+    for k in range(n_agents):
+        if mode[r, k] == HOMING and s.pos[r, k] == p.homes[max(goal[r, k], 0)]:
+            if p.charge_steps > 0:
+                mode[r, k] = CHARGING
+                s.rest[r, k] = p.charge_steps
+            else:
+                mode[r, k] = PATROL
+                s.charge[r, k] = p.capacity
+                depart_left[r, k] = 2 * p.depart_len[goal[r, k]]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def lowest_charge(r, s, min_charge):
+    """The run's lowest charge so far (``min_charge`` ``[R]``) takes this step's."""
+    low = s.charge[r, 0]
+    for k in range(1, s.charge.shape[1]):
+        low = min(low, s.charge[r, k])
+    min_charge[r] = min(min_charge[r], low)
