@@ -26,7 +26,7 @@ import pandas as pd
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import Checkpointer
 from qpatrol.config import Config, ConfigError
-from qpatrol.engines import numpy_loop
+from qpatrol.engines import coldstart, numpy_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
@@ -193,6 +193,8 @@ def _batch(
     m, p = prepared
     p = world.with_run_values(p, values)
     engine, note = engines.choose(cfg)
+    if engine == "numpy" and note.startswith(coldstart.COLD):
+        coldstart.warm_in_background(cfg, engines.compiled_loop(cfg))
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
         # blocks of uniforms no longer than the run (the same numbers for any block)
@@ -214,7 +216,13 @@ def _batch(
     total = cfg["steps"]
     args = (state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress)
     if engine == "numba":
-        _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
+        compiling = coldstart.Compiling(engines.compiled_loop(cfg))
+        try:
+            threads = engine_threads.resolve(cfg["threads"])
+            _compiled_loop(*args, checkpoint, threads, compiling.done)
+            compiling.done()
+        finally:
+            compiling.release()
     else:
         numpy_loop.run(*args, checkpoint)
     if progress is not None:
@@ -316,13 +324,16 @@ def _compiled_loop(
     progress: Progress | None,
     checkpoint: Checkpointer | None,
     threads: int = 1,
+    compiled: Callable[[], None] | None = None,
 ) -> None:
     """Steps ``first..total`` on the compiled engine, in blocks (same objects, same
     results as :func:`qpatrol.engines.numpy_loop.run`). A checkpointer is ticked after
     each block (of at most COMPILED_BLOCK agent-steps then), or after every team step
     when it asks for that (``every_step``). With ``threads`` > 1 the runs of a block
     are cut into that many lanes, each advanced by its own thread
-    (:mod:`qpatrol.engines.threads`): the same numbers."""
+    (:mod:`qpatrol.engines.threads`): the same numbers. ``compiled()`` is called once
+    the first call of the loop returned (the loop is compiled, or loaded from numba's
+    cache, then)."""
     from qpatrol.engines import numba_core
 
     R, K = state.n_runs, p.n_agents
@@ -361,6 +372,9 @@ def _compiled_loop(
                     buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
                     lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
         taken, ends, up_int, up_float = loop.run(lanes)
+        if compiled is not None:
+            compiled()
+            compiled = None
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken
