@@ -192,7 +192,7 @@ def _batch(
     """One batch of rows (see :func:`simulate` and :func:`simulate_rows`)."""
     m, p = prepared
     p = world.with_run_values(p, values)
-    engine, note = engines.choose(cfg)
+    engine, note = engines.choose(cfg, len(seeds))
     if engine == "numpy" and note.startswith(coldstart.COLD):
         coldstart.warm_in_background(cfg, engines.compiled_loop(cfg))
     resumed = checkpoint.resumed if checkpoint is not None else None

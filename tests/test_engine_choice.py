@@ -48,6 +48,8 @@ def test_numpy_seconds_follow_steps_runs_and_agents():
     )
     more = cfg.replace(runs=64)
     assert coldstart.numpy_seconds(more, "any") > coldstart.numpy_seconds(cfg, "any")
+    # a batch of several sweep points: its rows, not the config's runs
+    assert coldstart.numpy_seconds(cfg, "any", 64) == coldstart.numpy_seconds(more, "any")
     # the Q-learning kernels' numpy twins are the fast steps: cheaper per step
     assert coldstart.numpy_seconds(cfg, "qlearning-team") < coldstart.numpy_seconds(cfg, "any")
     assert coldstart.compile_seconds("unknown") == max(coldstart.COMPILE_SECONDS.values())
@@ -64,6 +66,7 @@ def test_the_paper_runs_on_numpy_until_its_loop_is_cached(monkeypatch):
     assert engine == "numpy"
     assert note.startswith(coldstart.COLD) and "'any' not cached yet" in note
     assert engines.choose(PAPER.replace(steps=200_000)) == ("numba", "")
+    assert engines.choose(PAPER, rows=1000) == ("numba", "")  # points sharing a batch
     # what the cache holds does not change which loop a config takes (sweep ordering)
     assert engines.compiled_loop(PAPER) == "any"
     # asked for explicitly: always the engine asked for

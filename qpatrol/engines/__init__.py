@@ -67,7 +67,7 @@ def compiled_gap(cfg: Config) -> str | None:
 AUTO_MIN_AGENT_STEPS = 20_000
 
 
-def choose(cfg: Config) -> tuple[str, str]:
+def choose(cfg: Config, rows: int | None = None) -> tuple[str, str]:
     """``(engine, note)``: the engine that runs ``cfg``, and why when it is not the one
     asked for (empty note otherwise). Raises ConfigError for ``engine: numba`` without
     numba installed.
@@ -75,14 +75,15 @@ def choose(cfg: Config) -> tuple[str, str]:
     Under ``engine: auto`` a batch whose compiled loop is not in numba's cache yet runs
     on numpy when numpy would finish sooner than the compile (note ``auto: compiled
     loop ... not cached yet``; :func:`qpatrol.engines.coldstart.cold_note`): this reads
-    numba's cache (and imports numba). :func:`choose_by_config` is the choice from the
-    config alone."""
+    numba's cache (and imports numba). ``rows``: the batch's runs when not
+    ``cfg['runs']`` (points of a sweep sharing a batch). :func:`choose_by_config` is
+    the choice from the config alone."""
     engine, note = choose_by_config(cfg)
     if engine == "numba" and cfg["engine"] == "auto":
         from qpatrol.engines import coldstart
 
         loop = _loop_of(cfg)
-        cold = coldstart.cold_note(cfg, loop)
+        cold = coldstart.cold_note(cfg, loop, rows)
         if cold is not None:
             return "numpy", cold
     return engine, note

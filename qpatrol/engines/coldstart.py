@@ -66,11 +66,12 @@ MARKER = "qpatrol-loop-{}.json"
 LOCK = "qpatrol-loop-{}.lock"
 
 
-def numpy_seconds(cfg: Config, loop: str) -> float:
+def numpy_seconds(cfg: Config, loop: str, rows: int | None = None) -> float:
     """Estimated CPU seconds of ``cfg``'s time loop on the numpy engine (``loop``: the
-    compiled loop it would take, which says which numpy steps run)."""
+    compiled loop it would take, which says which numpy steps run; ``rows``: the
+    batch's runs, default ``cfg['runs']``)."""
     fixed, per = NUMPY_US.get(loop, NUMPY_US["any"])
-    size = cfg["runs"] * cfg["agents"]
+    size = (cfg["runs"] if rows is None else rows) * cfg["agents"]
     return cfg["steps"] * (fixed + per * size) * 1e-6
 
 
@@ -79,15 +80,18 @@ def compile_seconds(loop: str) -> float:
     return COMPILE_SECONDS.get(loop, max(COMPILE_SECONDS.values()))
 
 
-def cold_note(cfg: Config, loop: str, folder: Path | None = None) -> str | None:
+def cold_note(
+    cfg: Config, loop: str, rows: int | None = None, folder: Path | None = None
+) -> str | None:
     """Why ``engine: auto`` runs ``cfg`` on numpy although its ``loop`` is compiled
     (None: it does not, the compiled engine runs it): the loop is not in numba's cache
     (:func:`cached`), and the numpy engine would finish sooner than compiling it (less
-    the time a process compiling it already took). Reads the cache; changes nothing."""
+    the time a process compiling it already took); ``rows``: the batch's runs (default
+    ``cfg['runs']``). Reads the cache; changes nothing."""
     if cached(loop, folder=folder):
         return None
     left = compile_seconds(loop) - _compiling_for(loop, folder)
-    est = numpy_seconds(cfg, loop)
+    est = numpy_seconds(cfg, loop, rows)
     if est >= left:
         return None
     return (
