@@ -40,20 +40,65 @@ def not_cached(monkeypatch, warmed: list | None = None) -> None:
 
 
 def test_numpy_seconds_follow_steps_runs_and_agents():
-    cfg = from_flat({"policy": "qlearning", "agents": 4, "runs": 4, "steps": 5000})
-    fixed, per = coldstart.NUMPY_US["any"]
-    assert coldstart.numpy_seconds(cfg, "any") == pytest.approx(5000 * (fixed + per * 16) / 1e6)
-    assert coldstart.numpy_seconds(cfg.replace(steps=10_000), "any") == pytest.approx(
-        2 * coldstart.numpy_seconds(cfg, "any")
+    cfg = from_flat(
+        {"policy": "qlearning", "agents": 4, "runs": 4, "steps": 5000, "battery.enabled": False}
     )
+    fixed, per_robot, per = coldstart.NUMPY_US["team"]
+    want = 5000 * (fixed + per_robot * 4 + per * 16) / 1e6
+    assert coldstart.numpy_seconds(cfg) == pytest.approx(want)
+    assert coldstart.numpy_seconds(cfg.replace(steps=10_000)) == pytest.approx(2 * want)
     more = cfg.replace(runs=64)
-    assert coldstart.numpy_seconds(more, "any") > coldstart.numpy_seconds(cfg, "any")
+    assert coldstart.numpy_seconds(more) > coldstart.numpy_seconds(cfg)
     # a batch of several sweep points: its rows, not the config's runs
-    assert coldstart.numpy_seconds(cfg, "any", 64) == coldstart.numpy_seconds(more, "any")
-    # the Q-learning kernels' numpy twins are the fast steps: cheaper per step
-    assert coldstart.numpy_seconds(cfg, "qlearning-team") < coldstart.numpy_seconds(cfg, "any")
+    assert coldstart.numpy_seconds(cfg, 64) == coldstart.numpy_seconds(more)
+    # the general step costs more than the fast steps
+    assert coldstart.numpy_seconds(cfg.replace(**{"battery.enabled": True})) > want
     assert coldstart.compile_seconds("unknown") == max(coldstart.COMPILE_SECONDS.values())
-    assert set(coldstart.NUMPY_US) == set(coldstart.COMPILE_SECONDS)
+
+
+@pytest.mark.parametrize(
+    "flat, step",
+    [
+        ({"agents": 1}, "solo"),
+        ({"agents": 4}, "team"),
+        ({"agents": 4, "record.watch": [3]}, "team"),
+        ({"agents": 1, "record.watch": [3]}, "team"),
+        ({"agents": 1, "record.transitions": True}, "team"),
+        ({"agents": 1, "record.timeline": 100}, "team"),
+        ({"agents": 1, "episodes": 1}, "general"),  # stopped runs: the general step
+        ({"agents": 4, "episodes": 1}, "general"),
+        ({"agents": 4, "battery.enabled": True}, "general"),
+        ({"agents": 1, "policy": "random"}, "general"),
+    ],
+)
+def test_the_numpy_step_a_config_takes(flat, step):
+    """The step the cost model prices is the one the numpy engine takes: its fast step,
+    when one covers the batch (a Solo or Team object)."""
+    from qpatrol.engines import numpy_loop
+    from qpatrol.run import prepare, simulate
+
+    cfg = from_flat({"battery.enabled": False, "runs": 2, "steps": 30, **flat, "engine": "numpy"})
+    assert coldstart.numpy_step(cfg) == step
+    res = simulate(cfg, prepared=prepare(cfg))
+    fast = numpy_loop.fast_step(
+        res.params, res.state, res.strategy, res.measures, _recorder(cfg), _timeline(cfg, res)
+    )
+    kind = {None: "general", "Solo": "solo", "Team": "team"}[fast and type(fast).__name__]
+    assert kind == step or cfg["episodes"]  # (a quota: fast until the first run stops)
+
+
+def _recorder(cfg):
+    import numpy as np
+
+    from qpatrol.records import Recorder
+
+    return Recorder(np.arange(cfg["runs"]), cfg["record.transitions"], cfg["record.watch"])
+
+
+def _timeline(cfg, res):
+    from qpatrol.timeline import Timeline
+
+    return Timeline(res.state.n_runs, res.params.n_cells, cfg["record.timeline"])
 
 
 def test_the_paper_runs_on_numpy_until_its_loop_is_cached(monkeypatch):
@@ -79,7 +124,7 @@ def test_the_paper_runs_on_numpy_until_its_loop_is_cached(monkeypatch):
 def test_cold_note_weighs_numpy_against_the_compile_left(monkeypatch):
     monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: False)
     monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {"any": 20.0})
-    est = coldstart.numpy_seconds(PAPER, "any")
+    est = coldstart.numpy_seconds(PAPER)
     assert 0 < est < 20
     monkeypatch.setattr(coldstart, "_compiling_for", lambda loop, folder=None: 0.0)
     assert coldstart.cold_note(PAPER, "any") is not None

@@ -33,17 +33,19 @@ from typing import Any
 
 from qpatrol.config import Config
 
-#: The numpy engine's CPU time per team step, ``(fixed, per agent-step)`` microseconds,
-#: for the batches of each compiled loop (the numpy engine runs a step for every run at
-#: once, so a step's fixed part dominates): a step costs ``fixed + per * runs * agents``.
-#: Measured with ``benchmarks/cold_start.py --rates`` (map_a, 2,000 steps, 1 and 32
-#: runs); ``any`` is the costliest of its strategies (``qlearning-idleness``, teams
-#: with the battery's rules), so that the estimate errs towards compiling, as before.
-NUMPY_US: dict[str, tuple[float, float]] = {
-    "qlearning-solo": (40.0, 0.2),
-    "qlearning-team": (140.0, 0.9),
-    "qlearning": (170.0, 1.0),
-    "any": (600.0, 2.5),
+#: The numpy engine's CPU time per team step, ``(fixed, per robot, per agent-step)``
+#: microseconds, for each of its steps (:mod:`qpatrol.engines.numpy_loop`): the lone
+#: Q-learner's fast step, the Q-learning team's fast step, and the general step (every
+#: strategy and setting). The numpy engine advances every run of a batch at once, so a
+#: step costs ``fixed + per robot * agents + per agent-step * runs * agents``.
+#: Measured with ``benchmarks/cold_start.py --rates`` (map_a, 1,000 steps, 1, 32 and
+#: 256 runs, CPU time): the general step's numbers are those of its costlier cases
+#: (teams with the battery's rules; ``qlearning-idleness``), so that the estimate errs
+#: towards compiling, the choice made before a cache was looked at.
+NUMPY_US: dict[str, tuple[float, float, float]] = {
+    "solo": (50.0, 0.0, 0.2),
+    "team": (60.0, 20.0, 0.8),
+    "general": (250.0, 90.0, 2.5),
 }
 
 #: CPU seconds to compile each loop into an empty cache (fresh process, the loop run
@@ -66,13 +68,29 @@ MARKER = "qpatrol-loop-{}.json"
 LOCK = "qpatrol-loop-{}.lock"
 
 
-def numpy_seconds(cfg: Config, loop: str, rows: int | None = None) -> float:
-    """Estimated CPU seconds of ``cfg``'s time loop on the numpy engine (``loop``: the
-    compiled loop it would take, which says which numpy steps run; ``rows``: the
+def numpy_step(cfg: Config) -> str:
+    """Which step of the numpy engine runs ``cfg``'s batches (a key of
+    :data:`NUMPY_US`), read from the config as :func:`qpatrol.engines.numpy_loop.fast_step`
+    chooses it: for Q-learning without the battery, the lone learner's fast step
+    (without Q-update recorders or timeline) or else the team's (any team size); the
+    general step otherwise, and under an episode quota (a batch with stopped runs
+    takes the general step)."""
+    if cfg["policy"] != "qlearning" or cfg["battery.enabled"] or cfg["episodes"]:
+        return "general"
+    if cfg["agents"] > 1:
+        return "team"
+    if cfg["record.transitions"] or cfg["record.watch"] or cfg["record.timeline"]:
+        return "team"
+    return "solo"
+
+
+def numpy_seconds(cfg: Config, rows: int | None = None) -> float:
+    """Estimated CPU seconds of ``cfg``'s time loop on the numpy engine (``rows``: the
     batch's runs, default ``cfg['runs']``)."""
-    fixed, per = NUMPY_US.get(loop, NUMPY_US["any"])
-    size = (cfg["runs"] if rows is None else rows) * cfg["agents"]
-    return cfg["steps"] * (fixed + per * size) * 1e-6
+    fixed, per_robot, per = NUMPY_US[numpy_step(cfg)]
+    k = cfg["agents"]
+    size = (cfg["runs"] if rows is None else rows) * k
+    return cfg["steps"] * (fixed + per_robot * k + per * size) * 1e-6
 
 
 def compile_seconds(loop: str) -> float:
@@ -91,7 +109,7 @@ def cold_note(
     if cached(loop, folder=folder):
         return None
     left = compile_seconds(loop) - _compiling_for(loop, folder)
-    est = numpy_seconds(cfg, loop, rows)
+    est = numpy_seconds(cfg, rows)
     if est >= left:
         return None
     return (
