@@ -348,3 +348,78 @@ def test_warm_runs_a_few_steps_of_one_run_on_the_compiled_engine(monkeypatch):
     monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: True)
     assert not coldstart.warm(PAPER, "any")
     assert len(seen) == 1
+
+
+# ------------------------------------------------------------------ pools and waiting
+
+
+def test_a_pools_batches_of_a_loop_are_weighed_together(monkeypatch):
+    """One batch of a sweep would finish on numpy before the compile, but the sweep's
+    batches of the same loop together would not: compile (once, for all of them)."""
+    monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: False)
+    monkeypatch.setattr(coldstart, "_compiling_for", lambda loop, folder=None: 0.0)
+    assert coldstart.cold_note(PAPER, "any") is not None
+    work = coldstart.pool_work([(PAPER, "any")] * 20 + [(PAPER, None)])
+    assert work == {"any": pytest.approx(20 * coldstart.numpy_seconds(PAPER))}
+    assert coldstart.pool_work([(PAPER.replace(engine="numba"), "any")]) == {}
+    coldstart.set_pool_work(work)
+    try:
+        assert coldstart.cold_note(PAPER, "any") is None
+        assert coldstart.cold_note(PAPER, "qlearning-team") is not None  # another loop
+    finally:
+        coldstart.set_pool_work(None)
+    assert coldstart.cold_note(PAPER, "any") is not None
+
+
+def test_while_another_process_compiles_a_short_batch_runs_on_numpy(monkeypatch):
+    """Another process is compiling the loop: a batch shorter than the compile's rest
+    runs on numpy (no second warm-up), a longer one waits for it (numba)."""
+    monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: False)
+    monkeypatch.setattr(coldstart, "_compiling_for", lambda loop, folder=None: 2.0)
+    est = coldstart.numpy_seconds(PAPER)
+    note = coldstart.cold_note(PAPER, "any")
+    assert note is not None and "another process compiling it" in note
+    assert "background" not in note
+    monkeypatch.setattr(coldstart, "COMPILE_SECONDS", {"any": est + 1.0})
+    assert coldstart.cold_note(PAPER, "any") is None
+
+
+def test_a_compiled_run_waits_for_another_process_compiling_its_loop(monkeypatch):
+    """Compiling a loop another process is compiling would take longer and cost a core:
+    wait until it is done (its lock gone, or the loop cached)."""
+    polls = []
+
+    def busy(loop, folder=None):
+        polls.append(loop)
+        return 5.0 if len(polls) < 4 else 0.0
+
+    monkeypatch.setattr(coldstart, "_compiling_for", busy)
+    monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: False)
+    coldstart._wait_for_others("any", poll=0.001)
+    assert len(polls) == 4
+    polls.clear()
+    monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: True)
+    coldstart._wait_for_others("any", poll=0.001)
+    assert len(polls) == 1
+
+
+def test_the_sweep_pool_tells_its_workers_the_loops_work(monkeypatch, tmp_path):
+    from qpatrol import sweep
+    from qpatrol.sweep import Point
+
+    seen = []
+
+    def run_points(pts, m, pdir, meta):
+        seen.append(dict(coldstart._pool_work))
+        return []
+
+    monkeypatch.setattr(sweep, "_run_points", run_points)
+    cfgs = [PAPER, PAPER.replace(policy="random"), PAPER.replace(engine="numpy")]
+    tasks = [(0, [(Point(i, {}), c)], None, tmp_path) for i, c in enumerate(cfgs)]
+    assert list(sweep._pool(tasks, 1, {})) == []
+    want = {"any": coldstart.numpy_seconds(cfgs[0]) + coldstart.numpy_seconds(cfgs[1])}
+    assert seen == [want] * 3
+    assert coldstart._pool_work == {}  # reset after the pool
+    sweep._run_tagged(0, [], None, tmp_path, {}, 1, want)
+    assert coldstart._pool_work == want and seen[-1] == want
+    coldstart.set_pool_work(None)

@@ -27,7 +27,7 @@ import subprocess
 import sys
 import tempfile
 import time
-from collections.abc import Mapping
+from collections.abc import Iterable, Mapping
 from pathlib import Path
 from typing import Any
 
@@ -98,24 +98,54 @@ def compile_seconds(loop: str) -> float:
     return COMPILE_SECONDS.get(loop, max(COMPILE_SECONDS.values()))
 
 
+#: Estimated numpy CPU seconds of all the batches of each compiled loop that the pool
+#: this process works for will run (:func:`set_pool_work`); empty outside a pool.
+_pool_work: dict[str, float] = {}
+
+
+def set_pool_work(work: Mapping[str, float] | None) -> None:
+    """Tell this process the numpy seconds of all the batches of each loop its pool
+    (a sweep's, ``reproduce``'s) will run (:func:`pool_work`): a loop worth compiling
+    for the pool's batches together is compiled, not dodged batch after batch."""
+    global _pool_work
+    _pool_work = dict(work or {})
+
+
+def pool_work(batches: Iterable[tuple[Config, str | None]]) -> dict[str, float]:
+    """Estimated numpy seconds per compiled loop of ``(config, loop)`` batches (loop
+    None: a batch the numpy engine runs anyway), counting ``engine: auto`` ones only."""
+    work: dict[str, float] = {}
+    for cfg, loop in batches:
+        if loop is not None and cfg["engine"] == "auto":
+            work[loop] = work.get(loop, 0.0) + numpy_seconds(cfg)
+    return work
+
+
 def cold_note(
     cfg: Config, loop: str, rows: int | None = None, folder: Path | None = None
 ) -> str | None:
     """Why ``engine: auto`` runs ``cfg`` on numpy although its ``loop`` is compiled
     (None: it does not, the compiled engine runs it): the loop is not in numba's cache
-    (:func:`cached`), and the numpy engine would finish sooner than compiling it (less
-    the time a process compiling it already took); ``rows``: the batch's runs (default
-    ``cfg['runs']``). Reads the cache; changes nothing."""
+    (:func:`cached`), and the numpy engine would finish sooner than compiling it: this
+    batch, and the pool's batches of the loop together (:func:`set_pool_work`); or,
+    while another process compiles the loop, this batch sooner than the compile's
+    rest (else this one waits for it, :class:`Compiling`). ``rows``: the batch's runs
+    (default ``cfg['runs']``). Reads the cache; changes nothing."""
     if cached(loop, folder=folder):
         return None
-    left = compile_seconds(loop) - _compiling_for(loop, folder)
     est = numpy_seconds(cfg, rows)
-    if est >= left:
-        return None
-    return (
-        f"{COLD} {loop!r} not cached yet (numpy about {est:.0f} s, "
-        f"compiling it about {left:.0f} s); compiling it in the background for the next run"
-    )
+    busy = _compiling_for(loop, folder)
+    if busy > 0.0:
+        left = max(1.0, compile_seconds(loop) - busy)
+        if est >= left:
+            return None
+        why = f"another process compiling it, about {left:.0f} s left"
+    else:
+        left = compile_seconds(loop)
+        if max(est, _pool_work.get(loop, 0.0)) >= left:
+            return None
+        why = f"compiling it about {left:.0f} s; compiling it in the background for the next run"
+    return f"{COLD} {loop!r} not cached yet (numpy about {est:.0f} s, {why})"
 
 
 # ------------------------------------------------------------------ numba's cache
@@ -244,6 +274,7 @@ class Compiling:
             return
         try:
             self.before = signatures()
+            _wait_for_others(loop)
             path = _lock_path(loop, None)
             if _compiling_for(loop) == 0.0:
                 path.unlink(missing_ok=True)  # a stale lock
@@ -283,6 +314,15 @@ def _compiling_for(loop: str, folder: Path | None = None) -> float:
     if age > LOCK_STALE or not _alive(pid):
         return 0.0
     return max(0.0, age)
+
+
+def _wait_for_others(loop: str, poll: float = 0.25) -> float:
+    """While another process compiles ``loop`` and it is not cached, wait (compiling
+    it here too would take longer and cost a core): seconds waited."""
+    t = time.monotonic()
+    while _compiling_for(loop) > 0.0 and not cached(loop):
+        time.sleep(poll)
+    return time.monotonic() - t
 
 
 def _alive(pid: int) -> bool:
