@@ -105,27 +105,32 @@ def reproduce(jobs: int | None) -> None:
 
 
 RATES = r"""
-import sys, time
-from qpatrol import bench, engines
+import time
+from qpatrol import bench
+from qpatrol.engines import coldstart
 from qpatrol.run import simulate
-CASES = {
-    "qlearning-solo": (1, {}),
-    "qlearning-team": (4, {}),
-    "qlearning": (4, {"record.watch": [13]}),
-    "any": (4, {"battery.enabled": True}),
-    "any (qlearning-idleness)": (4, {"policy": "qlearning-idleness", "battery.enabled": True}),
-}
-for name, (agents, extra) in CASES.items():
+CASES = [
+    (1, {}),
+    (4, {}),
+    (1, {"record.watch": [13]}),
+    (1, {"battery.enabled": True}),
+    (4, {"battery.enabled": True}),
+    (4, {"policy": "qlearning-idleness", "battery.enabled": True}),
+]
+for agents, extra in CASES:
     us = []
-    for runs in (1, 32):
-        cfg = bench.workload(runs, agents, 2000, engine="numpy", extra=extra)
+    for runs in (1, 32, 256):
+        cfg = bench.workload(runs, agents, 1000, engine="numpy", extra=extra)
         t = time.process_time()
         simulate(cfg)
-        us.append((time.process_time() - t) / 2000 * 1e6)
-    per = (us[1] - us[0]) / (31 * agents)
+        us.append((time.process_time() - t) / 1000 * 1e6)
+    per = (us[2] - us[0]) / (255 * agents)
     fixed = us[0] - per * agents
-    print(f"{name}: {us[0]:.0f} us/step at 1 run, {us[1]:.0f} at 32: "
-          f"fixed {fixed:.0f} us + {per:.2f} us per agent-step", flush=True)
+    model = [coldstart.numpy_seconds(cfg, r) / 1000 * 1e6 for r in (1, 32, 256)]
+    print(f"{coldstart.numpy_step(cfg)} step, {agents} agents {extra}: us/step at 1, 32, "
+          f"256 runs {us[0]:.0f} {us[1]:.0f} {us[2]:.0f} (fixed {fixed:.0f} + {per:.2f} per "
+          f"agent-step); NUMPY_US gives {model[0]:.0f} {model[1]:.0f} {model[2]:.0f}",
+          flush=True)
 """
 
 COMPILE = r"""

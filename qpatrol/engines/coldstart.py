@@ -44,8 +44,8 @@ from qpatrol.config import Config
 #: towards compiling, the choice made before a cache was looked at.
 NUMPY_US: dict[str, tuple[float, float, float]] = {
     "solo": (50.0, 0.0, 0.2),
-    "team": (60.0, 20.0, 0.8),
-    "general": (250.0, 90.0, 2.5),
+    "team": (110.0, 12.0, 0.6),
+    "general": (250.0, 120.0, 2.6),
 }
 
 #: CPU seconds to compile each loop into an empty cache (fresh process, the loop run
