@@ -277,6 +277,7 @@ class Compiling:
             _wait_for_others(loop)
             path = _lock_path(loop, None)
             if _compiling_for(loop) == 0.0:
+                path.parent.mkdir(parents=True, exist_ok=True)  # (numba makes it later)
                 path.unlink(missing_ok=True)  # a stale lock
                 fd = os.open(path, os.O_CREAT | os.O_EXCL | os.O_WRONLY)
                 os.write(fd, f"{os.getpid()}\n".encode())
