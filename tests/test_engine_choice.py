@@ -296,6 +296,15 @@ def test_a_compiling_process_holds_the_loops_lock(monkeypatch, tmp_path):
     job.release()
 
 
+def test_the_lock_is_taken_before_numba_made_its_cache_folder(monkeypatch, tmp_path):
+    """On an empty NUMBA_CACHE_DIR numba makes the folder when it first saves."""
+    folder = tmp_path / "not-yet"
+    monkeypatch.setattr(coldstart, "cache_folder", lambda disp=None: folder)
+    job = coldstart.Compiling("any")
+    assert job.lock == folder / coldstart.LOCK.format("any") and job.lock.exists()
+    job.release()
+
+
 def test_a_live_lock_counts_its_age(monkeypatch, tmp_path):
     monkeypatch.setattr(coldstart, "cache_folder", lambda disp=None: tmp_path)
     lock = tmp_path / coldstart.LOCK.format("any")
