@@ -26,7 +26,7 @@ import pandas as pd
 from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
 from qpatrol.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.config import Config, ConfigError
-from qpatrol.engines import numpy_loop
+from qpatrol.engines import coldstart, numpy_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import Map, get_map
 from qpatrol.records import Recorder, Tail, to_csv_text
@@ -199,7 +199,9 @@ def _batch(
     """One batch of rows (see :func:`simulate` and :func:`simulate_rows`)."""
     m, p = prepared
     p = world.with_run_values(p, values)
-    engine, note = engines.choose(cfg)
+    engine, note = engines.choose(cfg, len(seeds))
+    if engine == "numpy" and note.startswith(coldstart.COLD):
+        coldstart.warm_in_background(cfg, engines.compiled_loop(cfg))
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
         # blocks of uniforms no longer than the run (the same numbers for any block)
@@ -221,7 +223,13 @@ def _batch(
     total = cfg["steps"]
     args = (state, p, strategy, watch, streams, rec, tail, timeline, first, total, progress)
     if engine == "numba":
-        loop = _compiled_loop(*args, checkpoint, engine_threads.resolve(cfg["threads"]))
+        compiling = coldstart.Compiling(engines.compiled_loop(cfg))
+        try:
+            threads = engine_threads.resolve(cfg["threads"])
+            loop = _compiled_loop(*args, checkpoint, threads, compiling.done)
+            compiling.done()
+        finally:
+            compiling.release()
     else:
         loop = numpy_loop.run(*args, checkpoint)
     if progress is not None:
@@ -364,6 +372,7 @@ def _compiled_loop(
     progress: Progress | None,
     checkpoint: Checkpointer | None,
     threads: int = 1,
+    compiled: Callable[[], None] | None = None,
 ) -> str:
     """Steps ``first..total`` on the compiled engine, in calls of blocks of team steps
     (same objects, same results as :func:`qpatrol.engines.numpy_loop.run`, for any
@@ -374,7 +383,8 @@ def _compiled_loop(
     checkpoint or a Ctrl-C is served within about a second. With ``threads`` > 1 the
     runs of a call are cut into that many lanes, each advanced by its own thread
     (:mod:`qpatrol.engines.threads`): the same numbers. Returns the compiled loop's
-    name (``numba_core.SPEC_NAMES``)."""
+    name (``numba_core.SPEC_NAMES``). ``compiled()`` is called once the first call of
+    the loop returned (the loop is compiled, or loaded from numba's cache, then)."""
     import time
 
     from qpatrol.engines import numba_core
@@ -409,6 +419,9 @@ def _compiled_loop(
                     buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
                     lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
         taken, ends, up_int, up_float = loop.run(lanes)
+        if compiled is not None:
+            compiled()
+            compiled = None
         rec.episode_rows(ends)
         rec.update_rows(up_int, up_float)
         i += taken

@@ -50,7 +50,7 @@ import pandas as pd
 from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
 from qpatrol.csvio import read_csv
-from qpatrol.engines import compiled_loop
+from qpatrol.engines import coldstart, compiled_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import MapError, resolve_map
 from qpatrol.records import to_csv_text
@@ -492,10 +492,16 @@ def _pool(
     from joblib import Parallel, delayed, effective_n_jobs
 
     n = min(effective_n_jobs(jobs), len(tasks))
+    # the numpy seconds of each compiled loop's batches, for the choice on a cold cache
+    work = coldstart.pool_work((cfg, compiled_loop(cfg)) for t in tasks for _, cfg in t[1])
     if n == 1:
-        for tag, pts, m, pdir in tasks:
-            for outcome in _run_points(pts, m, pdir, meta):
-                yield tag, outcome
+        coldstart.set_pool_work(work)
+        try:
+            for tag, pts, m, pdir in tasks:
+                for outcome in _run_points(pts, m, pdir, meta):
+                    yield tag, outcome
+        finally:
+            coldstart.set_pool_work(None)
         return
     ordered = _distinct_loops_first(sorted(tasks, key=lambda t: -_task_cost(t)))
     # one task at a time (joblib's automatic batching may hand a worker several of the
@@ -503,7 +509,7 @@ def _pool(
     parallel = Parallel(n_jobs=n, backend="loky", return_as="generator_unordered", batch_size=1)
     share = engine_threads.share_of(n)  # the compiled engine's threads of each worker
     for tag, outcomes in parallel(
-        delayed(_run_tagged)(tag, pts, m, pdir, meta, share) for tag, pts, m, pdir in ordered
+        delayed(_run_tagged)(tag, pts, m, pdir, meta, share, work) for tag, pts, m, pdir in ordered
     ):
         for outcome in outcomes:
             yield tag, outcome
@@ -536,8 +542,10 @@ def _run_tagged(
     pdir: Path,
     meta: dict[str, Any],
     share: int | None = None,
+    work: dict[str, float] | None = None,
 ) -> tuple[Any, list[tuple[str, str | None]]]:
     engine_threads.set_share(share)
+    coldstart.set_pool_work(work)
     return tag, _run_points(pts, m, pdir, meta)
 
 

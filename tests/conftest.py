@@ -84,3 +84,15 @@ def stopped_and_resumed(cfg, folder: Path, at: int):
 def stop_and_resume():
     """:func:`stopped_and_resumed`, for tests in any file."""
     return stopped_and_resumed
+
+
+@pytest.fixture(autouse=True)
+def compiled_loops_cached(monkeypatch):
+    """Every compiled loop counts as in numba's cache (``engine: auto`` then takes the
+    compiled engine as the tests expect, whether or not this machine compiled the loop
+    before), and no background process compiles one; tests of the cold start
+    (tests/test_engine_choice.py) undo this with their own patches."""
+    from qpatrol.engines import coldstart
+
+    monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: True)
+    monkeypatch.setattr(coldstart, "warm_in_background", lambda cfg, loop, folder=None: False)

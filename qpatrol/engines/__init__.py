@@ -7,8 +7,10 @@
   runs on the numpy engine and says so (:func:`choose` returns the reason).
 
 Config key ``engine``: ``auto`` (numba when installed, for batches of at least
-:data:`AUTO_MIN_AGENT_STEPS` agent-steps), ``numpy`` or ``numba``. Every
-engine writes the same files to the bit; ``meta.json`` records which one ran.
+:data:`AUTO_MIN_AGENT_STEPS` agent-steps, unless the compiled loop the batch needs is
+not in numba's cache yet and the numpy engine would finish sooner than compiling it:
+:mod:`qpatrol.engines.coldstart`), ``numpy`` or ``numba``. Every engine writes the
+same files to the bit; ``meta.json`` records which one ran, and why.
 """
 
 from __future__ import annotations
@@ -65,10 +67,31 @@ def compiled_gap(cfg: Config) -> str | None:
 AUTO_MIN_AGENT_STEPS = 20_000
 
 
-def choose(cfg: Config) -> tuple[str, str]:
+def choose(cfg: Config, rows: int | None = None) -> tuple[str, str]:
     """``(engine, note)``: the engine that runs ``cfg``, and why when it is not the one
     asked for (empty note otherwise). Raises ConfigError for ``engine: numba`` without
-    numba installed."""
+    numba installed.
+
+    Under ``engine: auto`` a batch whose compiled loop is not in numba's cache yet runs
+    on numpy when numpy would finish sooner than the compile (note ``auto: compiled
+    loop ... not cached yet``; :func:`qpatrol.engines.coldstart.cold_note`): this reads
+    numba's cache (and imports numba). ``rows``: the batch's runs when not
+    ``cfg['runs']`` (points of a sweep sharing a batch). :func:`choose_by_config` is
+    the choice from the config alone."""
+    engine, note = choose_by_config(cfg)
+    if engine == "numba" and cfg["engine"] == "auto":
+        from qpatrol.engines import coldstart
+
+        loop = _loop_of(cfg)
+        cold = coldstart.cold_note(cfg, loop, rows)
+        if cold is not None:
+            return "numpy", cold
+    return engine, note
+
+
+def choose_by_config(cfg: Config) -> tuple[str, str]:
+    """:func:`choose` from the config alone (numba's cache unread: every loop taken as
+    cached)."""
     asked = cfg["engine"]
     if asked == "numpy":
         return "numpy", ""
@@ -95,9 +118,16 @@ def compiled_loop(cfg: Config) -> str | None:
     ``"qlearning-solo"`` or ``"qlearning-team"`` (the Q-learning kernels); None when the
     numpy engine runs it. The choice :class:`qpatrol.engines.numba_core.Loop` makes from
     the prepared batch, read from the config (a test checks that they agree), so that
-    a pool of workers can compile different loops at once (:mod:`qpatrol.sweep`)."""
-    if choose(cfg)[0] != "numba":
+    a pool of workers can compile different loops at once (:mod:`qpatrol.sweep`).
+    Read from the config alone (:func:`choose_by_config`: whether the loop is cached
+    does not change which one it is)."""
+    if choose_by_config(cfg)[0] != "numba":
         return None
+    return _loop_of(cfg)
+
+
+def _loop_of(cfg: Config) -> str:
+    """:func:`compiled_loop` of a config the compiled engine runs."""
     if cfg["policy"] != "qlearning" or cfg["battery.enabled"] or cfg["record.timeline"]:
         return "any"
     if cfg["record.transitions"] or cfg["record.watch"]:
