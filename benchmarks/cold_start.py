@@ -107,7 +107,7 @@ def reproduce(jobs: int | None) -> None:
 
 RATES = r"""
 import time
-from qpatrol import bench
+from qpatrol.run import bench
 from qpatrol.engines import coldstart
 from qpatrol.run import simulate
 CASES = [
@@ -136,7 +136,8 @@ for agents, extra in CASES:
 
 COMPILE = r"""
 import sys, time
-from qpatrol import bench, engines
+from qpatrol import engines
+from qpatrol.run import bench
 from qpatrol.run import simulate
 loop = sys.argv[1]
 agents, extra = {

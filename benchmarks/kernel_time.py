@@ -22,9 +22,8 @@ from __future__ import annotations
 import argparse
 import time
 
-from qpatrol import bench
 from qpatrol.config import parse_assignment
-from qpatrol.run import prepare, simulate
+from qpatrol.run import bench, prepare, simulate
 
 
 def main() -> None:

@@ -23,11 +23,13 @@ from typing import Annotated, Any
 import typer
 from typer.core import TyperCommand, TyperGroup
 
-from qpatrol import __version__, outputs, provenance
+from qpatrol import __version__
 from qpatrol import config as config_mod
 from qpatrol.config import ConfigError
 from qpatrol.maps import MapError, available_maps, load_map, parse_map, render_states, resolve_map
-from qpatrol.progress import Bar
+from qpatrol.run import outputs
+from qpatrol.util import provenance
+from qpatrol.util.progress import Bar
 
 HELP = {"help_option_names": ["-h", "--help"]}
 #: click's exceptions, wherever this typer takes click from (newer typers vendor it).
@@ -211,8 +213,8 @@ def train(
     --checkpoint-every seconds and on Ctrl-C or SIGTERM; --resume continues from it and
     gives the same files as an uninterrupted run.
     """
-    from qpatrol import checkpoint as ck
     from qpatrol import run as run_mod
+    from qpatrol.run import checkpoint as ck
 
     started = provenance.now()
     overrides = list(set_ or [])
@@ -361,8 +363,8 @@ def sweep(
     Resumable: rerunning the same command skips finished points. Writes
     OUT/points/<id>/ (the files `train` writes), OUT/results.csv and OUT/meta.json.
     """
-    from qpatrol import limits
-    from qpatrol import sweep as sw
+    from qpatrol.study import sweep as sw
+    from qpatrol.world import limits
 
     args = list(args or [])
     overrides = list(set_ or []) + ([f"runs={runs}"] if runs is not None else [])
@@ -486,8 +488,8 @@ def plot(
     The folder must hold what the figure is drawn from: a sweep over the multiplier
     (figure-2), gamma (gamma) or agents (team-size), or a run folder (figure-3 to 6).
     """
-    from qpatrol import plots
-    from qpatrol import reproduce as rp
+    from qpatrol.study import plots
+    from qpatrol.study import reproduce as rp
 
     try:
         fig = rp.figure(name)
@@ -572,8 +574,8 @@ def reproduce(
     Writes OUT/figures/, OUT/data/, OUT/REPORT.md and OUT/meta.json. Resumable:
     finished experiment points are kept under OUT/runs/ and not rerun.
     """
-    from qpatrol import limits
-    from qpatrol import reproduce as rp
+    from qpatrol.study import reproduce as rp
+    from qpatrol.world import limits
 
     if update_references and not quick:
         fail("--update-references needs --quick")
@@ -658,7 +660,7 @@ def bench(
             "-T",
             metavar="T",
             help="Team steps per run (default: about a second of work on the compiled "
-            "engine, 1 to 9 s on numpy, see qpatrol.bench.default_steps).",
+            "engine, 1 to 9 s on numpy, see qpatrol.run.bench.default_steps).",
         ),
     ] = None,
     engine: Annotated[
@@ -682,12 +684,12 @@ def bench(
     ] = False,
 ) -> None:
     """Measure agent-steps per second of a Q-learning workload (battery off) and of a
-    plain-Python reference loop (qpatrol/reference.py) in the same process, with their
+    plain-Python reference loop (qpatrol/run/reference.py) in the same process, with their
     ratio, bytes per run and peak memory. Says which engine ran, and why if it fell back,
     and how many threads it had (the runs of a batch are shared among them: use
     --threads 1 for the speed of one core).
     """
-    from qpatrol import bench as bench_mod
+    from qpatrol.run import bench as bench_mod
 
     try:
         extra = dict(config_mod.parse_assignment(a) for a in set_ or [])
@@ -739,7 +741,7 @@ def maps_show(
     """Print the grid with each free cell's state number, or draw it to an image."""
     try:
         if png is not None:
-            from qpatrol.plots import check_image_path
+            from qpatrol.study.plots import check_image_path
 
             check_image_path(png)
             outputs.check_writable_file(png, "--png")
@@ -747,7 +749,7 @@ def maps_show(
     except (MapError, ConfigError, ValueError) as e:
         fail(str(e))
     if png is not None:
-        from qpatrol.plots import plot_map
+        from qpatrol.study.plots import plot_map
 
         plot_map(m, png)
         typer.echo(f"wrote {png}")
@@ -816,10 +818,10 @@ def maps_import(
 
     Cells are free only if all their pixels are free; the largest 4-connected free
     region is kept and cropped; starts and stations are spread by farthest-point
-    sampling. Details: docs/maps.md and qpatrol/mapimport.py.
+    sampling. Details: docs/maps.md and qpatrol/maps/importer.py.
     """
-    from qpatrol import atomic
-    from qpatrol.mapimport import RosMapError, import_map
+    from qpatrol.maps.importer import RosMapError, import_map
+    from qpatrol.util import atomic
 
     if cell is None:
         fail("maps import: --cell METRES is required (the side of a grid cell)")

@@ -21,7 +21,7 @@ from typing import Any
 
 import yaml
 
-from qpatrol.strategies import NAMES as STRATEGY_NAMES
+from qpatrol.util.data import shipped_dir
 
 
 class ConfigError(ValueError):
@@ -73,8 +73,18 @@ def _num(x: float) -> str:
 
 
 F = Field
-#: Every patrol strategy, by its ``policy`` name (one module each in qpatrol/strategies/).
-POLICIES = STRATEGY_NAMES
+#: Every patrol strategy, by its ``policy`` name (one module each in qpatrol/strategies/);
+#: the paper's learner first (the default).
+POLICIES: tuple[str, ...] = (
+    "qlearning",
+    "random",
+    "conscientious",
+    "shared-conscientious",
+    "cyclic",
+    "partition",
+    "evap",
+    "qlearning-idleness",
+)
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
@@ -595,8 +605,6 @@ def _looks_like_path(value: str) -> bool:
 
 def shipped_configs() -> dict[str, Path]:
     """Config name (file stem) -> path, for the configs shipped with qpatrol."""
-    from qpatrol.maps import shipped_dir
-
     d = shipped_dir("configs")
     return {p.stem: p for p in sorted(d.glob("*.yaml"))} if d.is_dir() else {}
 

@@ -62,7 +62,7 @@ def stopped_and_resumed(cfg, folder: Path, at: int):
     """``simulate(cfg)`` stopped at step ``at`` by a checkpointer ticked after every
     step (on the compiled engine: one step per call), then resumed from its checkpoint
     in ``folder``: the resumed run's result."""
-    from qpatrol import checkpoint as ck
+    from qpatrol.run import checkpoint as ck
     from qpatrol.run import simulate
 
     class StopAt(ck.Checkpointer):

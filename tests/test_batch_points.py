@@ -1,4 +1,4 @@
-"""Sweep points sharing batches (qpatrol.batching): the same files as one point at a time."""
+"""Sweep points sharing batches (qpatrol.run.batching): the same files as one point at a time."""
 
 from __future__ import annotations
 
@@ -9,10 +9,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-import qpatrol.batching
-from qpatrol import batching, sweep
+import qpatrol.run.batching
 from qpatrol.config import from_mapping
-from qpatrol.sweep import grid_points, listed_points, points_for, run_sweep
+from qpatrol.run import batching
+from qpatrol.study import sweep
+from qpatrol.study.sweep import grid_points, listed_points, points_for, run_sweep
 
 TINY = """\
 ; name: tiny
@@ -116,8 +117,8 @@ def test_batched_sweep_gives_the_same_files(
         pytest.importorskip("numba")
     base = make_base(maps[agents], agents, engine, record)
     pts = listed_points(SWEEPS[kind])
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
     r1 = run_sweep(base, pts, tmp_path / "batched", meta={})
     assert count.calls == 1 and count.rows == [6]  # one batch: 3 points x 2 runs
     r2 = run_sweep(base, pts, tmp_path / "alone", meta={}, batch_points=False)
@@ -155,9 +156,9 @@ def test_memory_limit_splits_a_group_into_batches(maps, tmp_path, monkeypatch):
     """Batches of at most limits.batch_runs rows, cutting points in two: same files."""
     base = make_base(maps[1], 1, runs=3)
     pts = points_for("learning.gamma", [0.1, 0.5, 0.9])
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
-    monkeypatch.setattr(qpatrol.batching.limits, "batch_runs", lambda cfg, m: 4)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
+    monkeypatch.setattr(qpatrol.run.batching.limits, "batch_runs", lambda cfg, m: 4)
     run_sweep(base, pts, tmp_path / "batched", meta={})
     assert count.rows == [4, 4, 1]
     run_sweep(base, pts, tmp_path / "alone", meta={}, batch_points=False)
@@ -165,8 +166,8 @@ def test_memory_limit_splits_a_group_into_batches(maps, tmp_path, monkeypatch):
 
 
 def test_points_differing_in_other_keys_are_not_grouped(maps, tmp_path, monkeypatch):
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
     base = make_base(maps[4], 2, record=False, steps=60)
     # agents x gamma: one batch per team size
     pts = grid_points({"agents": [1, 2], "learning.gamma": [0.1, 0.9]})
@@ -256,8 +257,8 @@ def test_resume_runs_only_the_missing_points_of_a_group(maps, tmp_path, monkeypa
     first = (out / "results.csv").read_bytes()
     for p in (pts[1], pts[3]):
         shutil.rmtree(out / "points" / p.id)
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
     r = run_sweep(base, pts, out, meta={})
     assert r.done == [pts[1].id, pts[3].id] and r.skipped == [pts[0].id, pts[2].id]
     assert count.rows == [4]  # the two missing points' runs, in one batch
@@ -274,7 +275,7 @@ def test_a_failing_batch_fails_each_of_its_points(maps, tmp_path, monkeypatch):
     def boom(*a, **k):
         raise RuntimeError("boom in a shared batch")
 
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", boom)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", boom)
     r = run_sweep(base, pts, out, meta={})
     assert r.failed == [p.id for p in pts] and not r.done
     for p in pts:
@@ -312,8 +313,8 @@ def test_cli_no_batch_points(maps, tmp_path, monkeypatch):
 
     cfg = tmp_path / "c.yaml"
     cfg.write_text(f"map: {maps[1]}\nruns: 2\nsteps: 100\nbattery: false\n")
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
     for flag, out in (([], "a"), (["--no-batch-points"], "b")):
         args = ["sweep", "learning.gamma", "--values", "0.1,0.9", str(cfg), "--out"]
         with pytest.raises(SystemExit) as e:
@@ -331,8 +332,8 @@ def test_qlearning_idleness_points_share_batches(maps, tmp_path, monkeypatch, en
         pytest.importorskip("numba")
     base = make_base(maps[4], 4, engine, policy="qlearning-idleness")
     pts = listed_points([{"seed": 1}, {"seed": 2, "reward.lambda": 3.0}, {"learning.gamma": 0.2}])
-    count = Count(qpatrol.batching.simulate_rows)
-    monkeypatch.setattr(qpatrol.batching, "simulate_rows", count)
+    count = Count(qpatrol.run.batching.simulate_rows)
+    monkeypatch.setattr(qpatrol.run.batching, "simulate_rows", count)
     run_sweep(base, pts, tmp_path / "batched", meta={})
     assert count.rows == [6]
     run_sweep(base, pts, tmp_path / "alone", meta={}, batch_points=False)

@@ -12,11 +12,11 @@ from pathlib import Path
 
 import pytest
 
-from qpatrol import limits
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.maps import get_map
 from qpatrol.run import simulate, write_run
 from qpatrol.strategies import NAMES
+from qpatrol.world import limits
 
 META = {"started": "-", "ended": "-"}
 RUNS = 5
@@ -106,9 +106,9 @@ def test_limit_is_an_execution_key():
 @pytest.mark.parametrize("agents", [1, 4])
 @pytest.mark.parametrize("battery", [False, True])
 def test_bench_reports_the_estimate(agents, battery):
-    """``qpatrol bench`` reports :func:`qpatrol.limits.bytes_per_run`, which covers the
+    """``qpatrol bench`` reports :func:`qpatrol.world.limits.bytes_per_run`, which covers the
     per-run arrays actually allocated."""
-    from qpatrol.bench import bench, workload
+    from qpatrol.run.bench import bench, workload
 
     cfg = workload(3, agents, 200, "numpy", extra={"battery.enabled": battery})
     b = bench(cfg)
@@ -120,7 +120,7 @@ def test_bench_reports_the_estimate(agents, battery):
 def test_sweep_points_in_batches(tmp_path):
     """A sweep whose points are split into batches writes the same folders and
     ``results.csv`` (the limit is not part of the config: same point folders)."""
-    from qpatrol.sweep import points_for, run_sweep
+    from qpatrol.study.sweep import points_for, run_sweep
 
     flat = {**RECORD, "map": "map_b", "agents": 2, "runs": RUNS}
     points = points_for("learning.gamma", [0.1, 0.5])

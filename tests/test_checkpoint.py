@@ -15,9 +15,9 @@ import numpy as np
 import pytest
 import yaml
 
-from qpatrol import checkpoint as ck
 from qpatrol import cli
 from qpatrol.config import from_mapping
+from qpatrol.run import checkpoint as ck
 from qpatrol.run import simulate
 
 CONFIG = {

@@ -10,8 +10,8 @@ import yaml
 from typer.testing import CliRunner
 
 from qpatrol.cli import app
-from qpatrol.csvio import read_csv
 from qpatrol.maps import DIRECTIONS
+from qpatrol.util.csvio import read_csv
 
 runner = CliRunner()
 

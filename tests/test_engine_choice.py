@@ -18,6 +18,7 @@ from qpatrol.config import from_flat, load_config
 from qpatrol.engines import coldstart
 from qpatrol.engines.coldstart import cached as real_cached
 from qpatrol.engines.coldstart import warm_in_background as real_warm_in_background
+from qpatrol.run import warmup
 
 pytest.importorskip("numba")
 
@@ -282,13 +283,13 @@ def test_warm_in_background_hands_the_config_to_a_detached_process(monkeypatch, 
     cfg = PAPER.replace(steps=777)
     assert real_warm_in_background(cfg, "any")
     (argv, kw) = started[0]
-    assert argv[:3] == [sys.executable, "-m", "qpatrol.engines.coldstart"]
+    assert argv[:3] == [sys.executable, "-m", "qpatrol.run.warmup"]
     assert kw["start_new_session"] and kw["stdout"] is coldstart.subprocess.DEVNULL
     # the process reads the same config back, and removes the file
     got = []
-    monkeypatch.setattr(coldstart, "warm", lambda c, loop: got.append((c, loop)) or True)
-    monkeypatch.setattr(coldstart.os, "nice", lambda n: 0)
-    assert coldstart.main([argv[3]]) == 0
+    monkeypatch.setattr(warmup, "warm", lambda c, loop: got.append((c, loop)) or True)
+    monkeypatch.setattr(warmup.os, "nice", lambda n: 0)
+    assert warmup.main([argv[3]]) == 0
     assert got == [(cfg, "any")] and not Path(argv[3]).exists()
     # another process is compiling the loop: none started
     monkeypatch.setattr(coldstart, "_compiling_for", lambda loop, folder=None: 3.0)
@@ -297,18 +298,16 @@ def test_warm_in_background_hands_the_config_to_a_detached_process(monkeypatch, 
 
 
 def test_warm_runs_a_few_steps_of_one_run_on_the_compiled_engine(monkeypatch):
-    import qpatrol.run
-
     seen = []
-    monkeypatch.setattr(qpatrol.run, "simulate", lambda cfg: seen.append(cfg))
+    monkeypatch.setattr(warmup, "simulate", lambda cfg: seen.append(cfg))
     monkeypatch.setattr(coldstart, "_compiling_for", lambda loop, folder=None: 0.0)
     monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: False)
-    assert coldstart.warm(PAPER, "any")
+    assert warmup.warm(PAPER, "any")
     (mini,) = seen
     assert (mini["runs"], mini["steps"], mini["engine"], mini["threads"]) == (1, 8, "numba", 1)
     assert engines.compiled_loop(mini) == engines.compiled_loop(PAPER)
     monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: True)
-    assert not coldstart.warm(PAPER, "any")
+    assert not warmup.warm(PAPER, "any")
     assert len(seen) == 1
 
 
@@ -366,8 +365,8 @@ def test_a_compiled_run_waits_for_another_process_compiling_its_loop(monkeypatch
 
 
 def test_the_sweep_pool_tells_its_workers_the_loops_work(monkeypatch, tmp_path):
-    from qpatrol import sweep
-    from qpatrol.sweep import Point
+    from qpatrol.study import sweep
+    from qpatrol.study.sweep import Point
 
     seen = []
 

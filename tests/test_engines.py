@@ -15,9 +15,9 @@ import mazes
 import numpy as np
 import pytest
 
-from qpatrol import checkpoint as ck
 from qpatrol import engines
 from qpatrol.config import ConfigError, from_flat
+from qpatrol.run import checkpoint as ck
 from qpatrol.run import simulate, write_run
 from qpatrol.strategies import NAMES
 
@@ -182,8 +182,8 @@ def test_compiled_qlearning_team_kernel(
     """Q-learning teams without battery run in the compiled loop's team kernel
     (numba_core._team_qlearning): the numpy engine's files and Q-tables, to the bit,
     in runs with and without the right of way's pushes."""
-    from qpatrol import traffic
     from qpatrol.engines import numba_core
+    from qpatrol.world import traffic
 
     pushes = []
     push = traffic._push_path
@@ -205,9 +205,8 @@ def test_compiled_loop_specializations(loop_specs):
     """Which compiled loop a batch runs: the lone Q-learner's kernel, the Q-learning
     team's kernel, the Q-learning loop (Q-update recorders), or the loop for any
     strategy (battery, timeline, other strategies)."""
-    from qpatrol import bench
     from qpatrol.engines import numba_core
-    from qpatrol.run import simulate
+    from qpatrol.run import bench, simulate
 
     cases = [
         ({}, 1, numba_core.SPEC_QLEARNING_SOLO),
@@ -734,7 +733,7 @@ def test_sat_out_mirrors_the_numpy_engine(rooms_map):
     from qpatrol import strategies, world
     from qpatrol.engines.compiled import follow
     from qpatrol.maps import get_map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.run import advance
 
     cfg = from_flat({"map": str(rooms_map), "policy": "cyclic", "agents": 3, "runs": 2})

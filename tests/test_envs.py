@@ -254,7 +254,7 @@ def test_example_runs():
 def test_core_does_not_import_the_rl_libraries():
     """The base install works without pettingzoo/gymnasium: only qpatrol.envs imports them."""
     code = (
-        "import sys, qpatrol.run, qpatrol.cli, qpatrol.sweep, qpatrol.reproduce\n"
+        "import sys, qpatrol.run, qpatrol.cli, qpatrol.study.sweep, qpatrol.study.reproduce\n"
         "bad = [m for m in ('pettingzoo', 'gymnasium') if m in sys.modules]\n"
         "assert not bad, bad\n"
     )

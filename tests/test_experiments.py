@@ -7,8 +7,8 @@ import pandas as pd
 import pytest
 from typer.testing import CliRunner
 
-from qpatrol import reproduce as rp
 from qpatrol.cli import app
+from qpatrol.study import reproduce as rp
 
 runner = CliRunner()
 REPO = Path(__file__).resolve().parent.parent

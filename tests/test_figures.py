@@ -8,11 +8,11 @@ import numpy as np
 import pandas as pd
 import pytest
 
-from qpatrol import figures, plots
 from qpatrol.config import from_flat
 from qpatrol.maps import DIR_LETTERS, get_map
-from qpatrol.records import to_csv_text
+from qpatrol.measures.records import to_csv_text
 from qpatrol.run import simulate, write_run
+from qpatrol.study import figures, plots
 
 # 17 free cells; cell 3 is a T-junction (West, East, South); H at cell 13
 TINY = """; name: tiny

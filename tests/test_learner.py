@@ -1,6 +1,6 @@
 import numpy as np
 
-from qpatrol import learner
+from qpatrol.strategies import learner
 
 INF = -np.inf
 

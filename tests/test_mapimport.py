@@ -10,8 +10,9 @@ from typer.testing import CliRunner
 
 from qpatrol.cli import app
 from qpatrol.config import from_mapping
-from qpatrol.images import parse_pgm, read_image
-from qpatrol.mapimport import (
+from qpatrol.maps import load_map, parse_map
+from qpatrol.maps.images import parse_pgm, read_image
+from qpatrol.maps.importer import (
     RosMapError,
     crop,
     default_stations,
@@ -22,8 +23,7 @@ from qpatrol.mapimport import (
     read_occupancy,
     to_cells,
 )
-from qpatrol.maps import load_map, parse_map
-from qpatrol.rosmap import occupancy
+from qpatrol.maps.ros import occupancy
 from qpatrol.run import simulate
 
 runner = CliRunner()

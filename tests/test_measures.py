@@ -23,12 +23,12 @@ import pytest
 from conftest import ROOMS
 
 from qpatrol import measures, world
-from qpatrol.battery import HOMING, PATROL, QUEUED
 from qpatrol.config import from_flat
 from qpatrol.maps import EAST, WEST, parse_map
 from qpatrol.measures import Measures, division_of_labour
-from qpatrol.rng import Streams, run_seeds
 from qpatrol.run import simulate
+from qpatrol.world.battery import HOMING, PATROL, QUEUED
+from qpatrol.world.rng import Streams, run_seeds
 
 # a one-wide ring of n = 12 cells (the border of a 4 x 4 square), no station:
 #   0  1  2  3

@@ -13,9 +13,9 @@ import pickle
 import numpy as np
 import pytest
 
-from qpatrol import rng
 from qpatrol.config import from_flat
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.world import rng
+from qpatrol.world.rng import Streams, run_seeds
 
 pcg = pytest.importorskip("qpatrol.engines.compiled.pcg")
 numba = pytest.importorskip("numba")

@@ -1,6 +1,6 @@
 import io
 
-from qpatrol.progress import Bar
+from qpatrol.util.progress import Bar
 
 
 class Tty(io.StringIO):
@@ -42,7 +42,7 @@ def test_piped_progress_reports_a_line_every_so_often():
 def test_sweep_progress_moves_during_a_point(tmp_path):
     """One point of 2 runs: progress reports fractions of its runs before it ends."""
     from qpatrol.config import from_flat
-    from qpatrol.sweep import points_for, run_sweep
+    from qpatrol.study.sweep import points_for, run_sweep
 
     base = from_flat(
         {"map": "map_b", "agents": 2, "runs": 2, "steps": 4000, "battery.enabled": False}

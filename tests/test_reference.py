@@ -9,12 +9,12 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from qpatrol import reference, world
+from qpatrol import world
 from qpatrol.cli import app
 from qpatrol.config import from_flat
 from qpatrol.maps import DIRECTIONS
-from qpatrol.rng import Streams, run_seeds
-from qpatrol.run import simulate
+from qpatrol.run import reference, simulate
+from qpatrol.world.rng import Streams, run_seeds
 
 
 @pytest.mark.parametrize(
@@ -66,8 +66,9 @@ def test_bench_command_json():
         assert key in b
     assert b["agent_steps"] == 600 and b["bytes_per_run"] > 0 and b["ratio"] > 0
     assert b["threads"] == 1  # a small batch: numpy, one thread
-    # end to end as `qpatrol train` runs it: slower than the core (it writes the files)
-    assert b["train_seconds"] > b["seconds"] > 0 and b["loop"] == "general"
+    # end to end as `qpatrol train` runs it (timed apart: no order between the two times
+    # of so small a workload on a shared machine)
+    assert b["train_seconds"] > 0 and b["seconds"] > 0 and b["loop"] == "general"
     assert b["train_agent_steps_per_s"] == pytest.approx(600 / b["train_seconds"])
     assert b["train_overhead"] == pytest.approx(b["train_seconds"] / b["seconds"] - 1)
 
@@ -75,7 +76,8 @@ def test_bench_command_json():
 def test_bench_times_train_through_trains_own_path(monkeypatch):
     """The bench's train timing goes through :func:`qpatrol.run.train` (what `qpatrol
     train` calls) with train's checkpointer, and writes a run folder."""
-    from qpatrol import bench, run
+    from qpatrol import run
+    from qpatrol.run import bench
 
     seen = []
     real = run.train
@@ -117,7 +119,7 @@ def test_bench_warms_up_the_engine_it_times(monkeypatch):
     up on it (the warm-up's few steps alone would take numpy, and loading the compiled
     loop would then fall inside the timing)."""
     pytest.importorskip("numba")
-    from qpatrol import bench
+    from qpatrol.run import bench
 
     seen = []
     real = bench.simulate
@@ -134,7 +136,8 @@ def test_bench_warms_up_the_engine_it_times(monkeypatch):
 def test_bench_default_steps_take_about_a_second(monkeypatch):
     """Without --steps a workload is about 20 M agent-steps compiled, 1 M on numpy,
     within bounds (a run of 50,000 steps took 4 ms, mostly setting it up)."""
-    from qpatrol import bench, engines
+    from qpatrol import engines
+    from qpatrol.run import bench
 
     assert bench.default_steps(1, 1, "numba") == 20_000_000
     assert bench.default_steps(16, 4, "numba") == 312_500
@@ -155,7 +158,7 @@ def test_bench_default_steps_take_about_a_second(monkeypatch):
 def test_bench_times_the_reference_before_and_after_the_core(monkeypatch):
     """The reference loop brackets the core: its rate is that of both timings together,
     the drift is the change between them, and a large drift is reported."""
-    from qpatrol import bench
+    from qpatrol.run import bench
 
     calls = []
     ref_seconds = iter([1.0, 3.0])  # 100 agent-steps in 1 s, then in 3 s
@@ -180,7 +183,7 @@ def test_bench_times_both_loops_with_the_garbage_collector_off(monkeypatch):
     disabled gc stays disabled."""
     import gc
 
-    from qpatrol import bench
+    from qpatrol.run import bench
 
     seen = []
     real_ref, real_sim = bench.reference.run, bench.simulate

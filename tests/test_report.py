@@ -1,10 +1,10 @@
-"""Report sections computed from hand-made figure tables (qpatrol.report)."""
+"""Report sections computed from hand-made figure tables (qpatrol.study.report)."""
 
 from __future__ import annotations
 
 import pandas as pd
 
-from qpatrol import report
+from qpatrol.study import report
 
 
 def study_table(rows: list[tuple]) -> pd.DataFrame:

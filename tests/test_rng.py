@@ -1,4 +1,4 @@
-"""Seeding a batch at once (:func:`qpatrol.rng.state_words`, :class:`RunKey`) gives the
+"""Seeding a batch at once (:func:`qpatrol.world.rng.state_words`, :class:`RunKey`) gives the
 streams numpy's own ``SeedSequence`` gives, to the bit."""
 
 from __future__ import annotations
@@ -8,7 +8,7 @@ import pickle
 import numpy as np
 import pytest
 
-from qpatrol import rng
+from qpatrol.world import rng
 
 SEEDS = [0, 1, 7, 12345, 2**32 - 1, 2**32, 2**40 + 3, 2**130 + 77]  # 1 to 5 words
 POINTS = [0, 1, 5, 2**31, 2**32 - 1, 2**33 + 9]  # the last two words long

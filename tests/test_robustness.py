@@ -19,7 +19,7 @@ import yaml
 
 from qpatrol import cli
 from qpatrol.config import from_flat
-from qpatrol.sweep import grid_points, points_for, run_sweep
+from qpatrol.study.sweep import grid_points, points_for, run_sweep
 
 REPO = Path(__file__).resolve().parent.parent
 
@@ -393,12 +393,12 @@ def test_internal_error_one_line_and_a_log(run, tmp_path, monkeypatch):
 
 
 def test_ctrl_c_prints_a_message(run, tmp_path, monkeypatch):
-    import qpatrol.sweep
+    import qpatrol.study.sweep
 
     def interrupted(*a, **k):
         raise KeyboardInterrupt
 
-    monkeypatch.setattr(qpatrol.sweep, "run_sweep", interrupted)
+    monkeypatch.setattr(qpatrol.study.sweep, "run_sweep", interrupted)
     res = run("sweep", "learning.gamma", "--values", "0.1", tiny(tmp_path), "-o", tmp_path / "s")
     assert_one_line_error(res, 130, "interrupted; finished points are kept in")
     monkeypatch.setattr(qpatrol.cli, "available_maps", interrupted)
@@ -412,7 +412,7 @@ def test_quiet_prints_only_where_it_wrote(run, tmp_path):
 
 
 def test_outputs_are_written_with_mode_0644(tmp_path, sweeps):
-    from qpatrol import atomic
+    from qpatrol.util import atomic
 
     old = os.umask(0o022)
     try:

@@ -12,12 +12,12 @@ import numpy as np
 import pytest
 from conftest import ROOMS
 
-from qpatrol import run, strategies, walks, world
+from qpatrol import run, strategies, world
 from qpatrol.config import from_flat
-from qpatrol.maps import EAST, NORTH, SOUTH, WEST, get_map, parse_map
-from qpatrol.records import Recorder
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.maps import EAST, NORTH, SOUTH, WEST, get_map, parse_map, walks
+from qpatrol.measures.records import Recorder
 from qpatrol.strategies import base
+from qpatrol.world.rng import Streams, run_seeds
 
 NONE = -1
 

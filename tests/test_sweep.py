@@ -14,7 +14,7 @@ import pytest
 import yaml
 
 from qpatrol.config import ConfigError, from_mapping
-from qpatrol.sweep import (
+from qpatrol.study.sweep import (
     NAMED_SWEEPS,
     Point,
     grid_points,
@@ -202,7 +202,7 @@ def test_resume_recomputes_only_missing_point(base, tmp_path):
 KILL_SCRIPT = """
 import sys
 from qpatrol.config import load_config
-from qpatrol.sweep import points_for, run_sweep
+from qpatrol.study.sweep import points_for, run_sweep
 base = load_config(sys.argv[1])
 run_sweep(base, points_for("learning.gamma", [0.1, 0.2, 0.3, 0.4, 0.5, 0.6, 0.7, 0.8]),
           sys.argv[2], jobs=2)
@@ -378,7 +378,7 @@ def test_dask_own_local_cluster(base, tmp_path):
 
 def test_edited_map_is_not_resumed(tmp_path: Path):
     from qpatrol.config import from_flat
-    from qpatrol.sweep import points_for, run_sweep
+    from qpatrol.study.sweep import points_for, run_sweep
 
     m = tmp_path / "m.txt"
     m.write_text("0....\n.#.#.\n.....\n")
@@ -393,8 +393,8 @@ def test_edited_map_is_not_resumed(tmp_path: Path):
 def test_policies_and_learning_sweeps():
     """Every map x strategy x team size; each point measures the same window, learners
     after a longer warm-up; the quick set is a subset with the same rule."""
-    from qpatrol import sweep as sw
     from qpatrol.strategies import NAMES, learns
+    from qpatrol.study import sweep as sw
 
     for quick in (False, True):
         pts = NAMED_SWEEPS["policies"].points(quick)

@@ -15,10 +15,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from qpatrol import limits
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.engines import threads
 from qpatrol.run import simulate, write_run
+from qpatrol.world import limits
 
 META = {"started": "-", "ended": "-"}
 BASE = {"map": "map_b", "seed": 11, "steps": 900, "engine": "numba"}
@@ -161,7 +161,7 @@ def test_threads_resolve_to_this_process_share(monkeypatch):
 def test_pool_workers_share_the_cores(monkeypatch, tmp_path):
     """A sweep's workers get their share of the cores (two jobs on two cores: one
     thread each); the share is set in the worker before its points run."""
-    from qpatrol import sweep
+    from qpatrol.study import sweep
 
     monkeypatch.setattr(threads, "_share", None)
     got = []
@@ -206,8 +206,8 @@ def test_lanes_only_for_calls_worth_a_hand_over(monkeypatch, tmp_path):
     """At the default threshold a batch's calls of thousands of agent-steps are cut
     into lanes, and a checkpointer's calls of one team step are not."""
     pytest.importorskip("numba")
-    from qpatrol import checkpoint as ck
     from qpatrol.engines import numba_core
+    from qpatrol.run import checkpoint as ck
 
     lanes = []
     real = numba_core.Loop._lane

@@ -1,4 +1,4 @@
-"""Idleness over time (qpatrol.timeline): by hand on a ring, and by brute force.
+"""Idleness over time (qpatrol.measures.timeline): by hand on a ring, and by brute force.
 
 A window w of length n covers team steps ``w n + 1 .. (w + 1) n``; its average
 idleness is the mean over those steps t and all cells c of ``t - last visit of c``
@@ -13,8 +13,8 @@ import pytest
 from test_measures import RING12, positions, random_team, write
 
 from qpatrol.config import from_flat
+from qpatrol.measures.timeline import TIMELINE_COLUMNS, Timeline
 from qpatrol.run import simulate
-from qpatrol.timeline import TIMELINE_COLUMNS, Timeline
 
 
 def brute_windows(pos: np.ndarray, n_cells: int, window: int) -> list[tuple]:

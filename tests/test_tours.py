@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from qpatrol.maps import get_map, parse_map
-from qpatrol.tours import dot_walk_lower_bound, dot_walk_tour, terminal_problem, walk_is_valid
+from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour, terminal_problem, walk_is_valid
 
 
 def exact_optimum(m, start):

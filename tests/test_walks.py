@@ -1,13 +1,12 @@
-"""Closed covering walks, their lower bound and balanced partitions (qpatrol.walks)."""
+"""Closed covering walks, their lower bound and balanced partitions (qpatrol.maps.walks)."""
 
 from collections import deque
 
 import numpy as np
 import pytest
 
-from qpatrol import walks
-from qpatrol.maps import bfs, get_map, parse_map
-from qpatrol.walks import (
+from qpatrol.maps import bfs, get_map, parse_map, walks
+from qpatrol.maps.walks import (
     closed_walk,
     closed_walk_lower_bound,
     partition_regions,

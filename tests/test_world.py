@@ -2,11 +2,11 @@
 
 Ported from the old ``tests/test_env.py`` (written for the deleted ``qpatrol/env.py``,
 whose one ``env.step`` chose, moved and learned). One team step is now
-``qpatrol.run.advance``: ``world.begin_step`` -> ``strategy.act`` -> ``world.step`` ->
-``strategy.learn``. Where the model is unchanged (the Q-learning rule, the rewards,
-episodes) the hand-computed values of the old tests are kept; where it changed on
-purpose (simultaneous moves resolved by :mod:`qpatrol.traffic`; the battery rules of
-:mod:`qpatrol.battery`) the test says so in its docstring and checks the new rule.
+``qpatrol.engines.numpy_loop.advance``: ``world.begin_step`` -> ``strategy.act`` ->
+``world.step`` -> ``strategy.learn``. Where the model is unchanged (the Q-learning rule,
+the rewards, episodes) the hand-computed values of the old tests are kept; where it changed on
+purpose (simultaneous moves resolved by :mod:`qpatrol.world.traffic`; the battery rules of
+:mod:`qpatrol.world.battery`) the test says so in its docstring and checks the new rule.
 
 Tests that drive the world alone give every robot's move explicitly (``go``), so the
 world's rules are checked independently of any strategy.
@@ -23,13 +23,13 @@ import pytest
 from conftest import RING, ROOMS
 
 from qpatrol import run, strategies, world
-from qpatrol.battery import CHARGING, HOMING, PATROL, QUEUED
 from qpatrol.config import Config, ConfigError, from_flat
 from qpatrol.maps import EAST, NORTH, SOUTH, WEST, Map, parse_map
-from qpatrol.records import Recorder
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.measures.records import Recorder
 from qpatrol.run import simulate
 from qpatrol.strategies.base import Strategy
+from qpatrol.world.battery import CHARGING, HOMING, PATROL, QUEUED
+from qpatrol.world.rng import Streams, run_seeds
 
 NONE = -1  # no move asked
 

@@ -1,6 +1,6 @@
 """Engines: how the time loop of a batch is computed (never what it computes).
 
-* ``numpy``: the reference, :func:`qpatrol.run.advance` step by step (every strategy,
+* ``numpy``: the reference, :func:`qpatrol.engines.numpy_loop.advance` step by step (every strategy,
   every setting, every recorder, checkpoints at any step).
 * ``numba``: the compiled loop of :mod:`qpatrol.engines.numba_core` (optional extra
   ``qpatrol[fast]``), for the configs :func:`compiled_gap` accepts; any other config
@@ -20,6 +20,7 @@ import importlib.util
 import numpy as np
 
 from qpatrol.config import Config, ConfigError
+from qpatrol.engines.sizes import EVAP_POWERS_MAX
 
 
 def numba_installed() -> bool:
@@ -40,11 +41,6 @@ COMPILED_POLICIES = (
     "cyclic",
     "partition",
 )
-
-#: Most powers ``keep ** n`` the compiled ``evap`` keeps (32 MiB): its table runs to the
-#: run's steps or to the first power that is 0.0 (n = 36,883 at the default evaporation
-#: 0.02), see :mod:`qpatrol.engines.compiled.evap`.
-EVAP_POWERS_MAX = 1 << 22
 
 
 def compiled_gap(cfg: Config) -> str | None:
@@ -118,7 +114,7 @@ def compiled_loop(cfg: Config) -> str | None:
     ``"qlearning-solo"`` or ``"qlearning-team"`` (the Q-learning kernels); None when the
     numpy engine runs it. The choice :class:`qpatrol.engines.numba_core.Loop` makes from
     the prepared batch, read from the config (a test checks that they agree), so that
-    a pool of workers can compile different loops at once (:mod:`qpatrol.sweep`).
+    a pool of workers can compile different loops at once (:mod:`qpatrol.study.sweep`).
     Read from the config alone (:func:`choose_by_config`: whether the loop is cached
     does not change which one it is)."""
     if choose_by_config(cfg)[0] != "numba":

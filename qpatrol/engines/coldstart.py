@@ -326,7 +326,7 @@ def warm_in_background(cfg: Config, loop: str, folder: Path | None = None) -> bo
         with os.fdopen(fd, "w") as f:
             json.dump({"loop": loop, "config": dict(cfg.values)}, f, default=str)
         subprocess.Popen(
-            [sys.executable, "-m", "qpatrol.engines.coldstart", name],
+            [sys.executable, "-m", "qpatrol.run.warmup", name],
             stdin=subprocess.DEVNULL,
             stdout=subprocess.DEVNULL,
             stderr=subprocess.DEVNULL,
@@ -336,38 +336,3 @@ def warm_in_background(cfg: Config, loop: str, folder: Path | None = None) -> bo
         return True
     except Exception:  # noqa: BLE001  (warming is a convenience)
         return False
-
-
-def warm(cfg: Config, loop: str) -> bool:
-    """Compile ``loop`` into numba's cache, in this process, unless another process is
-    compiling it: one run of ``cfg`` for a few steps on the compiled engine (which takes
-    the loop's lock and records it, :class:`Compiling`). Returns whether it ran."""
-    from qpatrol.run import simulate
-
-    if _compiling_for(loop) > 0.0 or cached(loop):
-        return False
-    simulate(cfg.replace(runs=1, steps=min(cfg["steps"], 8), engine="numba", threads=1))
-    return True
-
-
-def main(argv: list[str] | None = None) -> int:
-    """``python -m qpatrol.engines.coldstart SPEC.json``: :func:`warm` the loop of the
-    config in SPEC (written by :func:`warm_in_background`; removed here)."""
-    from qpatrol.config import from_flat
-
-    argv = sys.argv[1:] if argv is None else argv
-    spec_path = Path(argv[0])
-    try:
-        spec = json.loads(spec_path.read_text())
-    finally:
-        spec_path.unlink(missing_ok=True)
-    try:
-        os.nice(10)
-    except OSError:
-        pass
-    warm(from_flat(spec["config"]), spec["loop"])
-    return 0
-
-
-if __name__ == "__main__":
-    raise SystemExit(main())

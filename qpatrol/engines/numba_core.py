@@ -6,7 +6,7 @@ arrays the numpy engine uses (:class:`qpatrol.world.State`, the strategy's array
 (summaries, files, checkpoints) is shared. Each step of a run reads like §3 of the
 paper: the world finds each robot's open moves, the strategy chooses (its compiled
 twin in :mod:`qpatrol.engines.compiled`, e.g. greedy over Q with ties and epsilon from
-the run's uniforms), the team moves under the traffic rules of :mod:`qpatrol.traffic`,
+the run's uniforms), the team moves under the traffic rules of :mod:`qpatrol.world.traffic`,
 each robot that entered a cell is paid, and the strategy learns (e.g. ``Q(s, a) <- Q(s,
 a) + (1/N) (r + gamma max Q(s', .) - Q(s, a))``). The arithmetic is the numpy
 engine's, operation for operation, so results are equal to the bit.
@@ -434,7 +434,7 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
     the idleness timeline is a row of ``o.tl_buf`` ``[W, 6]``.
 
     Each step of a run is the world's phases in the numpy engine's order
-    (:func:`qpatrol.run.advance`): the battery's begin (:mod:`stations`), the open
+    (:func:`qpatrol.engines.numpy_loop.advance`): the battery's begin (:mod:`stations`), the open
     moves (:func:`moves.open_moves`), the strategy's choice (:func:`compiled.act`) and
     the battery's asks, the moves (:func:`moves.resolve`), entering cells
     (:func:`enter.all_enter`), the battery's costs and stations, waits and the right of
@@ -550,7 +550,7 @@ class Loop:
         timeline: the idleness timeline, or None.
         words: where the loop may draw its uniforms itself
             (:attr:`draws_itself`), the runs' streams: a function giving their PCG64
-            states, uint64 ``[R, 4]`` (:meth:`qpatrol.rng.Streams.words`), the same
+            states, uint64 ``[R, 4]`` (:meth:`qpatrol.world.rng.Streams.words`), the same
             array at every call, stepped in place by :meth:`run`. Otherwise (or
             without it) each call of :meth:`run` reads uniforms drawn beforehand.
     """

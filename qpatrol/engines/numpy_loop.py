@@ -1,8 +1,8 @@
-"""The numpy engine's time loop: :func:`qpatrol.run.advance` on every team step.
+"""The numpy engine's time loop: :func:`advance` on every team step.
 
 The reference engine, written once: each team step is the general step of
-:mod:`qpatrol.world` (with :mod:`qpatrol.traffic` and :mod:`qpatrol.battery`) and the
-strategy's ``act`` and ``learn``, for every strategy, setting and recorder, with a
+:mod:`qpatrol.world` (with :mod:`qpatrol.world.traffic` and :mod:`qpatrol.world.battery`)
+and the strategy's ``act`` and ``learn``, for every strategy, setting and recorder, with a
 checkpoint possible after any step. The compiled engine is the fast one
 (:mod:`qpatrol.engines.numba_core`); it writes the same files to the bit.
 """
@@ -10,14 +10,20 @@ checkpoint possible after any step. The compiled engine is the fast one
 from __future__ import annotations
 
 from collections.abc import Callable
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
-from qpatrol.checkpoint import Checkpointer
+import numpy as np
+
 from qpatrol.measures import Measures
-from qpatrol.records import Recorder, Tail
-from qpatrol.rng import Streams
-from qpatrol.timeline import Timeline
-from qpatrol.world import Params, State
+from qpatrol.measures.records import Recorder, Tail
+from qpatrol.measures.timeline import Timeline
+from qpatrol.world import Outcome, Params, State, begin_step
+from qpatrol.world import step as world_step
+from qpatrol.world.rng import Streams
+
+if TYPE_CHECKING:
+    from qpatrol.run.checkpoint import Checkpointer
+    from qpatrol.strategies.base import Strategy
 
 
 def run(
@@ -38,8 +44,6 @@ def run(
     active); ``progress(done, total)`` about 200 times, ``checkpoint.tick`` every step.
     Returns the name of the step that ran, ``general`` (:func:`advance` on every step,
     the numpy engine's only step), for ``meta.json``'s ``engine.loop``."""
-    from qpatrol.run import advance  # run.py imports this module
-
     quota = bool(p.episodes)  # only an episode quota makes runs inactive
     every = max(1, total // 200)
     for i in range(first, total):
@@ -54,3 +58,22 @@ def run(
         if checkpoint is not None:
             checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
     return "general"
+
+
+def advance(
+    state: State,
+    p: Params,
+    strategy: Strategy,
+    u: np.ndarray,
+    rec: Recorder | None = None,
+) -> Outcome:
+    """One team step: the strategy chooses, the world moves, the strategy learns.
+
+    ``u``: float ``[R, K, 2]``, this step's uniforms of every run.
+    """
+    obs = begin_step(state, p)
+    out = world_step(state, p, obs, strategy.act(obs, u))
+    strategy.learn(out, rec)
+    if rec is not None:
+        rec.episodes(out.t, out.episodes)
+    return out

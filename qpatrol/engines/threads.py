@@ -7,7 +7,7 @@ arrays (:meth:`qpatrol.engines.numba_core.Loop.run`). A run computes the same nu
 whichever lane it falls in, so the files do not depend on the number of threads.
 
 Config key ``threads`` (an execution key, like ``engine``): 0 (the default) means this
-process's share of the cores: all of :func:`qpatrol.limits.cores` in a process of its
+process's share of the cores: all of :func:`qpatrol.world.limits.cores` in a process of its
 own, and what the pool that started a worker process gave it (:func:`set_share`: a
 sweep's or ``reproduce``'s ``--jobs`` workers share the cores evenly, so two jobs on
 two cores take one thread each, and dask workers take one); N > 0 means N. The numpy
@@ -16,7 +16,7 @@ engine always runs in one thread.
 
 from __future__ import annotations
 
-from qpatrol import limits
+from qpatrol.world import limits
 
 #: The threads this process may use under ``threads: 0`` (None: every core); set in a
 #: worker process by the pool that started it.
@@ -42,7 +42,7 @@ def share_of(workers: int) -> int:
 
 def resolve(requested: int) -> int:
     """The threads a batch may use: ``requested`` if > 0, else this process's share
-    (:func:`set_share`; every core, :func:`qpatrol.limits.cores`, when none was set)."""
+    (:func:`set_share`; every core, :func:`qpatrol.world.limits.cores`, when none was set)."""
     if requested > 0:
         return int(requested)
     return _share if _share is not None else limits.cores()

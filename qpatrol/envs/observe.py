@@ -6,7 +6,7 @@ Layout (``FEATURES``; ``C`` cells, ``T`` = ``max_steps``)::
     1 row, 2 col  its grid position
     3 heading   direction of its last move, 0..3 = N, E, S, W
     4 battery   charge left, 0..capacity (stays at capacity with the battery off)
-    5 mode      0 patrol, 1 homing, 2 queued, 3 charging (qpatrol.battery)
+    5 mode      0 patrol, 1 homing, 2 queued, 3 charging (qpatrol.world.battery)
     6.. 13      for N, E, S, W in turn: dot, idleness of the neighbour cell
                 dot: 1 dot present, 0 none, -1 wall; idleness: team steps since the
                 cell's last visit (t - last visit, every cell visited at step 0), -1 wall

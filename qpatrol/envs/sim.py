@@ -4,14 +4,14 @@
 turned inside out so that a caller gives the moves: ``reset`` places the robots and
 asks the world what the first step looks like, ``step`` applies the caller's moves
 and asks again. Everything is qpatrol's own code (:mod:`qpatrol.world`,
-:mod:`qpatrol.measures`, :mod:`qpatrol.rng`), called in the same order as ``train``,
+:mod:`qpatrol.measures`, :mod:`qpatrol.world.rng`), called in the same order as ``train``,
 so with the same config, seed and run index and the same moves the trajectory is the
 one ``train`` would produce.
 
 Random numbers: run ``r`` of seed ``s`` draws from ``SeedSequence(s, spawn_key=(0,
 r))``, exactly as run ``r`` of ``qpatrol train`` with ``seed: s``. The world uses the
 stream only to place robots beyond the map's start digits; every step then takes
-``2 x agents`` uniforms from it (:class:`qpatrol.rng.Streams`). The uniforms of the
+``2 x agents`` uniforms from it (:class:`qpatrol.world.rng.Streams`). The uniforms of the
 step about to be taken are :attr:`Sim.uniforms`: a strategy fed with them chooses as
 it would inside ``train``. Pettingzoo/gymnasium are not imported here.
 """
@@ -27,8 +27,8 @@ import numpy as np
 from qpatrol import measures, run, world
 from qpatrol.config import Config, from_flat, load_config
 from qpatrol.maps import Map
-from qpatrol.records import Recorder
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.measures.records import Recorder
+from qpatrol.world.rng import Streams, run_seeds
 
 
 def make_config(

@@ -4,7 +4,7 @@ A strategy is one module of this package, named after its ``policy`` with ``-`` 
 ``_`` (``shared-conscientious`` lives in ``shared_conscientious.py``), that defines a
 class ``Strategy`` derived from :class:`qpatrol.strategies.base.Strategy`. The world
 (:mod:`qpatrol.world`) does not know which one runs; adding a strategy takes one new
-file and its name in :data:`NAMES`.
+file and its name in :data:`qpatrol.config.POLICIES`.
 """
 
 from __future__ import annotations
@@ -12,20 +12,13 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
+from qpatrol.config import POLICIES
+
 if TYPE_CHECKING:
     from qpatrol.strategies.base import Strategy
 
-#: Every strategy, by its ``policy`` name; the paper's learner first (the default).
-NAMES: tuple[str, ...] = (
-    "qlearning",
-    "random",
-    "conscientious",
-    "shared-conscientious",
-    "cyclic",
-    "partition",
-    "evap",
-    "qlearning-idleness",
-)
+#: Every strategy, by its ``policy`` name: the config's list of allowed policies.
+NAMES: tuple[str, ...] = POLICIES
 
 
 def strategy_class(name: str) -> type[Strategy]:

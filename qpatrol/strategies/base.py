@@ -17,12 +17,12 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
-from qpatrol.learner import pick
+from qpatrol.strategies.learner import pick
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.world import Observation, Outcome, Params
 
 
@@ -40,7 +40,7 @@ class Strategy:
     #: True for a strategy that learns as it patrols (it needs a warm-up to settle).
     learns: ClassVar[bool] = False
     #: Names of its array attributes with a leading runs axis ``R`` (the others are
-    #: constants of the batch), or None where not declared: :mod:`qpatrol.batching` runs
+    #: constants of the batch), or None where not declared: :mod:`qpatrol.run.batching` runs
     #: several sweep points in one batch only for a strategy that declares them.
     per_run: ClassVar[tuple[str, ...] | None] = None
     #: Config keys it reads that may differ between the rows of one batch

@@ -1,6 +1,6 @@
 """``cyclic`` (Chevaleyre 2004): the whole team on one short closed walk, evenly spaced.
 
-One closed walk through every free cell, as short as :func:`qpatrol.walks.closed_walk`
+One closed walk through every free cell, as short as :func:`qpatrol.maps.walks.closed_walk`
 can make it, is computed once per map. Robot slots are spaced ``L / K`` apart along it
 (moved forward to the next distinct cell that is not a station, if needed), robots are
 matched to slots nearest first, walk to them and wait there until the whole team has
@@ -16,7 +16,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol import walks
+from qpatrol.maps import walks
 from qpatrol.strategies import follow
 
 if TYPE_CHECKING:

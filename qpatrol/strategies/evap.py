@@ -21,7 +21,7 @@ from qpatrol.strategies import base
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.world import Observation, Outcome, Params
 
 

@@ -11,7 +11,7 @@ back and carries on with the other's plan. The cells they visit are the ones the
 would have visited by passing through each other, and neither has to wait.
 
 A target in the pocket of a charging station that another robot holds (see
-:mod:`qpatrol.battery`) is skipped: the robot heads for the first cell of its walk past
+:mod:`qpatrol.world.battery`) is skipped: the robot heads for the first cell of its walk past
 the pocket, and patrols the pocket again on a later lap.
 """
 
@@ -26,7 +26,7 @@ from qpatrol.strategies import base
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.world import Observation, Outcome, Params
 
 

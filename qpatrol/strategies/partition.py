@@ -1,6 +1,6 @@
 """``partition``: the map cut into K connected regions, each robot cycling its own.
 
-:func:`qpatrol.walks.partition_regions` cuts the map into K connected regions of
+:func:`qpatrol.maps.walks.partition_regions` cuts the map into K connected regions of
 balanced walk length, once per map; each region gets its own short closed walk. Robots
 are matched to regions nearest first, walk to the nearest cell of their region's walk
 and cycle it. Battery trips take a robot out of its region; it comes back where it
@@ -14,7 +14,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol import walks
+from qpatrol.maps import walks
 from qpatrol.strategies import follow
 
 if TYPE_CHECKING:

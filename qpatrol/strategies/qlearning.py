@@ -20,16 +20,15 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol import learner
 from qpatrol.maps import DIRECTIONS
-from qpatrol.records import update_cols
-from qpatrol.strategies import base
+from qpatrol.measures.records import update_cols
+from qpatrol.strategies import base, learner
 from qpatrol.world import per_row
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.world import Observation, Outcome, Params
 
 
@@ -43,7 +42,7 @@ class Strategy(base.Strategy):
     name = "qlearning"
     learns = True
 
-    #: The arrays with a leading runs axis (:mod:`qpatrol.batching` cuts them per point).
+    #: The arrays with a leading runs axis (:mod:`qpatrol.run.batching` cuts them per point).
     per_run = ("q", "n")
     #: The config keys this strategy reads that may differ between a batch's rows.
     RUN_KEYS = (

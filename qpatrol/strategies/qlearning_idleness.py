@@ -47,14 +47,13 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol import learner
-from qpatrol.records import update_cols
-from qpatrol.strategies import base
+from qpatrol.measures.records import update_cols
+from qpatrol.strategies import base, learner
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.records import Recorder
+    from qpatrol.measures.records import Recorder
     from qpatrol.world import Observation, Outcome, Params
 
 #: ``qidle.state`` -> (uses heading, uses the idlest-neighbour feature)

@@ -34,7 +34,7 @@ class Params(NamedTuple):
         communication, avoid: one dot group for the team; collision avoidance.
         diameter, max_ep, quota: right-of-way limit, episode steps (0: none),
             episodes per run (0: none).
-        battery ... charge_steps: the battery's rules (:mod:`qpatrol.battery`):
+        battery ... charge_steps: the battery's rules (:mod:`qpatrol.world.battery`):
             stations ``homes`` ``[H]``, ``home_dist``/``home_dir`` ``[H, C]``,
             ``nearest`` ``[C]``, ``depart_len`` ``[H]``, pockets ``pocket_of``,
             ``pocket_depth`` ``[C]``, ``pocket_entry`` ``[H]``, and scalars.
@@ -110,7 +110,7 @@ class Out(NamedTuple):
         record_all, watched: Q-updates of every robot, or of the ``watched`` cells
             (bool ``[C]``), as rows of ``up_int`` ``[U, UP_INT]`` and ``up_float``
             ``[U, UP_FLOAT]``.
-        tl_window ... tl_steps: the idleness timeline (:class:`qpatrol.timeline.Timeline`,
+        tl_window ... tl_steps: the idleness timeline (:class:`qpatrol.measures.timeline.Timeline`,
             0: off), each closed window a row of ``tl_buf`` ``[W, 6]``.
     """
 

@@ -1,7 +1,8 @@
 """Choosing among a robot's open moves, shared by the compiled strategies.
 
 The numpy twins are :func:`qpatrol.strategies.base.choose_min` (:func:`least`) and
-:func:`qpatrol.learner.choose` (:func:`greatest`), both with :func:`qpatrol.learner.pick`:
+:func:`qpatrol.strategies.learner.choose` (:func:`greatest`), both with
+:func:`qpatrol.strategies.learner.pick`:
 the open direction of least (greatest) score, the j-th of the tied ones in N, E, S, W
 order taken, ``j = floor(u x ties)``; and :func:`qpatrol.strategies.base.neighbour_values`
 (:func:`at_neighbours`).
@@ -12,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.learner import _NTH
+from qpatrol.strategies.learner import _NTH
 
 #: The j-th set bit of a 4-bit candidate mask (N=1, E=2, S=4, W=8): a direction.
 NTH = _NTH.astype(np.int64)
@@ -36,7 +37,7 @@ def legal_bits(nbrs: np.ndarray) -> np.ndarray:
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pick(bits, count, uu):
     """The ``floor(uu x count)``-th direction of the mask ``bits`` (``count`` set bits),
-    as :func:`qpatrol.learner.pick`; -1 when ``count`` is 0."""
+    as :func:`qpatrol.strategies.learner.pick`; -1 when ``count`` is 0."""
     if count == 1:  # floor(uu x 1) is 0: the one direction, without the float work
         return NTH[bits, 0]
     if count == 0:

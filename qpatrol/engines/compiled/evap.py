@@ -20,14 +20,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines import EVAP_POWERS_MAX
 from qpatrol.engines.compiled.choice import least
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.engines.sizes import EVAP_POWERS_MAX
 
 
 def powers(keep: float, steps: int) -> np.ndarray:
     """float64 ``[N]``: ``keep ** n`` as numpy computes it, for n up to ``steps`` or to
-    the first power that is 0.0 (at most :data:`qpatrol.engines.EVAP_POWERS_MAX` + 1
+    the first power that is 0.0 (at most :data:`qpatrol.engines.sizes.EVAP_POWERS_MAX` + 1
     entries; longer tables are refused by :func:`qpatrol.engines.compiled_gap`)."""
     table = keep ** np.arange(min(steps, EVAP_POWERS_MAX) + 1, dtype=np.int64)
     zero = np.flatnonzero(table == 0.0)

@@ -1,4 +1,4 @@
-"""The team's moves in the compiled loop: :mod:`qpatrol.traffic`, one run at a time.
+"""The team's moves in the compiled loop: :mod:`qpatrol.world.traffic`, one run at a time.
 
 ``open_moves`` (world.begin_step: each robot's open moves), ``resolve`` (the holder of
 the right of way first, pushing robots aside, then the others in priority order into
@@ -16,7 +16,7 @@ from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def priority(wait, mode, depart_left, k, n_agents, t_mod):
-    """:func:`qpatrol.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
+    """:func:`qpatrol.world.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
     taken once per step: an integer division per robot cost more than the rest of
     this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
     if depart_left > 0:
@@ -91,7 +91,7 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
-    """:func:`qpatrol.traffic.holder_step` of the right-of-way holder ``tok`` of a run
+    """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
     (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
     else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
     along :func:`push_path`. Returns whether the push failed (it did not move as
@@ -149,7 +149,7 @@ def _sort_by_key(order, key, n):
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
-    """Step 2 of :func:`qpatrol.traffic.resolve`: the robots that have not moved, in
+    """Step 2 of :func:`qpatrol.world.traffic.resolve`: the robots that have not moved, in
     ``order``, each into the cell it wants if that cell is empty at that moment, pass
     after pass until a pass moves no one or leaves no one behind."""
     progress = True
@@ -211,7 +211,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
-    """:func:`qpatrol.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for
+    """:func:`qpatrol.world.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for
     none): without collision avoidance every robot moves as asked; with it the holder
     ``tok`` of the right of way moves first (:func:`holder_moves`), then the others
     in priority order (``by_turn``: every robot patrols and none waits, so by turn
@@ -276,7 +276,7 @@ def waits(r, battery, s, w):
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w):
-    """:func:`qpatrol.traffic.pass_token` of run ``r`` after its moves: the holder keeps
+    """:func:`qpatrol.world.traffic.pass_token` of run ``r`` after its moves: the holder keeps
     the right of way while it moves as asked (at most ``diameter`` steps); a holder whose
     push failed hands it to the robot that blocked it, if that one waits; else it goes
     to the waiting robot of highest priority at the next step (none: -1). Returns

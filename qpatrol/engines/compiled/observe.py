@@ -1,5 +1,5 @@
 """The measures in the compiled loop (:meth:`qpatrol.measures.Measures.observe`, the
-idleness timeline :class:`qpatrol.timeline.Timeline` and the trajectory ring), after
+idleness timeline :class:`qpatrol.measures.timeline.Timeline` and the trajectory ring), after
 each team step of a run."""
 
 from __future__ import annotations

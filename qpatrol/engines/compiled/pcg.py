@@ -1,10 +1,10 @@
 """numpy's PCG64 inside the compiled loop: each run's uniforms drawn where they are used.
 
-A run's stream is numpy's ``PCG64`` bit generator (:func:`qpatrol.rng.generators`):
+A run's stream is numpy's ``PCG64`` bit generator (:func:`qpatrol.world.rng.generators`):
 a 128-bit state ``s`` stepped by ``s <- s M + inc (mod 2**128)``, each step giving the
 64-bit word ``rotr(hi(s) ^ lo(s), hi(s) >> 58)`` and each double ``(word >> 11) /
 2**53`` (``Generator.random``). Here a state is four uint64 words ``(state low, state
-high, inc low, inc high)`` (:meth:`qpatrol.rng.Streams.words`, ``[R, 4]``), and the
+high, inc low, inc high)`` (:meth:`qpatrol.world.rng.Streams.words`, ``[R, 4]``), and the
 arithmetic is numpy's own, so the doubles are the same to the bit
 (``tests/test_pcg.py``). The Q-learning kernels draw a robot's two uniforms of a step
 here instead of reading them from a block drawn beforehand: the draws cost about 3 ns

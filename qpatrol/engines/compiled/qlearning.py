@@ -95,7 +95,7 @@ def update(q_f, n_f, at0, at1, m1, reward, gamma):
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def learn(r, t, p, w, sp, o, n_up):
     """The update of every robot of run ``r`` that made the move it chose, in robot
-    order (:func:`update`); Q-updates recorded as :meth:`qpatrol.records.Recorder.updates`
+    order (:func:`update`); Q-updates recorded as :meth:`qpatrol.measures.records.Recorder.updates`
     wants them. ``p``, ``w``, ``o``: the loop's ``Params``, ``Work`` and ``Out``
     (:mod:`qpatrol.engines.compiled.bundles`). Returns the number of update rows now
     written."""

@@ -160,7 +160,7 @@ def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosi
 def learn(r, t, p, s, w, sp, o, n_up):
     """After team step ``t`` of run ``r``: pay the robots that entered a cell, update the
     maps (``Strategy.rewards``), then the Q-update of every robot that made the move it
-    chose, in robot order, recorded as :meth:`qpatrol.records.Recorder.updates` wants
+    chose, in robot order, recorded as :meth:`qpatrol.measures.records.Recorder.updates` wants
     them. ``p``, ``s``, ``w``, ``o``: the loop's ``Params``, ``World``, ``Work`` and
     ``Out`` (:mod:`qpatrol.engines.compiled.bundles`); ``w.ended`` bool ``[G]``: the
     group's episode ended (every dot back); ``s.active`` bool ``[R]``: a run that

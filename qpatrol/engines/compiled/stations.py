@@ -1,4 +1,4 @@
-"""The battery's phases in the compiled loop: :mod:`qpatrol.battery`, one run at a time.
+"""The battery's phases in the compiled loop: :mod:`qpatrol.world.battery`, one run at a time.
 
 ``begin`` (charging countdown, robots that need a station, the queue served first come
 first served), ``ask`` (the moves of robots homing or queued, which the strategy does
@@ -18,14 +18,14 @@ PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def kept_out(c, pocket_of, reserved_r):
-    """:func:`qpatrol.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    """:func:`qpatrol.world.battery.held_pockets`: cell c lies in the pocket of a held station."""
     h = pocket_of[c]
     return h >= 0 and reserved_r[h] >= 0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
-    """:func:`qpatrol.battery.way_out` of a robot on cell c (-1: none)."""
+    """:func:`qpatrol.world.battery.way_out` of a robot on cell c (-1: none)."""
     if station < 0:
         return -1
     h = station
@@ -51,7 +51,7 @@ def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def begin(r, t, p, s, w):
     """battery.begin: the charging countdown, robots that need a station join the
-    queue, and the queue is served (:func:`qpatrol.battery._assign_stations`: first
+    queue, and the queue is served (:func:`qpatrol.world.battery._assign_stations`: first
     come first served, ties by lower index; each the nearest free station it reaches)."""
     n_agents = s.pos.shape[1]
     mode, charge, order, key = s.mode, s.charge, w.order, w.key

@@ -1,4 +1,5 @@
-"""The Q-update recorder of the compiled loop (:meth:`qpatrol.records.Recorder.updates`)."""
+"""The Q-update recorder of the compiled loop
+(:meth:`qpatrol.measures.records.Recorder.updates`)."""
 
 from __future__ import annotations
 

@@ -3,7 +3,7 @@
 Each ``*_data`` function reads run folders (as written by :func:`qpatrol.run.write_run`)
 or sweep folders (``sweep.json``, ``points/<id>/``, ``results.csv``) and returns the
 ``pandas.DataFrame`` that is written as CSV beside the figure; the plotting functions
-of :mod:`qpatrol.plots` read only that CSV. :func:`trajectory` is the one piece that
+of :mod:`qpatrol.study.plots` read only that CSV. :func:`trajectory` is the one piece that
 simulates instead of reading: the positions of Fig. 5 are not kept in run folders.
 
 Conventions of the figure tables: directions (``heading``, ``action``) are written as
@@ -37,14 +37,14 @@ import numpy as np
 import pandas as pd
 
 from qpatrol import strategies, world
-from qpatrol.battery import MODE_NAMES
 from qpatrol.config import Config, from_mapping, load_config
-from qpatrol.csvio import read_csv
 from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
-from qpatrol.provenance import MAP_FILE, read_meta
-from qpatrol.rng import Streams, run_seeds
+from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour
 from qpatrol.run import advance, prepare
-from qpatrol.tours import dot_walk_lower_bound, dot_walk_tour
+from qpatrol.util.csvio import read_csv
+from qpatrol.util.provenance import MAP_FILE, read_meta
+from qpatrol.world.battery import MODE_NAMES
+from qpatrol.world.rng import Streams, run_seeds
 
 __all__ = [
     "figure2_data",
@@ -387,7 +387,7 @@ def gamma_data(
     truncated ones included; ``truncated`` counts first episodes cut by
     ``max_episode_steps`` and ``unfinished`` the runs (of the config's ``runs``) with no
     ended first episode (they stopped before it ended, or are missing).
-    ``lower_bound`` and ``tour`` (:mod:`qpatrol.tours`) bracket the shortest walk
+    ``lower_bound`` and ``tour`` (:mod:`qpatrol.maps.tours`) bracket the shortest walk
     eating every dot from the map's start cell 0 (``map`` overrides the points'
     map). ``cells``, ``states`` and ``dots`` count the map's free cells,
     its (cell, arrival heading) pairs and its dot cells;
@@ -714,7 +714,7 @@ def trajectory(
 ) -> pd.DataFrame:
     """Fig. 5: every agent's cell at every team step of run ``run`` of ``cfg``.
 
-    Drives the world and the strategy with :func:`qpatrol.run.advance` and the same
+    Drives the world and the strategy with :func:`qpatrol.engines.numpy_loop.advance` and the same
     random streams as :func:`qpatrol.run.simulate` (``SeedSequence(seed, spawn_key=
     (point, run))``, agents placed before the first step), so the positions are those
     of ``simulate(cfg, point)`` for that run. The first ``skip`` steps are simulated but

@@ -22,8 +22,8 @@ Reward on entering ``s'`` (what a learning strategy is paid)
 Team (paper §4)
     With communication on, the team shares one dot map and one last-visit map (group
     0); with it off each robot k has private ones (group k). Moves are resolved by
-    :mod:`qpatrol.traffic` (never two robots in a cell, never a swap, and blocked
-    robots yield) and batteries by :mod:`qpatrol.battery` (homing, station queues).
+    :mod:`qpatrol.world.traffic` (never two robots in a cell, never a swap, and blocked
+    robots yield) and batteries by :mod:`qpatrol.world.battery` (homing, station queues).
 
 Arrays carry a leading axis over runs ``R``, then robots ``K``; ``G`` is the number of
 dot maps per run (1 with communication, K without), ``C`` the number of cells and
@@ -37,9 +37,9 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from qpatrol import battery, traffic
 from qpatrol.config import Config, ConfigError
 from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
+from qpatrol.world import battery, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
 
@@ -228,7 +228,7 @@ class State:
         ep_seen: bool ``[R, G, C]``, cells entered this episode.
         ep_seen_state: bool ``[R, G, C, 4]``, (cell, heading) states entered this episode.
         charge: int ``[R, K]``, battery left (never below 0).
-        mode: int ``[R, K]``, PATROL, HOMING, QUEUED or CHARGING (:mod:`qpatrol.battery`).
+        mode: int ``[R, K]``, PATROL, HOMING, QUEUED or CHARGING (:mod:`qpatrol.world.battery`).
         rest: int ``[R, K]``, charging steps left.
         goal: int ``[R, K]``, the station (index into homes) a robot holds, -1 if none.
         queued_since: int ``[R, K]``, step at which a robot began to need a station.
@@ -396,7 +396,7 @@ class Observation:
         legal: bool ``[R, K, 4]``, moves that do not run into a wall.
         open: bool ``[R, K, 4]``, legal moves into a cell no other robot stands in at the
             start of the step, and not into the pocket of a station another robot holds
-            (:mod:`qpatrol.battery`); for the robot holding the right of way, every legal
+            (:mod:`qpatrol.world.battery`); for the robot holding the right of way, every legal
             move outside such pockets.
     """
 

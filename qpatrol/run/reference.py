@@ -54,7 +54,7 @@ def run(
         p: the world's parameters (``p.battery`` is ignored: no battery here).
         starts: the K start cells.
         u: float ``[T, K, 2]``, the run's uniforms (``u[..., 0]`` explore, ``u[..., 1]``
-            ties), as :class:`qpatrol.rng.Streams` draws them.
+            ties), as :class:`qpatrol.world.rng.Streams` draws them.
         q_init: the initial Q of N, E, S, W (multiplier applied).
         gamma, epsilon: discount and exploration probability.
         use_heading: state ``(cell, heading)``; False: ``(cell, 0)``.

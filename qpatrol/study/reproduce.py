@@ -10,7 +10,7 @@ the full mode, ``results/quick/`` for the quick one, by default)::
     figures/<figure>.png|gif|csv   each figure and the CSV it was drawn from
     data/<experiment>-results.csv  each experiment's per-run measures
     REPORT.md                      each paper claim beside our figure and numbers
-    meta.json                      what made it (qpatrol.provenance)
+    meta.json                      what made it (qpatrol.util.provenance)
 
 ``results/reference/quick/`` holds the quick run's CSVs, which the test suite
 recomputes and compares byte for byte (``--update-references`` rewrites them).
@@ -31,12 +31,13 @@ from typing import Any
 
 import pandas as pd
 
-from qpatrol import atomic, limits, provenance
 from qpatrol.config import Config, ConfigError, find_config, load_config
-from qpatrol.records import to_csv_text
-from qpatrol.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep, run_sweeps
+from qpatrol.measures.records import to_csv_text
+from qpatrol.study.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep, run_sweeps
+from qpatrol.util import atomic, provenance
+from qpatrol.world import limits
 
-REPO = Path(__file__).resolve().parent.parent
+REPO = Path(__file__).resolve().parents[2]
 #: Where the quick references live, relative to the folder qpatrol is run from.
 REFERENCES = Path("results") / "reference" / "quick"
 
@@ -245,8 +246,8 @@ class Figure:
 
 
 def _figures() -> dict[str, Figure]:
-    from qpatrol import figures as fd
-    from qpatrol import plots
+    from qpatrol.study import figures as fd
+    from qpatrol.study import plots
 
     return {
         f.name: f
@@ -390,7 +391,7 @@ def check_source(fig: Figure, folder: Path) -> None:
 def make_figure(name: str, folder: Path, image: Path, draw: bool = True) -> list[Path]:
     """Tabulate ``folder`` into ``image``'s CSV (same stem, ``.csv``), then draw it
     (unless ``draw`` is off). Returns the files written."""
-    from qpatrol.figures import folder_map
+    from qpatrol.study.figures import folder_map
 
     fig = figure(name)
     source = source_folder(fig, folder)
@@ -484,7 +485,7 @@ def reproduce(
     atomic.write_text(home / provenance.META_FILE, provenance.meta_text(meta))
     if not draw:
         return home
-    from qpatrol import report
+    from qpatrol.study import report
 
     path = report.write(
         home, "quick" if quick else "full", seconds, time.monotonic() - start, resumed

@@ -1,7 +1,7 @@
 """Figures. One function per figure, each reading only its own CSV.
 
 Every ``figure_*``/``gamma``/``team_size`` function takes the CSV written by the
-matching function of :mod:`qpatrol.figures` and an output path; the image format
+matching function of :mod:`qpatrol.study.figures` and an output path; the image format
 follows the extension (``.png`` by default, ``.svg`` and ``.pdf`` too; Fig. 5's
 animation is a ``.gif``). Each returns the path(s) it wrote.
 """
@@ -21,9 +21,9 @@ import pandas as pd  # noqa: E402
 from matplotlib.collections import LineCollection  # noqa: E402
 from matplotlib.ticker import FuncFormatter, LogLocator, NullFormatter  # noqa: E402
 
-from qpatrol import atomic  # noqa: E402
-from qpatrol.csvio import read_csv  # noqa: E402
 from qpatrol.maps import BIG, SMALL_DOT, Map, get_map  # noqa: E402
+from qpatrol.util import atomic  # noqa: E402
+from qpatrol.util.csvio import read_csv  # noqa: E402
 
 if TYPE_CHECKING:
     from matplotlib.figure import Figure

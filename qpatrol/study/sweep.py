@@ -5,11 +5,11 @@ Run r of point p draws from ``SeedSequence(seed, spawn_key=(p, r))`` and every p
 writes its own run folder, so the numbers never depend on ``jobs``, on the backend, on
 batching or on which points ran earlier. Points that differ only in per-run values
 (seed, gamma, epsilon, multiplier, initial Q, reward weights) run their runs together
-in shared batches (:mod:`qpatrol.batching`; ``batch_points=False``: each point's runs
+in shared batches (:mod:`qpatrol.run.batching`; ``batch_points=False``: each point's runs
 as a batch of their own); the files are the same either way::
 
     from qpatrol.config import load_config
-    from qpatrol.sweep import points_for, run_sweep, load_results
+    from qpatrol.study.sweep import points_for, run_sweep, load_results
 
     base = load_config("configs/gamma.yaml")
     res = run_sweep(base, points_for("learning.gamma", [0.1, 0.5, 0.9]), "results/sweeps/g",
@@ -47,14 +47,16 @@ from typing import Any, NamedTuple
 
 import pandas as pd
 
-from qpatrol import atomic, limits, outputs, provenance
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
-from qpatrol.csvio import read_csv
 from qpatrol.engines import coldstart, compiled_loop
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import MapError, resolve_map
-from qpatrol.records import to_csv_text
+from qpatrol.measures.records import to_csv_text
+from qpatrol.run import outputs
 from qpatrol.strategies import NAMES as STRATEGY_NAMES
+from qpatrol.util import atomic, provenance
+from qpatrol.util.csvio import read_csv
+from qpatrol.world import limits
 
 Progress = Callable[[int, int], None]
 
@@ -366,10 +368,10 @@ def run_sweep(
             point's runs by the share of its steps done, so it may be fractional).
         force: start over: remove ``points/`` and ``results.csv`` even if ``out`` holds
             a different sweep (only in a sweep folder or an empty one).
-        meta: provenance fields for ``meta.json`` (:func:`qpatrol.provenance.collect`),
+        meta: provenance fields for ``meta.json`` (:func:`qpatrol.util.provenance.collect`),
             written to ``out`` and, per point, into each point folder.
         batch_points: run points that differ only in per-run values as shared batches
-            (:mod:`qpatrol.batching`); False: one point per batch. Same files either way.
+            (:mod:`qpatrol.run.batching`); False: one point per batch. Same files either way.
 
     Raises:
         ConfigError: a bad override, option, or ``out`` holding a different sweep
@@ -451,7 +453,7 @@ def _with_maps(
 
 
 #: A task of the pool: ``(tag, [(point, config), ...], map, points folder)``; its points
-#: run as shared batches when there are several (:mod:`qpatrol.batching`).
+#: run as shared batches when there are several (:mod:`qpatrol.run.batching`).
 Task = tuple[Any, list[tuple[Point, Config]], Any, Path]
 
 
@@ -459,12 +461,12 @@ def _tasks(items: list[tuple[Any, Point, Config, Any, Path]], jobs: int, batch: 
     """``(tag, point, config, map, points folder)`` items as tasks: with ``batch``, the
     points of one tag that may share batches are one task, cut by points into smaller
     ones while it costs more than its fair share of the ``jobs`` workers
-    (:func:`qpatrol.batching.tasks`); else one task per point."""
+    (:func:`qpatrol.run.batching.tasks`); else one task per point."""
     if not batch:
         return [(tag, [(point, cfg)], m, pdir) for tag, point, cfg, m, pdir in items]
     from joblib import effective_n_jobs
 
-    from qpatrol import batching
+    from qpatrol.run import batching
 
     grouped = batching.groups([it[2] for it in items], [it[0] for it in items])
     cost = [point_cost(it[2]) for it in items]
@@ -1022,13 +1024,12 @@ def _run_points(
     pts: list[tuple[Point, Config]], m: Any, pdir: Path, meta: dict[str, Any] | None = None
 ) -> list[tuple[str, str | None]]:
     """Run a task's points and write their folders (in a worker): one point as
-    :func:`_run_point`, several as shared batches (:func:`qpatrol.batching.run_group`).
+    :func:`_run_point`, several as shared batches (:func:`qpatrol.run.batching.run_group`).
     Returns ``(point id, None or one-line error)`` per point; a batch that raises fails
     every point of the task not yet written (each gets its ``<id>.failed.json``)."""
     if len(pts) == 1:
         return [_run_point(pts[0][0], pts[0][1], m, pdir, meta)]
-    from qpatrol import batching
-    from qpatrol.run import write_run
+    from qpatrol.run import batching, write_run
 
     started = provenance.now()
     ticks = {p.id: _ProgressFile(pdir / f".{p.id}{PROGRESS_SUFFIX}") for p, _ in pts}

@@ -23,16 +23,19 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic, engines, limits, measures, provenance, strategies, world
-from qpatrol.checkpoint import DEFAULT_EVERY, Checkpointer
+from qpatrol import engines, measures, strategies, world
 from qpatrol.config import Config, ConfigError
 from qpatrol.engines import coldstart, numpy_loop
 from qpatrol.engines import threads as engine_threads
+from qpatrol.engines.numpy_loop import advance  # noqa: F401 (qpatrol.engines.numpy_loop.advance)
 from qpatrol.maps import Map, get_map
-from qpatrol.records import Recorder, Tail, to_csv_text
-from qpatrol.rng import Seed, Streams, run_keys
+from qpatrol.measures.records import Recorder, Tail, to_csv_text
+from qpatrol.measures.timeline import Timeline
+from qpatrol.run.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.strategies.base import Strategy
-from qpatrol.timeline import Timeline
+from qpatrol.util import atomic, provenance
+from qpatrol.world import limits
+from qpatrol.world.rng import Seed, Streams, run_keys
 
 Progress = Callable[[int, int], None]
 
@@ -114,14 +117,14 @@ def simulate(
     of a run does not depend on which other runs share the batch. ``progress`` is
     called as ``progress(steps_done, steps_total)``. With a ``checkpoint``, the loop's
     whole mutable state (simulator state, random streams, recorders, step index) is
-    saved as it decides (:mod:`qpatrol.checkpoint`), and a checkpoint it loaded is
+    saved as it decides (:mod:`qpatrol.run.checkpoint`), and a checkpoint it loaded is
     continued from instead of starting afresh: the result is the same to the bit.
 
     The time loop runs on the engine of config key ``engine`` (:mod:`qpatrol.engines`);
     the result does not depend on it. ``result.engine`` is the one that ran.
 
     Without a checkpointer the runs are computed in consecutive batches of at most
-    :func:`qpatrol.limits.batch_runs` runs (config key ``memory.limit_gib``) and joined
+    :func:`qpatrol.world.limits.batch_runs` runs (config key ``memory.limit_gib``) and joined
     (:func:`join`): the same result, to the bit, as one batch.
     """
     m, p = prepared or prepare(cfg)
@@ -170,11 +173,11 @@ def simulate_rows(
     prepared: tuple[Map, world.Params],
     progress: Progress | None = None,
 ) -> RunResult:
-    """One batch whose rows may differ in per-run values (:mod:`qpatrol.batching`).
+    """One batch whose rows may differ in per-run values (:mod:`qpatrol.run.batching`).
 
     Args:
         cfg: the config of every row, but for ``values``.
-        seeds: each row's SeedSequence or :class:`~qpatrol.rng.RunKey` (its random
+        seeds: each row's SeedSequence or :class:`~qpatrol.world.rng.RunKey` (its random
             stream).
         run_ids: int ``[R]``, the run number written for each row in the tables.
         values: config key -> float64 ``[R]``, each row's value of the per-run keys that
@@ -453,25 +456,6 @@ def _row_groups(streams: Streams, n: int, buf: np.ndarray, lo: int, hi: int):
         yield a, b, streams.draw(n, a, b, buf[: b - a])
 
 
-def advance(
-    state: world.State,
-    p: world.Params,
-    strategy: Strategy,
-    u: np.ndarray,
-    rec: Recorder | None = None,
-) -> world.Outcome:
-    """One team step: the strategy chooses, the world moves, the strategy learns.
-
-    ``u``: float ``[R, K, 2]``, this step's uniforms of every run.
-    """
-    obs = world.begin_step(state, p)
-    out = world.step(state, p, obs, strategy.act(obs, u))
-    strategy.learn(out, rec)
-    if rec is not None:
-        rec.episodes(out.t, out.episodes)
-    return out
-
-
 def check_finite(result: RunResult) -> None:
     """Raise :class:`ConfigError` if a Q-value became infinite or NaN during the run."""
     tables = result.strategy.tables()
@@ -493,7 +477,7 @@ def write_run(
     (``visits`` int64 ``[runs, agents, cells]``), for a learning strategy its tables
     (``q_table.npz``: ``q`` float64 and ``n`` int64, ``[runs, agents, cells, heading,
     action]``), ``meta.json`` (what
-    made it: :mod:`qpatrol.provenance`, from ``meta`` or collected now), ``map.txt``
+    made it: :mod:`qpatrol.util.provenance`, from ``meta`` or collected now), ``map.txt``
     (the map file used), and when recorded ``transitions.csv``, ``watch.csv`` and
     ``trajectory.csv`` and ``timeline.csv``. A run whose Q-values are not finite is not written
     (:func:`check_finite`).

@@ -18,9 +18,9 @@ from pathlib import Path
 import numpy as np
 import pandas as pd
 
-from qpatrol import atomic
-from qpatrol.csvio import read_csv
 from qpatrol.strategies import NAMES as STRATEGY_NAMES
+from qpatrol.util import atomic
+from qpatrol.util.csvio import read_csv
 
 
 @dataclass

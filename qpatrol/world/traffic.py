@@ -6,7 +6,7 @@ The moves are resolved in three parts:
 1. **Right of way.** At most one robot per run holds the *token*. If the cell it asks
    for is taken, the robots in the way are pushed aside: a breadth-first search from
    that cell, not through the holder's own cell, through charging robots nor into the
-   pocket of a station another robot holds (:mod:`qpatrol.battery`), finds the nearest
+   pocket of a station another robot holds (:mod:`qpatrol.world.battery`), finds the nearest
    empty cell, and every robot on that path moves one cell along it, away from the
    holder, which then takes its cell. If no such path exists the holder steps aside
    instead, into the first other neighbour that is empty or can be emptied the same
@@ -36,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol import battery
+from qpatrol.world import battery
 
 if TYPE_CHECKING:
     from qpatrol.world import Params, State

@@ -35,7 +35,7 @@ from functools import lru_cache
 import numpy as np
 
 from qpatrol.maps import Map, all_pairs_distances
-from qpatrol.tours import _double_bridge, _mst, _nearest_neighbour
+from qpatrol.maps.tours import _double_bridge, _mst, _nearest_neighbour
 
 __all__ = [
     "EFFORTS",
@@ -319,7 +319,7 @@ def _shortest_tour(D: np.ndarray, kicks: int, seed: int) -> np.ndarray:
 
     Nearest neighbour from node 0, the local search of :class:`_TourSearch`, then
     ``kicks`` rounds of iterated local search: swap two neighbouring stretches of the
-    best tour (a double bridge, from :func:`qpatrol.tours._double_bridge`; every fourth
+    best tour (a double bridge, from :func:`qpatrol.maps.tours._double_bridge`; every fourth
     anywhere, else within ``_KICK_WINDOW`` positions), re-optimise around the changed
     edges, and keep the result if it is no longer. The kicks draw from
     ``numpy.random.default_rng(seed)``, so the tour is deterministic. Starts at node 0.

@@ -2,7 +2,7 @@
 
 Steps, each a function here::
 
-    read_occupancy(yaml)        map_server's occupancy grid (see qpatrol.rosmap)
+    read_occupancy(yaml)        map_server's occupancy grid (see qpatrol.maps.ros)
     to_cells(occ, res, cell)    square cells of ``cell`` metres: free only if all pixels are
     largest_region(free)        the largest 4-connected free region; the rest is wall
     crop(free)                  bounding box of the region plus a one-cell wall border
@@ -44,7 +44,7 @@ from pathlib import Path
 import numpy as np
 
 from qpatrol.maps import Map, parse_map
-from qpatrol.rosmap import RosMap, RosMapError, read_occupancy
+from qpatrol.maps.ros import RosMap, RosMapError, read_occupancy
 
 __all__ = [
     "CELLS_PER_STATION",

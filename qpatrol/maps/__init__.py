@@ -26,6 +26,8 @@ from pathlib import Path
 
 import numpy as np
 
+from qpatrol.util.data import shipped_dir  # noqa: F401 (maps.shipped_dir)
+
 NORTH, EAST, SOUTH, WEST = 0, 1, 2, 3
 DIRECTIONS = ("north", "east", "south", "west")
 DIR_LETTERS = "NESW"
@@ -265,16 +267,6 @@ def load_map(path: str | Path) -> Map:
     except (OSError, UnicodeDecodeError) as e:
         raise MapError(f"{p}: cannot read map file ({e})") from None
     return parse_map(text, source=str(p))
-
-
-def shipped_dir(kind: str) -> Path:
-    """The folder of shipped ``maps`` or ``configs``: the checkout's when qpatrol runs from
-    one, else the copy installed with the package (``qpatrol/data/<kind>``)."""
-    here = Path(__file__).resolve().parent
-    checkout = here.parent
-    if (checkout / "pyproject.toml").is_file() and (checkout / kind).is_dir():
-        return checkout / kind
-    return here / "data" / kind
 
 
 def maps_dirs() -> list[Path]:

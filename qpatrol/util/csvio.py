@@ -1,7 +1,7 @@
 """Reading qpatrol's CSV files back exactly.
 
 qpatrol writes floats as the shortest text that reads back to the same float64
-(:data:`qpatrol.records.FLOAT_FORMAT`). pandas 3 reads such text exactly by default;
+(:data:`qpatrol.measures.records.FLOAT_FORMAT`). pandas 3 reads such text exactly by default;
 pandas 2's default parser may be off by one unit in the last place, so there the
 round-trip parser is asked for.
 """

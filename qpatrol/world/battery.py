@@ -23,7 +23,7 @@ Each move costs one unit of charge. The rules, applied to every robot of every r
    waits one cell before the pocket's junction until the robots inside have left.
 5. The charge never goes below 0 and a robot never runs out on its way: it moves on
    its own only when rules 1-2 leave it enough charge to reach its station. Being
-   pushed aside by a robot with right of way (:mod:`qpatrol.traffic`) is *yielding*:
+   pushed aside by a robot with right of way (:mod:`qpatrol.world.traffic`) is *yielding*:
    it costs no charge, and a robot on its way to a station is credited the extra
    distance a push put between it and the station. So no amount of yielding can
    strand a robot; yields are counted per run.

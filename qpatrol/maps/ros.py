@@ -40,7 +40,7 @@ from typing import Any
 import numpy as np
 import yaml
 
-from qpatrol.images import Image, ImageError, read_image
+from qpatrol.maps.images import Image, ImageError, read_image
 
 MODES = ("trinary", "scale", "raw")
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100

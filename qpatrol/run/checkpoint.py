@@ -40,7 +40,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from qpatrol import atomic
+from qpatrol.util import atomic
 
 FORMAT = "qpatrol-checkpoint/1"
 STATE_FILE = "checkpoint.pkl"
@@ -175,7 +175,7 @@ class Checkpointer:
 
     def save(self, position: int, payload: Any) -> None:
         """Save ``payload`` at ``position`` now (atomically, replacing the previous one)."""
-        from qpatrol.provenance import now
+        from qpatrol.util.provenance import now
 
         saved = now()
         blob = {

@@ -67,7 +67,7 @@ def now() -> str:
 @lru_cache(maxsize=1)
 def git_info() -> dict[str, Any] | None:
     """``{"commit", "dirty"}`` of the checkout qpatrol is imported from, or None."""
-    root = Path(__file__).resolve().parent.parent
+    root = Path(__file__).resolve().parents[2]
     if not (root / ".git").exists():
         return None
     try:

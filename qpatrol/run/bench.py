@@ -5,7 +5,7 @@ so the ratio is meaningful on a noisy machine even when the absolute numbers are
 (and ``qpatrol bench`` says when the machine's speed changed under it). The workload
 is ``runs`` runs of ``policy: qlearning`` teams of ``agents`` robots for ``steps`` team
 steps on ``map`` (battery off unless ``--set battery.enabled=on``); the reference is
-:func:`qpatrol.reference.run` on one run of the same map and team.
+:func:`qpatrol.run.reference.run` on one run of the same map and team.
 """
 
 from __future__ import annotations
@@ -20,12 +20,13 @@ from typing import Any
 
 import numpy as np
 
-from qpatrol import engines, limits, reference, world
+from qpatrol import engines, world
 from qpatrol.config import Config, from_flat
 from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import DIRECTIONS
-from qpatrol.rng import Streams, run_seeds
-from qpatrol.run import RunResult, prepare, simulate
+from qpatrol.run import RunResult, prepare, reference, simulate
+from qpatrol.world import limits
+from qpatrol.world.rng import Streams, run_seeds
 
 #: Most agent-steps the reference loop is timed over (it does ~0.3 M per second).
 REFERENCE_BUDGET = 300_000
@@ -35,10 +36,10 @@ def default_steps(runs: int, agents: int, engine: str = "auto") -> int:
     """Team steps of a workload that takes about a second on the compiled engine, so
     that setting up the runs and writing their summaries weigh little: 20 M agent-steps
     there (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which
-    ``auto`` takes when numba is missing. The numpy engine, :func:`qpatrol.run.advance`
-    on every step, takes 1 to 9 s of CPU for that here: 1.1 s at 2,048 lone robots
-    (488 steps), 4 s for one lone robot (20,000 steps, about 200 us a team step),
-    8.5 s for one team of 4 (about 430 us a team step)."""
+    ``auto`` takes when numba is missing. The numpy engine,
+    :func:`qpatrol.engines.numpy_loop.advance` on every step, takes 1 to 9 s of CPU for
+    that here: 1.1 s at 2,048 lone robots (488 steps), 4 s for one lone robot (20,000
+    steps, about 200 us a team step), 8.5 s for one team of 4 (about 430 us a team step)."""
     size = max(1, runs * agents)
     if engine == "numpy" or (engine == "auto" and not engines.numba_installed()):
         return min(20_000, max(400, 1_000_000 // size))
@@ -72,7 +73,7 @@ def workload(
 
 def array_bytes_per_run(result: RunResult) -> int:
     """Bytes of the per-run arrays (world state, learner tables, measures) per run, as
-    allocated (the part of :func:`qpatrol.limits.bytes_per_run` that is measurable)."""
+    allocated (the part of :func:`qpatrol.world.limits.bytes_per_run` that is measurable)."""
     total = 0
     for obj in (result.state, result.strategy, result.measures):
         for v in vars(obj).values():
@@ -124,8 +125,8 @@ def time_train(cfg: Config) -> float:
     import tempfile
     from pathlib import Path
 
-    from qpatrol.checkpoint import location
     from qpatrol.run import train, train_checkpointer
+    from qpatrol.run.checkpoint import location
 
     tmp = Path(tempfile.mkdtemp(prefix="qpatrol-bench-"))
     try:
@@ -232,7 +233,8 @@ def report(b: dict[str, Any]) -> str:
             f"core       {b['agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
             f"({b['seconds']:.2f} s)",
             f"reference  {b['reference_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "
-            f"(plain Python, qpatrol/reference.py; before and after: {b['reference_drift']:+.0%})",
+            "(plain Python, qpatrol/run/reference.py; before and after: "
+            f"{b['reference_drift']:+.0%})",
             *(
                 [
                     f"train      {b['train_agent_steps_per_s'] / 1e6:10.3f} M agent-steps/s "

@@ -13,7 +13,7 @@ its point runs alone; the batch's result is cut back into one
 Only points of a strategy that names its per-run arrays (``Strategy.per_run``: the
 Q-learners) are grouped; points of other strategies run one at a time.
 
-Rows of a group run in batches of at most :func:`qpatrol.limits.batch_runs` rows, point
+Rows of a group run in batches of at most :func:`qpatrol.world.limits.batch_runs` rows, point
 after point (a point is written as soon as its last row is done). A group is one task
 of the sweep's pool, cut by points into smaller tasks (:func:`tasks`) while its cost is
 above the fair share ``total cost / workers``, so that ``jobs`` workers stay busy.
@@ -30,12 +30,13 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol import limits, world
+from qpatrol import world
 from qpatrol.config import Config
 from qpatrol.maps import Map
-from qpatrol.rng import RunKey
 from qpatrol.run import RunResult, join, simulate_rows
 from qpatrol.strategies import qlearning
+from qpatrol.world import limits
+from qpatrol.world.rng import RunKey
 
 #: Config keys whose value may differ between the rows of one batch.
 PER_RUN_KEYS: tuple[str, ...] = (
