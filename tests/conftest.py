@@ -1,10 +1,19 @@
-"""Shared fixtures: tiny maps written to temporary files."""
+"""Shared fixtures: tiny maps written to temporary files.
+
+The suite runs in parallel (pytest-xdist, ``-n auto`` in pyproject.toml): every test
+writes only under its own ``tmp_path``, and the workers share numba's on-disk cache,
+whose writes :mod:`qpatrol.engines.cachelock` makes safe between processes.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+
+from qpatrol.engines import cachelock
+
+cachelock.install()  # before any compiled function is first called in this process
 
 RING = """\
 ; name: ring
