@@ -10,10 +10,16 @@ from __future__ import annotations
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
 
 from qpatrol.engines import cachelock
 
 cachelock.install()  # before any compiled function is first called in this process
+
+# hypothesis: the same examples on every run and machine (derandomize), no example
+# database written into the checkout, no time limit per example (a loaded machine)
+settings.register_profile("qpatrol", derandomize=True, database=None, deadline=None)
+settings.load_profile("qpatrol")
 
 RING = """\
 ; name: ring
