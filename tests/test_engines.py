@@ -8,13 +8,13 @@ in ``meta.json`` only ``loop_engine``/``loop_engine_note`` (which loop ran) may 
 
 from __future__ import annotations
 
-import itertools
 import json
 from pathlib import Path
 
 import mazes
 import numpy as np
 import pytest
+from covering import BOTH2, BOTH3, covers_every_pair, pairs
 
 from qpatrol import checkpoint as ck
 from qpatrol import engines
@@ -72,27 +72,6 @@ def same_arrays(a: object, b: object) -> None:
 
 
 BASE = {"runs": 2, "seed": 11, "steps": 160, "max_episode_steps": 60, "record.trajectory": 5}
-
-#: The four pairs of two booleans, and the same four as an orthogonal array of three
-#: booleans (every pair of values of any two of the three columns occurs once).
-BOTH2 = [(True, True), (True, False), (False, True), (False, False)]
-BOTH3 = [(True, True, True), (True, False, False), (False, True, False), (False, False, True)]
-
-
-def covers_every_pair(rows: list[tuple], domains: list[tuple]) -> bool:
-    """Every pair of values of any two columns of ``rows`` occurs in some row (a covering
-    subset of the product of ``domains``: what two settings do together is tested)."""
-    return all(
-        {(r[i], r[j]) for r in rows} == set(itertools.product(domains[i], domains[j]))
-        for i, j in itertools.combinations(range(len(domains)), 2)
-    )
-
-
-def pairs(domains: list[tuple], rows: list[tuple]) -> list[tuple]:
-    """``rows``, checked to cover every pair of values of ``domains`` (at collection)."""
-    assert covers_every_pair(rows, domains), rows
-    assert all(len(r) == len(domains) for r in rows)
-    return rows
 
 
 #: (agents, communication, avoid collisions, battery): each team size with two rows whose
