@@ -1,10 +1,25 @@
-"""Shared fixtures: tiny maps written to temporary files."""
+"""Shared fixtures: tiny maps written to temporary files.
+
+The suite runs in parallel (pytest-xdist, ``-n auto`` in pyproject.toml): every test
+writes only under its own ``tmp_path``, and the workers share numba's on-disk cache,
+whose writes :mod:`qpatrol.engines.cachelock` makes safe between processes.
+"""
 
 from __future__ import annotations
 
 from pathlib import Path
 
 import pytest
+from hypothesis import settings
+
+from qpatrol.engines import cachelock
+
+cachelock.install()  # before any compiled function is first called in this process
+
+# hypothesis: the same examples on every run and machine (derandomize), no example
+# database written into the checkout, no time limit per example (a loaded machine)
+settings.register_profile("qpatrol", derandomize=True, database=None, deadline=None)
+settings.load_profile("qpatrol")
 
 RING = """\
 ; name: ring

@@ -8,6 +8,7 @@ from pathlib import Path
 
 import numpy as np
 import pytest
+from covering import pairs
 
 import qpatrol.run.batching
 from qpatrol.config import from_mapping
@@ -106,10 +107,22 @@ class Count:
         return self.fn(*args, **kwargs)
 
 
-@pytest.mark.parametrize("agents", [1, 4])
-@pytest.mark.parametrize("kind", list(SWEEPS))
-@pytest.mark.parametrize("engine", ["numpy", "numba"])
-@pytest.mark.parametrize("record", [True, False])
+#: (kind, agents, engine, record): each sweep kind with two rows whose other settings
+#: are each other's opposite; every pair of values of any two columns occurs.
+BATCHED = pairs(
+    [tuple(SWEEPS), (1, 4), ("numpy", "numba"), (True, False)],
+    [
+        ("gamma", 1, "numpy", True),
+        ("gamma", 4, "numba", False),
+        ("reward", 1, "numba", False),
+        ("reward", 4, "numpy", True),
+        ("explore", 4, "numpy", False),
+        ("explore", 1, "numba", True),
+    ],
+)
+
+
+@pytest.mark.parametrize("kind, agents, engine, record", BATCHED)
 def test_batched_sweep_gives_the_same_files(
     maps, tmp_path, monkeypatch, engine, kind, agents, record
 ):

@@ -20,6 +20,9 @@ from qpatrol.config import from_mapping
 from qpatrol.run import checkpoint as ck
 from qpatrol.run import simulate
 
+#: on one worker under pytest-xdist: the module fixtures are built once
+pytestmark = pytest.mark.xdist_group("checkpoint")
+
 CONFIG = {
     "map": "map_b",
     "agents": 4,

@@ -14,6 +14,7 @@ from pathlib import Path
 import mazes
 import numpy as np
 import pytest
+from covering import BOTH2, BOTH3, covers_every_pair, pairs
 
 from qpatrol import engines
 from qpatrol.config import ConfigError, from_flat
@@ -73,10 +74,19 @@ def same_arrays(a: object, b: object) -> None:
 BASE = {"runs": 2, "seed": 11, "steps": 160, "max_episode_steps": 60, "record.trajectory": 5}
 
 
-@pytest.mark.parametrize("agents", [1, 2, 4, 8])
-@pytest.mark.parametrize("communication", [True, False])
-@pytest.mark.parametrize("avoid", [True, False])
-@pytest.mark.parametrize("battery", [True, False])
+#: (agents, communication, avoid collisions, battery): each team size with two rows whose
+#: booleans are each other's complement; every pair of values of any two columns occurs.
+QLEARNING_TEAMS = pairs(
+    [(1, 2, 4, 8), (True, False), (True, False), (True, False)],
+    [
+        (k, *row)
+        for k, first in zip((1, 2, 4, 8), BOTH3, strict=True)
+        for row in (first, tuple(not b for b in first))
+    ],
+)
+
+
+@pytest.mark.parametrize("agents, communication, avoid, battery", QLEARNING_TEAMS)
 def test_compiled_qlearning_teams(rooms_map, tmp_path, agents, communication, avoid, battery):
     flat = {
         **BASE,
@@ -323,9 +333,13 @@ def test_engine_is_not_part_of_the_experiment():
     assert "engine" not in a.to_yaml()
 
 
-@pytest.mark.parametrize("agents", [1, 4])
-@pytest.mark.parametrize("battery", [True, False])
-@pytest.mark.parametrize("window", [7, 50])
+@pytest.mark.parametrize(
+    "agents, battery, window",
+    pairs(
+        [(1, 4), (True, False), (7, 50)],
+        [(1, True, 7), (1, False, 50), (4, True, 50), (4, False, 7)],
+    ),
+)
 def test_compiled_timeline(rooms_map, tmp_path, agents, battery, window):
     """``record.timeline`` (idleness in windows), including a short last window (7 does
     not divide 300) and runs that stop early on an episode quota."""
@@ -589,10 +603,20 @@ def test_qlearning_idleness_resumes_on_the_other_engine(rooms_map, tmp_path, fir
 CLASSIC = ("random", "conscientious", "shared-conscientious", "evap", "cyclic", "partition")
 
 
-@pytest.mark.parametrize("policy", CLASSIC)
-@pytest.mark.parametrize("agents", [1, 2, 4, 8])
-@pytest.mark.parametrize("communication", [True, False])
-@pytest.mark.parametrize("battery", [True, False])
+#: (strategy, agents, communication, battery): each strategy with each team size, the
+#: booleans turning through their four pairs; every pair of values of any two columns
+#: occurs (24 rows of the 96 of the product).
+CLASSIC_TEAMS = pairs(
+    [CLASSIC, (1, 2, 4, 8), (True, False), (True, False)],
+    [
+        (policy, k, *BOTH2[(i + j) % 4])
+        for i, policy in enumerate(CLASSIC)
+        for j, k in enumerate((1, 2, 4, 8))
+    ],
+)
+
+
+@pytest.mark.parametrize("policy, agents, communication, battery", CLASSIC_TEAMS)
 def test_compiled_classic_teams(rooms_map, tmp_path, policy, agents, communication, battery):
     """Collisions avoided (pushes, right of way, head-on exchanges of walks), on a map
     of 30 cells that 8 robots crowd; battery with one station."""
@@ -610,9 +634,13 @@ def test_compiled_classic_teams(rooms_map, tmp_path, policy, agents, communicati
     assert both(flat, tmp_path) == ("numba", "")
 
 
-@pytest.mark.parametrize("policy", CLASSIC)
-@pytest.mark.parametrize("agents", [2, 8])
-@pytest.mark.parametrize("battery", [True, False])
+@pytest.mark.parametrize(
+    "policy, agents, battery",
+    pairs(
+        [CLASSIC, (2, 8), (True, False)],
+        [(p, k, (k == 2) == (i % 2 == 0)) for i, p in enumerate(CLASSIC) for k in (2, 8)],
+    ),
+)
 def test_compiled_classic_without_avoidance(rooms_map, tmp_path, policy, agents, battery):
     """Robots may share cells (two of one group entering one cell in a step)."""
     flat = {
@@ -770,3 +798,13 @@ def test_evap_powers_are_numpys_and_long_tables_fall_back():
     assert engines.compiled_gap(cfg) is None
     gap = engines.compiled_gap(cfg.replace(**{"evap.evaporation": 1e-9}))
     assert gap is not None and "evap" in gap
+
+
+def test_a_table_that_misses_a_pair_is_refused():
+    """The covering tables above are checked: drop one row and some pair is missing."""
+    domains = [CLASSIC, (1, 2, 4, 8), (True, False), (True, False)]
+    assert covers_every_pair(CLASSIC_TEAMS, domains)
+    for k in range(len(CLASSIC_TEAMS)):
+        assert not covers_every_pair(CLASSIC_TEAMS[:k] + CLASSIC_TEAMS[k + 1 :], domains)
+    with pytest.raises(AssertionError):
+        pairs([(1, 2), (True, False)], [(1, True), (2, False)])

@@ -30,7 +30,8 @@ from qpatrol.config import ConfigError, load_config  # noqa: E402
 from qpatrol.envs import FEATURES, PatrolEnv, PatrolParallelEnv  # noqa: E402
 
 ROOT = Path(__file__).resolve().parents[1]
-pytestmark = pytest.mark.filterwarnings("error")
+#: one worker under pytest-xdist runs this file: its module fixtures are built once
+pytestmark = [pytest.mark.filterwarnings("error"), pytest.mark.xdist_group("envs")]
 
 
 def paper_env(**kw):

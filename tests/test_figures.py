@@ -14,6 +14,9 @@ from qpatrol.measures.records import to_csv_text
 from qpatrol.run import simulate, write_run
 from qpatrol.study import figures, plots
 
+#: on one worker under pytest-xdist: the module fixtures are built once
+pytestmark = pytest.mark.xdist_group("figures")
+
 # 17 free cells; cell 3 is a T-junction (West, East, South); H at cell 13
 TINY = """; name: tiny
 #########

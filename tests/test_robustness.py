@@ -21,6 +21,9 @@ from qpatrol import cli
 from qpatrol.config import from_flat
 from qpatrol.study.sweep import grid_points, points_for, run_sweep
 
+#: on one worker under pytest-xdist: the module fixtures are built once
+pytestmark = pytest.mark.xdist_group("robustness")
+
 REPO = Path(__file__).resolve().parent.parent
 
 

@@ -4,6 +4,8 @@ from collections import deque
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from qpatrol.maps import get_map, parse_map
 from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour, terminal_problem, walk_is_valid
@@ -99,7 +101,8 @@ def random_map(rng, rows=5, cols=6, p_wall=0.3):
             return m
 
 
-@pytest.mark.parametrize("seed", range(25))
+@settings(max_examples=25)
+@given(seed=st.integers(0, 2**32 - 1))
 def test_random_tiny_maps(seed):
     rng = np.random.default_rng(seed)
     m = random_map(rng)

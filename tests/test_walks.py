@@ -4,6 +4,8 @@ from collections import deque
 
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from qpatrol.maps import bfs, get_map, parse_map, walks
 from qpatrol.maps.walks import (
@@ -144,7 +146,8 @@ def test_region_walk_stays_in_its_cells():
     assert set(walk.tolist()) == set(cells.tolist())
 
 
-@pytest.mark.parametrize("seed", range(12))
+@settings(max_examples=12)
+@given(seed=st.integers(0, 2**32 - 1))
 def test_bound_and_walk_against_brute_force(seed):
     # a random 4 x 5 grid, walled off where cut from its corner; the region is a BFS ball
     rng = np.random.default_rng(seed)

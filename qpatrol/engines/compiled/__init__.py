@@ -16,6 +16,7 @@ from pathlib import Path
 
 from numba import njit
 
+from qpatrol.engines import cachelock
 from qpatrol.engines.compiled import (
     conscientious,
     evap,
@@ -26,6 +27,10 @@ from qpatrol.engines.compiled import (
     shared_conscientious,
 )
 from qpatrol.engines.compiled.pack import Pack
+
+# a sweep's worker processes compile different loops (signatures of one function) side
+# by side on a fresh machine: their saves to numba's on-disk cache must not interleave
+cachelock.install()
 
 QLEARNING = 0
 QLEARNING_IDLENESS = 1
