@@ -105,7 +105,7 @@ def test_installed_package_runs_outside_the_checkout(installed):
 #: digest and the file it and its map were read from, with the map file's bytes' hash.
 QUICK_INPUTS = """
 import hashlib, json
-from qpatrol import reproduce as rp
+from qpatrol.study import reproduce as rp
 from qpatrol.maps import resolve_map
 out = []
 for e in rp.EXPERIMENTS:
