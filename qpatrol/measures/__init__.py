@@ -33,6 +33,26 @@ import pandas as pd
 from qpatrol.world import Outcome, Params
 
 
+def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray):
+    """The visits of one step, robot by robot: ``(k, rows, cells, prev)`` for each robot
+    ``k`` that entered a cell in some runs (``rows`` int ``[B]``, the cells entered
+    ``cells`` int ``[B]``, ``prev`` int ``[B]`` their previous visit, 0 for none), after
+    recording the visit: ``last`` int ``[R, C]`` (the step of each cell's last visit) set
+    to ``out.t`` and ``last_sum`` int ``[R]`` (the sum of ``last`` over cells) kept equal
+    to it. The one place the measures and the timeline (:mod:`qpatrol.measures.timeline`)
+    learn of a visit."""
+    t = out.t
+    for k in range(out.moved.shape[1]):
+        rows = np.flatnonzero(out.moved[:, k])
+        if rows.size == 0:
+            continue
+        c = out.pos[rows, k]
+        prev = last[rows, c]
+        last[rows, c] = t
+        last_sum[rows] += t - prev
+        yield k, rows, c, prev
+
+
 class Measures:
     """Accumulators over a batch of runs; call :meth:`observe` after every step.
 
@@ -78,14 +98,7 @@ class Measures:
         """
         t = out.t
         in_window = t > self.warmup
-        for k in range(out.moved.shape[1]):
-            rows = np.flatnonzero(out.moved[:, k])
-            if rows.size == 0:
-                continue
-            c = out.pos[rows, k]
-            prev = self.last[rows, c]
-            self.last[rows, c] = t
-            self.last_sum[rows] += t - prev
+        for k, rows, c, prev in entries(out, self.last, self.last_sum):
             self.visits[rows, k, c] += 1
             if in_window:
                 self.window_visits[rows, k, c] += 1

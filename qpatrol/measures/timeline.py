@@ -19,6 +19,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
+from qpatrol.measures import entries
 from qpatrol.world import Outcome
 
 TIMELINE_COLUMNS = ["run", "window", "first_step", "last_step", "avg_idleness", "worst_idleness"]
@@ -58,14 +59,7 @@ class Timeline:
             return
         t = out.t
         start = ((t - 1) // self.window) * self.window + 1  # first step of t's window
-        for k in range(out.moved.shape[1]):
-            rows = np.flatnonzero(out.moved[:, k])
-            if rows.size == 0:
-                continue
-            c = out.pos[rows, k]
-            prev = self.last[rows, c]
-            self.last[rows, c] = t
-            self.last_sum[rows] += t - prev
+        for _, rows, _, prev in entries(out, self.last, self.last_sum):
             if t - 1 >= start:
                 self.worst[rows] = np.maximum(self.worst[rows], t - 1 - prev)
         act = out.active
