@@ -41,7 +41,12 @@ call); the traffic rules' passes, which the team kernel takes about one step in 
 Q-learning (``SPEC_QLEARNING`` and the kernels) call its ``act``/``learn`` directly,
 and every test of the battery or the timeline names the spec, so that numba leaves
 the other strategies' and the battery's code out before typing it (cold compile of
-the Q-learning loop: 23 s of CPU before, 9 s after).
+the Q-learning loop: 23 s of CPU before, 9 s after). The strategies' small helpers
+(``qlearning_idleness``'s scores, ``evap``'s level, ``follow``'s advance) are
+functions of their own too (any strategy's loop: 29 s of CPU to compile before, 25 s
+after), but not the strategies' ``act``/``learn`` nor the dispatch to them
+(:func:`compiled.act`): as calls, each passing the argument bundles, the general loop
+took twice the time a step.
 
 The loop is compiled without numba's reference counting (``_nrt=False``): it
 allocates nothing (its working arrays come from :func:`bundles.work`), and every call
@@ -64,11 +69,15 @@ lane with its own working arrays and output buffers (:mod:`qpatrol.engines.threa
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+import sys
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 from numba import njit
+from numba.core.dispatcher import Dispatcher
 
 from qpatrol.engines import compiled
 from qpatrol.engines.compiled import (
@@ -531,33 +540,24 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
     return t_end, n_ep, n_up, n_tl
 
 
-# the caches of the loop and of the functions it calls without inlining them (the
-# kernels, which inline the choice and the streams' draws) also follow the files of
-# qpatrol.engines.compiled
-for _f in (
-    episodes.end,
-    enter.enter,
-    enter.group_enters,
-    observe.visit,
-    qlearning.update,
-    _team_enters,
-    stations.begin,
-    stations.ask,
-    stations.pay,
-    stations.end,
-    moves.open_moves,
-    observe.timeline,
-    enter.all_enter,
-    moves.priority,
-    moves.push_path,
-    stations.kept_out,
-    stations.way_out,
-    _solo_qlearning,
-    _team_qlearning,
-):
-    compiled.key_cache(_f, __file__)
-compiled.key_cache(run_block, __file__)
-del _f
+def _key_caches() -> None:
+    """Key the cache of every compiled function of the loop that numba does not inline
+    (the loop, the kernels, the phases and strategies compiled as functions of their
+    own) on every file of :mod:`qpatrol.engines.compiled` and this one
+    (:func:`compiled.key_cache`): each inlines code of other files."""
+    names = [m.name for m in pkgutil.iter_modules(compiled.__path__)]
+    mods = [compiled, *(importlib.import_module(f"{compiled.__name__}.{n}") for n in names)]
+    for mod in [*mods, sys.modules[__name__]]:
+        for f in vars(mod).values():
+            if (
+                isinstance(f, Dispatcher)
+                and f.py_func.__module__ == mod.__name__
+                and f.targetoptions.get("inline") != "always"
+            ):
+                compiled.key_cache(f, __file__)
+
+
+_key_caches()
 
 
 class Loop:
