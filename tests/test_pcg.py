@@ -226,3 +226,30 @@ def test_every_compiled_function_of_the_loop_is_keyed_on_the_package():
         stamp = getattr(getattr(f._cache, "_cache_file", None), "_source_stamp", None)
         if stamp is not None:  # numba's private cache object, as key_cache finds it
             assert stamp[0] == "qpatrol", f.__name__
+
+
+def test_every_compiled_function_of_the_package_is_keyed_on_the_package():
+    """Every function of ``qpatrol.engines.compiled`` that numba compiles as a function
+    of its own (not inlined) inlines code of other files of the package: its cache too
+    must follow them all (``numba_core._key_caches``)."""
+    import importlib
+    import pkgutil
+
+    from numba.core.dispatcher import Dispatcher
+
+    from qpatrol.engines import compiled, numba_core  # noqa: F401 (keys the caches)
+
+    seen = []
+    for info in pkgutil.iter_modules(compiled.__path__):
+        mod = importlib.import_module(f"{compiled.__name__}.{info.name}")
+        for f in vars(mod).values():
+            if (
+                isinstance(f, Dispatcher)
+                and f.py_func.__module__ == mod.__name__
+                and f.targetoptions.get("inline") != "always"
+            ):
+                seen.append(f)
+                stamp = getattr(getattr(f._cache, "_cache_file", None), "_source_stamp", None)
+                if stamp is not None:
+                    assert stamp[0] == "qpatrol", f"{mod.__name__}.{f.__name__}"
+    assert {f.__name__ for f in seen} >= {"end", "enter", "visit", "update", "_score"}

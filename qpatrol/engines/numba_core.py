@@ -33,10 +33,20 @@ engine's objects are (:mod:`~qpatrol.engines.compiled.bundles`: ``Params``,
 reads. The phases the general loop calls once a step (and the kernels only off their
 common path: episodes) are compiled as functions of their
 own, once for every loop that calls them (numba inlining them into each loop made the
-cold compile of the general loop about a third longer); the per-robot ones (entering
-a cell, the measures' visit, the Q-update) and the traffic rules' passes, which the
-team kernel takes about one step in ten (16 runs of 4 robots: about 10 % slower as
-calls), are inlined.
+cold compile of the general loop about a third longer), and so are the per-robot ones
+(entering a cell, the measures' visit, the Q-update: small, LLVM inlines them back
+into the loops, whose speed is unchanged, while numba's inlining re-typed them at each
+call); the traffic rules' passes, which the team kernel takes about one step in ten
+(16 runs of 4 robots: about 10 % slower as calls), are inlined. The loops for
+Q-learning (``SPEC_QLEARNING`` and the kernels) call its ``act``/``learn`` directly,
+and every test of the battery or the timeline names the spec, so that numba leaves
+the other strategies' and the battery's code out before typing it (cold compile of
+the Q-learning loop: 23 s of CPU before, 9 s after). The strategies' small helpers
+(``qlearning_idleness``'s scores, ``evap``'s level, ``follow``'s advance) are
+functions of their own too (any strategy's loop: 29 s of CPU to compile before, 25 s
+after), but not the strategies' ``act``/``learn`` nor the dispatch to them
+(:func:`compiled.act`): as calls, each passing the argument bundles, the general loop
+took twice the time a step.
 
 The loop is compiled without numba's reference counting (``_nrt=False``): it
 allocates nothing (its working arrays come from :func:`bundles.work`), and every call
@@ -59,11 +69,15 @@ lane with its own working arrays and output buffers (:mod:`qpatrol.engines.threa
 
 from __future__ import annotations
 
+import importlib
+import pkgutil
+import sys
 from collections.abc import Callable, Iterable
 from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
 from numba import njit
+from numba.core.dispatcher import Dispatcher
 
 from qpatrol.engines import compiled
 from qpatrol.engines.compiled import (
@@ -228,7 +242,7 @@ def _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
     return t_end, n_ep
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _team_enters(r, k, c0, c1, t, learns, ha, aa, p, s, m, tables, sums):
     """Robot ``k`` of a Q-learning team (run ``r``) moved from cell ``c0`` into ``c1``
     at step ``t``: its dot group takes the visit (:func:`enter.group_enters`), it learns
@@ -447,8 +461,10 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
     spec = spec_marker.ndim  # a constant of the compiled code, one overload per value
     n_runs, n_steps, n_agents = u.shape[0], u.shape[1], u.shape[2]
     battery, tl_window = p.battery, o.tl_window
-    if spec >= SPEC_QLEARNING:  # compile-time constants: the unused code is removed
-        code = compiled.QLEARNING
+    # the other loops are Q-learning's without battery or timeline: their code is left
+    # out where a test names spec (numba prunes a branch on a constant it can see, not
+    # on a variable given two values, such as these)
+    if spec >= SPEC_QLEARNING:
         battery = False
         tl_window = 0
     n_cells = p.nbrs.shape[0]
@@ -476,17 +492,23 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
             t_mod = t_next_mod
             t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
             tok = s.token[r]
-            if battery:
+            if spec == SPEC_ANY and battery:
                 stations.begin(r, t, p, s, w)
             moves.open_moves(r, tok, battery, avoid, p, s, w)
-            compiled.act(code, r, i, t, u, battery, p, s, w, sp)
-            if battery:
+            if spec == SPEC_ANY:
+                compiled.act(code, r, i, t, u, battery, p, s, w, sp)
+            else:  # (compiled.act of qlearning, the others' code not compiled)
+                qlearning.act(
+                    r, i, u, s.pos, s.head, w.open_mask, w.choosing, w.ask, sp.row_f, sp.ipar,
+                    sp.q,
+                )  # fmt: skip
+            if spec == SPEC_ANY and battery:
                 stations.ask(r, p, s, w)
             for k in range(n_agents):
                 w.want[k] = p.nbrs[s.pos[r, k], w.ask[k]] if w.ask[k] >= 0 else -1
             push_failed = moves.resolve(r, tok, t_mod, False, battery, avoid, p, s, w)
             enter.all_enter(r, t, p, s, w)
-            if battery:
+            if spec == SPEC_ANY and battery:
                 stations.pay(r, p, s, w)
                 stations.end(r, p, s, w)
             waiting, longest = moves.waits(r, battery, s, w)
@@ -496,7 +518,10 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
                 )
             s.steps_done[r] = t
             n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
-            n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
+            if spec == SPEC_ANY:
+                n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
+            else:
+                n_up = qlearning.learn(r, t, p, w, sp, o, n_up)
             # --- the measures (Measures.observe), the timeline, the trajectory ring ----
             sums = observe.sums_of(m, r)
             for k in range(n_agents):
@@ -504,9 +529,9 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
                     sums = observe.visit(c, t, m.warmup, m.last[r], vk, wk, sums)
             observe.store_sums(m, r, sums)
-            if tl_window > 0:
+            if spec == SPEC_ANY and tl_window > 0:
                 n_tl = observe.timeline(r, t, tl_window, s.pos[r], w.moved, o, n_tl)
-            if battery:
+            if spec == SPEC_ANY and battery:
                 stations.lowest_charge(r, s, m.min_charge)
             observe.step_measures(r, t, n_cells, sums[0], waiting, longest, m)
             observe.trail(r, t, s.pos[r], o)
@@ -515,28 +540,24 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
     return t_end, n_ep, n_up, n_tl
 
 
-# the caches of the loop and of the functions it calls without inlining them (the
-# kernels, which inline the choice and the streams' draws) also follow the files of
-# qpatrol.engines.compiled
-for _f in (
-    episodes.end,
-    stations.begin,
-    stations.ask,
-    stations.pay,
-    stations.end,
-    moves.open_moves,
-    observe.timeline,
-    enter.all_enter,
-    moves.priority,
-    moves.push_path,
-    stations.kept_out,
-    stations.way_out,
-    _solo_qlearning,
-    _team_qlearning,
-):
-    compiled.key_cache(_f, __file__)
-compiled.key_cache(run_block, __file__)
-del _f
+def _key_caches() -> None:
+    """Key the cache of every compiled function of the loop that numba does not inline
+    (the loop, the kernels, the phases and strategies compiled as functions of their
+    own) on every file of :mod:`qpatrol.engines.compiled` and this one
+    (:func:`compiled.key_cache`): each inlines code of other files."""
+    names = [m.name for m in pkgutil.iter_modules(compiled.__path__)]
+    mods = [compiled, *(importlib.import_module(f"{compiled.__name__}.{n}") for n in names)]
+    for mod in [*mods, sys.modules[__name__]]:
+        for f in vars(mod).values():
+            if (
+                isinstance(f, Dispatcher)
+                and f.py_func.__module__ == mod.__name__
+                and f.targetoptions.get("inline") != "always"
+            ):
+                compiled.key_cache(f, __file__)
+
+
+_key_caches()
 
 
 class Loop:

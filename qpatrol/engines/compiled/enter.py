@@ -11,7 +11,7 @@ from __future__ import annotations
 from numba import njit
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def enter(c0, c1, asked, t, nbrs, dot_value, grp, cnt, weights):
     """A robot of a dot group moves from cell ``c0`` into ``c1`` at step ``t`` (as it
     ``asked``, or -1: pushed or unknown). ``grp``: the group's dots, last visits, cells
@@ -49,7 +49,7 @@ def enter(c0, c1, asked, t, nbrs, dot_value, grp, cnt, weights):
     return a, ate, (left, eaten, entered), reward
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def group_enters(r, g, c0, c1, asked, t, p, s):
     """:func:`enter` for a robot of group ``g`` of run ``r``, its counters read from and
     stored to the world ``s``. Returns ``(heading entered, dot eaten, reward)``."""

@@ -51,7 +51,7 @@ def unpack(p: Pack, strategy) -> None:
     """Nothing to copy back: ``amount`` and ``since`` are the strategy's own arrays."""
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _level(amount, since, pw, c, now):
     """The pheromone of cell ``c`` at step ``now`` (``amount``, ``since``: ``[C]``)."""
     return amount[c] * pw[min(now - since[c], pw.shape[0] - 1)]

@@ -68,7 +68,7 @@ def sat_out(strategy, state) -> None:
         strategy.hold[out & gathered & strategy.hold.any(axis=1)] = False
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _advance(ri, k, length):
     """Robot k's target, one index further along its walk."""
     ri[k, TARGET] = (ri[k, TARGET] + 1) % length[ri[k, WID]]

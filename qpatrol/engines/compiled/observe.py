@@ -7,7 +7,7 @@ from __future__ import annotations
 from numba import njit
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def visit(c, t, warmup, m_last_r, visits_k, window_visits_k, sums):
     """Measures.observe of a robot's visit to cell ``c`` at step ``t``: the run's last
     visits (``m_last_r`` ``[C]``) and the robot's visit counts (``visits_k``,

@@ -72,7 +72,7 @@ def act(r, i, u, pos, head, open_mask, choosing, ask, row_f, ipar, q):
         ask[k] = pick(bits, count, u[r, i, k, 1])
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def update(q_f, n_f, at0, at1, m1, reward, gamma):
     """The Q-learning update of one robot, on its tables flat (``q_f`` float64, ``n_f``
     int32): ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max_{a' legal} Q(s', a') - Q(s,

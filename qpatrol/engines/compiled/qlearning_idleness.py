@@ -86,7 +86,7 @@ def unpack(p: Pack, strategy) -> None:
     strategy.feat = np.where(f[:, :, 2] == t_last, f[:, :, 0], f[:, :, 1])
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _idlest(nbrs, last, r, g, c):
     """Direction of the non-wall neighbour of ``c`` visited longest ago on map ``g``
     (``last`` int ``[R, G, C]``), first in N, E, S, W order; 0 without a neighbour."""
@@ -100,7 +100,7 @@ def _idlest(nbrs, last, r, g, c):
     return f
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _reward(sp, dot_value, r, g, c, t):
     """The reward of entering ``c`` at team step ``t`` on map ``g`` as it stands
     (``Strategy.reward_of``)."""
@@ -109,7 +109,7 @@ def _reward(sp, dot_value, r, g, c, t):
     return min(sp.fpar[CAP], (t - sp.cell_i[r, g, c]) / sp.fpar[SCALE])
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def _score(sp, dot_value, nbrs, r, g, pk, c, slot, d, t):
     """``Q(s, d) + r(s, d)`` (the reward only with ``qidle.known_reward``) of robot state
     ``(c, slot)`` on table ``pk``, map ``g`` (a wall reads cell 0; it is never chosen,
