@@ -528,7 +528,7 @@ def plot(
 @app.command(
     **command(
         examples=(
-            "qpatrol reproduce                        (about 4 minutes on 2 cores, into results/)",
+            "qpatrol reproduce                        (1 to 3 minutes on 2 cores, into results/)",
             "qpatrol reproduce --quick --out /tmp/q   (a minute; verdicts indicative only)",
         )
     )
