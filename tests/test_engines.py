@@ -760,9 +760,9 @@ def test_sat_out_mirrors_the_numpy_engine(rooms_map):
 
     from qpatrol import strategies, world
     from qpatrol.engines.compiled import follow
+    from qpatrol.engines.numpy_loop import advance
     from qpatrol.maps import get_map
     from qpatrol.measures.records import Recorder
-    from qpatrol.run import advance
 
     cfg = from_flat({"map": str(rooms_map), "policy": "cyclic", "agents": 3, "runs": 2})
     m = get_map(cfg["map"])

@@ -20,8 +20,8 @@ import pytest
 
 from qpatrol import measures, strategies, world
 from qpatrol.config import from_flat
+from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import get_map, parse_map
-from qpatrol.run import advance
 from qpatrol.world.rng import Streams, run_seeds
 
 DATA = Path(__file__).parent / "data"

@@ -12,8 +12,9 @@ import numpy as np
 import pytest
 from conftest import ROOMS
 
-from qpatrol import run, strategies, world
+from qpatrol import strategies, world
 from qpatrol.config import from_flat
+from qpatrol.engines import numpy_loop
 from qpatrol.maps import EAST, NORTH, SOUTH, WEST, get_map, parse_map, walks
 from qpatrol.measures.records import Recorder
 from qpatrol.strategies import base
@@ -79,7 +80,7 @@ def run_steps(cfg, m, steps, seed_runs=None):
     p, s, strat, streams = start(cfg, m, seed_runs)
     for _ in range(steps):
         old = s.pos.copy()
-        out = run.advance(s, p, strat, streams.next())
+        out = numpy_loop.advance(s, p, strat, streams.next())
         yield p, s, strat, out, old
 
 
@@ -293,16 +294,16 @@ def test_cyclic_head_on_robots_exchange_their_plans():
         s.occ[0, cell] = k
     strat.target[0] = [5, 2]
     strat.hold[:] = False
-    out = run.advance(s, p, strat, u_for(0.0, agents=2))
+    out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
     assert s.pos[0].tolist() == [8, 9]
     assert out.ask[0].tolist() == [EAST, WEST] and out.blocked_by[0].tolist() == [1, 0]
-    out = run.advance(s, p, strat, u_for(0.0, agents=2))
+    out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
     assert strat.target[0].tolist() == [2, 5]
     assert s.pos[0].tolist() == [6, 10] and out.as_asked[0].all()
     # robot 0 now carries robot 1's plan (index 2 -> 3 -> ...), robot 1 robot 0's
     i0, i1 = 2, 5
     for _ in range(20):
-        out = run.advance(s, p, strat, u_for(0.0, agents=2))
+        out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
         i0, i1 = (i0 + 1) % 12, (i1 + 1) % 12
         assert s.pos[0].tolist() == [walk[i0], walk[i1]] and out.as_asked[0].all()
 
@@ -370,7 +371,7 @@ def test_qlearning_follows_the_update_rule_for_every_recorded_update():
     expected = {}  # (step, run, agent) -> (cell, heading, action, next cell, reward)
     not_learning = 0
     for _ in range(400):
-        out = run.advance(s, p, strat, streams.next(), rec)
+        out = numpy_loop.advance(s, p, strat, streams.next(), rec)
         for r, k in zip(*np.nonzero(out.choosing & out.as_asked), strict=True):
             expected[(out.t, r, k)] = (
                 out.prev_pos[r, k],

@@ -22,8 +22,9 @@ import numpy as np
 import pytest
 from conftest import RING, ROOMS
 
-from qpatrol import run, strategies, world
+from qpatrol import strategies, world
 from qpatrol.config import Config, ConfigError, from_flat
+from qpatrol.engines import numpy_loop
 from qpatrol.maps import EAST, NORTH, SOUTH, WEST, Map, parse_map
 from qpatrol.measures.records import Recorder
 from qpatrol.run import simulate
@@ -110,7 +111,7 @@ def test_update_rule_by_hand_on_the_ring():
     q0 = q.copy()
     # step 1: legal E (2) and S (1) -> East to cell 1. r = dot 1 + 1*1/100 + lambda 1/1
     # target = 2.01 + 0.1 * max(Q(1,E,E)=2, Q(1,E,W)=2) = 2.21, alpha = 1
-    out = run.advance(w.s, w.p, w.strat, u_for(0.0))
+    out = numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0))
     assert w.s.pos[0, 0] == 1 and w.s.head[0, 0] == EAST
     assert out.reward[0, 0] == pytest.approx(2.01, abs=1e-12)
     assert q[0, 0, 0, 0, EAST] == pytest.approx(2.21, abs=1e-12)
@@ -118,17 +119,17 @@ def test_update_rule_by_hand_on_the_ring():
     # step 2: at (1, E) East and West tie at 2; u=0.75 takes the second candidate, West.
     # back on cell 0 (its dot is eaten now): r = 1 + 2/100 + 2/2 = 2.02
     # target = 2.02 + 0.1 * max(Q(0,W,E)=2, Q(0,W,S)=1) = 2.22
-    run.advance(w.s, w.p, w.strat, u_for(0.75))
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.75))
     assert w.s.pos[0, 0] == 0 and w.s.head[0, 0] == WEST
     assert q[0, 0, 1, EAST, WEST] == pytest.approx(2.22, abs=1e-12)
     # step 3: at (0, W): East 2 > South 1 -> cell 1, no dot left: r = (3-1)/100 + 2/3
     # target = r + 0.1 * max(Q(1,E,W)=2.22, Q(1,E,E)=2)
-    run.advance(w.s, w.p, w.strat, u_for(0.0))
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0))
     r3 = 0.02 + 2 / 3
     assert q[0, 0, 0, WEST, EAST] == pytest.approx(r3 + 0.222, abs=1e-12)
     # step 4: at (1, E): West 2.22 > East 2 -> cell 0; r = (4-2)/100 + 2/4 = 0.52
     # target = 0.52 + 0.1 * max(Q(0,W,E)=r3+0.222, Q(0,W,S)=1) = 0.62; second visit: alpha 1/2
-    run.advance(w.s, w.p, w.strat, u_for(0.0))
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0))
     assert w.strat.n[0, 0, 1, EAST, WEST] == 2
     assert q[0, 0, 1, EAST, WEST] == pytest.approx(2.22 + 0.5 * (0.62 - 2.22), abs=1e-12)
     # nothing else moved in the table
@@ -150,14 +151,16 @@ def test_reward_parts():
     ]:
         w = build(line, [0], **flat)
         q_next = w.strat.q[0, 0, 1, EAST].copy()
-        out = run.advance(w.s, w.p, w.strat, u_for(0.0))
+        out = numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0))
         assert out.reward[0, 0] == pytest.approx(expected, abs=1e-12), flat
         boot = w.strat.gamma * max(q_next[EAST], q_next[WEST])
         assert w.strat.q[0, 0, 0, 0, EAST] == pytest.approx(expected + boot, abs=1e-12), flat
     # the empty cell: no dot, incremental only, lambda = 1 dot / 2 visits
     w = build(line, [0], **{"learning.q_init.west": 0.0})
-    run.advance(w.s, w.p, w.strat, u_for(0.0))
-    out = run.advance(w.s, w.p, w.strat, u_for(0.0))  # East is the only best move from (1, E)
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0))
+    out = numpy_loop.advance(
+        w.s, w.p, w.strat, u_for(0.0)
+    )  # East is the only best move from (1, E)
     assert w.s.pos[0, 0] == 2 and not out.eaten[0, 0]
     assert out.reward[0, 0] == pytest.approx(0.02 + 0.5, abs=1e-12)
     boot = w.strat.gamma * 2.0
@@ -168,7 +171,7 @@ def test_episode_ends_when_all_dots_are_eaten_and_restarts():
     w = build("0..\n", [0])
     rec = Recorder(np.array([0]))
     for pick in (0.0, 0.0, 0.0, 0.99):  # E, E (tie, first), W (only move), W (tie, second)
-        run.advance(w.s, w.p, w.strat, u_for(pick), rec)
+        numpy_loop.advance(w.s, w.p, w.strat, u_for(pick), rec)
     s = w.s
     assert s.pos[0, 0] == 0
     ep = rec.episode_table()
@@ -201,12 +204,12 @@ def test_communication_off_gives_private_dot_maps():
     two = "0...1\n"
     w = build(two, **{"agents": 2, "team.communication": False})
     assert w.s.dots.shape == (1, 2, 5)
-    run.advance(w.s, w.p, w.strat, u_for(0.0, agents=2))
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0, agents=2))
     # agent 0 ate cell 1 on its own map only; agent 1 ate cell 3 on its own map only
     assert w.s.dots[0, 0].tolist() == [True, False, True, True, True]
     assert w.s.dots[0, 1].tolist() == [True, True, True, False, True]
     w = build(two, agents=2)
-    run.advance(w.s, w.p, w.strat, u_for(0.0, agents=2))
+    numpy_loop.advance(w.s, w.p, w.strat, u_for(0.0, agents=2))
     assert w.s.dots.shape == (1, 1, 5)
     assert w.s.dots[0, 0].tolist() == [True, False, True, False, True]
 
@@ -376,7 +379,7 @@ def _walk(cfg: Config, m: Map, steps: int):
     strat = strategies.make(cfg["policy"], cfg, m, p, starts)
     for _ in range(steps):
         old = s.pos.copy()
-        run.advance(s, p, strat, streams.next())
+        numpy_loop.advance(s, p, strat, streams.next())
         yield p, s, old, s.pos.copy()
 
 
@@ -456,7 +459,7 @@ def test_battery_trip_home_and_back(capacity):
     trips = 0
     for _ in range(300):
         before = (int(s.pos[0, 0]), int(s.mode[0, 0]), int(s.charge[0, 0]), int(w.strat.n.sum()))
-        run.advance(s, w.p, w.strat, streams.next())
+        numpy_loop.advance(s, w.p, w.strat, streams.next())
         pos, mode, charge = int(s.pos[0, 0]), int(s.mode[0, 0]), int(s.charge[0, 0])
         assert 0 <= charge <= capacity
         assert mode != QUEUED  # alone, it always gets the station at once
@@ -773,9 +776,9 @@ def test_dead_end_station_pocket_is_found():
 def test_outcome_active_covers_the_step_that_meets_the_episode_quota():
     w = build("0..\n", [0], episodes=1)
     for pick in (0.0, 0.0, 0.0):  # E, E, W: dots of cells 1 and 2 eaten, cell 0's left
-        out = run.advance(w.s, w.p, w.strat, u_for(pick))
+        out = numpy_loop.advance(w.s, w.p, w.strat, u_for(pick))
         assert out.active.tolist() == [True]
-    out = run.advance(w.s, w.p, w.strat, u_for(0.99))  # W: the last dot, episode 1 ends
+    out = numpy_loop.advance(w.s, w.p, w.strat, u_for(0.99))  # W: the last dot, episode 1 ends
     assert out.moved[0, 0] and out.episodes.runs.tolist() == [0]
     assert w.s.steps_done.tolist() == [4] and w.s.active.tolist() == [False]
     assert out.active.tolist() == [True]  # "the runs that took this step"

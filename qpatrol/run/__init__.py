@@ -27,7 +27,6 @@ from qpatrol import engines, measures, strategies, world
 from qpatrol.config import Config, ConfigError
 from qpatrol.engines import coldstart, numpy_loop
 from qpatrol.engines import threads as engine_threads
-from qpatrol.engines.numpy_loop import advance  # noqa: F401 (qpatrol.engines.numpy_loop.advance)
 from qpatrol.maps import Map, get_map
 from qpatrol.measures.records import Recorder, Tail, to_csv_text
 from qpatrol.measures.timeline import Timeline

@@ -38,9 +38,10 @@ import pandas as pd
 
 from qpatrol import strategies, world
 from qpatrol.config import Config, from_mapping, load_config
+from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
 from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour
-from qpatrol.run import advance, prepare
+from qpatrol.run import prepare
 from qpatrol.util.csvio import read_csv
 from qpatrol.util.provenance import MAP_FILE, read_meta
 from qpatrol.world.battery import MODE_NAMES
