@@ -1,7 +1,7 @@
 """Cold start: ``engine: auto`` before numba's cache holds the compiled loop a batch needs.
 
 Each loop of the compiled engine (:func:`qpatrol.engines.compiled_loop`) is compiled on
-its first use, 15 to 60 s of CPU, and kept in numba's on-disk cache; a warm run loads it
+its first use, 6 to 28 s of CPU here, and kept in numba's on-disk cache; a warm run loads it
 in under a second. A fresh install has an empty cache, and a small batch (the paper's
 default experiment takes about 3 s on the numpy engine) would wait for the compile.
 So ``engine: auto`` runs a batch on the numpy engine when its loop is not cached yet
@@ -44,12 +44,12 @@ NUMPY_US: tuple[float, float, float] = (250.0, 120.0, 2.6)
 
 #: CPU seconds to compile each loop into an empty cache (fresh process, the loop run
 #: for a few steps), measured with ``benchmarks/cold_start.py --compile`` on this
-#: project's 2-core machine: 24.5, 22.8, 4.4 and 10.0 s.
+#: project's 2-core machine: 27.9, 8.9, 5.7 and 10.9 s.
 COMPILE_SECONDS: dict[str, float] = {
-    "any": 24.0,
-    "qlearning": 22.0,
-    "qlearning-solo": 4.0,
-    "qlearning-team": 10.0,
+    "any": 28.0,
+    "qlearning": 9.0,
+    "qlearning-solo": 6.0,
+    "qlearning-team": 11.0,
 }
 
 #: Seconds a lock file of a loop being compiled (:func:`warm_in_background`) is
