@@ -78,21 +78,21 @@ def run_train(config: str, overrides: list[str], out: Path) -> float:
 
 def loop_costs(config: str, overrides: list[str], repeat: int) -> dict[str, list[float]]:
     """Seconds of the loop alone (no writing), in this process, alternated: ``api``
-    (:func:`qpatrol.run.simulate` in its blocks), ``one-call`` (each group of runs in
-    one call of all its steps: the calls' floor) and ``train`` (with train's
+    (:func:`qpatrol.run.simulate` in its blocks), ``one-call`` (every run in one call
+    of all its steps: the calls' floor) and ``train`` (with train's
     checkpointer under its signal handlers, and a progress callback)."""
     from qpatrol import run
     from qpatrol.config import load_config
 
     cfg = load_config(config, overrides)
     run.simulate(cfg.replace(steps=50, runs=2))  # load the compiled loop
-    steps, seconds = run.COMPILED_GROUP_STEPS, run.COMPILED_CALL_SECONDS
+    steps, seconds = run.COMPILED_RUN_STEPS, run.COMPILED_CALL_SECONDS
     times: dict[str, list[float]] = {"api": [], "one-call": [], "train": []}
     try:
         for _ in range(repeat):
             for kind, ts in times.items():
                 one_call = kind == "one-call"
-                run.COMPILED_GROUP_STEPS = cfg["steps"] if one_call else steps
+                run.COMPILED_RUN_STEPS = cfg["steps"] if one_call else steps
                 run.COMPILED_CALL_SECONDS = float("inf") if one_call else seconds
                 tmp = Path(tempfile.mkdtemp(prefix="train-speed-"))
                 prepared = run.prepare(cfg)
@@ -108,7 +108,7 @@ def loop_costs(config: str, overrides: list[str], repeat: int) -> dict[str, list
                 ts.append(time.perf_counter() - t)
                 shutil.rmtree(tmp, ignore_errors=True)
     finally:
-        run.COMPILED_GROUP_STEPS, run.COMPILED_CALL_SECONDS = steps, seconds
+        run.COMPILED_RUN_STEPS, run.COMPILED_CALL_SECONDS = steps, seconds
     return times
 
 

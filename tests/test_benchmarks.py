@@ -28,4 +28,4 @@ def test_train_speed_times_both_paths_on_the_same_config():
     times = module.loop_costs("paper", [*small, "engine=numba"], 1)
     assert set(times) == {"api", "one-call", "train"}
     assert all(len(t) == 1 and t[0] > 0 for t in times.values())
-    assert run.COMPILED_CALL_SECONDS == 1.0 and run.COMPILED_GROUP_STEPS == 4096  # restored
+    assert run.COMPILED_CALL_SECONDS == 1.0 and run.COMPILED_RUN_STEPS == 4096  # restored

@@ -130,7 +130,7 @@ def test_numpy_resumed_with_an_episode_quota_equals_uninterrupted(
 def test_compiled_kernels_stop_at_any_step_and_resume_the_same(
     tmp_path, loop_specs, stop_and_resume, agents
 ):
-    """The lone learner's and the team's kernels keep a run's state in registers within
+    """The lone learner's and the team's loops keep a run's state in registers within
     a call and store it at its end: one step per call up to step 333, a stop there and
     a resume from the checkpoint give the tables and rows of one uninterrupted run."""
     from qpatrol.engines import numba_core
@@ -197,9 +197,9 @@ def folder(result, path: Path) -> dict[str, bytes]:
 @pytest.mark.parametrize(
     "flat",
     [
-        {"agents": 1, "runs": 130, "battery": {"enabled": False}},  # lone kernel, groups
-        {"agents": 3, "runs": 5, "battery": {"enabled": False}},  # team kernel
-        {"agents": 2, "runs": 3},  # the general loop (battery), uniforms drawn by groups
+        {"agents": 1, "runs": 130, "battery": {"enabled": False}},  # lone robot's loop
+        {"agents": 3, "runs": 5, "battery": {"enabled": False}},  # team's loop
+        {"agents": 2, "runs": 3},  # the general loop (battery)
         {"agents": 2, "runs": 3, "battery": {"enabled": False}, "record": {"watch": [34]}},
     ],
     ids=["solo", "team", "any", "updates"],
@@ -218,8 +218,7 @@ def test_compiled_block_sizes_do_not_change_results(tmp_path: Path, monkeypatch,
     schedule = run.compiled_schedule
 
     def first_600(*args, **kwargs):
-        block, group = schedule(*args, **kwargs)
-        return min(block, 600), group
+        return min(schedule(*args, **kwargs), 600)
 
     def odd_blocks(block, taken, seconds, largest):
         seen.append(min(sizes[len(seen) % len(sizes)], largest))
@@ -244,10 +243,10 @@ def test_next_block_fits_calls_in_the_wall_time_bound(monkeypatch):
     assert run._next_block(100, 100, 100.0, 100) == 100  # below the floor already
     assert run._next_block(8, 8, 1e-6, 8) == 8  # never beyond the schedule
     # the same schedule with or without a checkpointer; one step when it asks for that
-    assert run.compiled_schedule(2048, 1, False) == (4096, 16)
-    assert run.compiled_schedule(2, 2, False) == (16384, 2)
-    assert run.compiled_schedule(2, 2, True) == (2048, 2)
-    assert run.compiled_schedule(2048, 1, False, every_step=True) == (1, 2048)
+    assert run.compiled_schedule(2048, 1, False) == 4096
+    assert run.compiled_schedule(2, 2, False) == 16384
+    assert run.compiled_schedule(2, 2, True) == 2048
+    assert run.compiled_schedule(2048, 1, False, every_step=True) == 1
 
 
 def test_slow_calls_are_shortened_and_ticked_after_each(tmp_path: Path, monkeypatch):

@@ -146,8 +146,8 @@ LONE = [
 
 @pytest.mark.parametrize("extra", LONE)
 def test_compiled_lone_qlearner(rooms_map, tmp_path, loop_specs, extra):
-    """A lone Q-learning robot without battery runs in the compiled loop's own kernel
-    for it (numba_core._solo_qlearning): the numpy engine's files, to the bit."""
+    """A lone Q-learning robot without battery runs in the compiled loop for it
+    (numba_core._solo_qlearning): the numpy engine's files, to the bit."""
     from qpatrol.engines import numba_core
 
     flat = {**BASE, "map": str(rooms_map), "agents": 1, "battery.enabled": False, **extra}
@@ -186,10 +186,10 @@ TEAM = [  # (settings, team size, the right of way pushes robots aside in these 
 
 
 @pytest.mark.parametrize("extra, agents, pushing", TEAM)
-def test_compiled_qlearning_team_kernel(
+def test_compiled_qlearning_team(
     rooms_map, tmp_path, monkeypatch, loop_specs, extra, agents, pushing
 ):
-    """Q-learning teams without battery run in the compiled loop's team kernel
+    """Q-learning teams without battery run in the compiled loop for them
     (numba_core._team_qlearning): the numpy engine's files and Q-tables, to the bit,
     in runs with and without the right of way's pushes."""
     from qpatrol.engines import numba_core
@@ -212,8 +212,8 @@ def test_compiled_qlearning_team_kernel(
 
 
 def test_compiled_loop_specializations(loop_specs):
-    """Which compiled loop a batch runs: the lone Q-learner's kernel, the Q-learning
-    team's kernel, the Q-learning loop (Q-update recorders), or the loop for any
+    """Which compiled loop a batch runs: the lone Q-learner's loop, the Q-learning
+    team's loop, the Q-learning loop (Q-update recorders), or the loop for any
     strategy (battery, timeline, other strategies)."""
     from qpatrol.engines import numba_core
     from qpatrol.run import bench, simulate
@@ -313,6 +313,39 @@ def test_the_kernels_wall_masks():
             assert ties == [d for d in range(4) if b >> d & 1 and q[d] == want]
 
 
+def test_both_forms_of_the_compiled_choice_choose_alike():
+    """``qlearning.choose`` finds its candidates with a branch per move (a lone robot's
+    loop) or without (a team's): for every mask of open moves, every pattern of ties
+    among the Q-values, exploring or not and any tie-break uniform, both forms give the
+    move the numpy learner gives (``learner.choose``: the j-th candidate, j = floor(u x
+    candidates)), and ``best_of`` the greatest Q of the open moves."""
+    pytest.importorskip("numba")
+    from numba import njit
+
+    from qpatrol.engines.compiled import qlearning
+    from qpatrol.strategies import learner
+
+    @njit
+    def both(q_f, free, explore, u):
+        best = qlearning.best_of(q_f, 0, free)
+        a = qlearning.choose(q_f, 0, free, best, explore, u, True)
+        b = qlearning.choose(q_f, 0, free, best, explore, u, False)
+        return best, a, b
+
+    for free in range(16):
+        for pattern in range(81):  # each move's Q one of three values: every tie
+            q = np.array([float(pattern // 3**d % 3) - 1.0 for d in range(4)])
+            for explore in (False, True):
+                for u in (0.0, 0.34, 0.5, 0.99):
+                    best, a, b = both(q, free, explore, u)
+                    open_ = np.array([[free >> d & 1 == 1 for d in range(4)]])
+                    e = np.array([0.0 if explore else 1.0])  # u_explore < epsilon 0.5
+                    action, has = learner.choose(q[None], open_, e, np.array([u]), 0.5)
+                    want = int(action[0]) if has[0] else -1
+                    assert a == b == want, (free, q, explore, u)
+                    assert best == max((q[d] for d in range(4) if free >> d & 1), default=-np.inf)
+
+
 def test_engine_choice(monkeypatch):
     cfg = from_flat({"battery.enabled": False, "engine": "numpy", "runs": 16})
     assert engines.choose(cfg) == ("numpy", "")
@@ -359,17 +392,16 @@ def test_compiled_timeline(rooms_map, tmp_path, agents, battery, window):
 
 
 @pytest.mark.parametrize("policy", ["cyclic", "partition", "evap"])
-def test_compiled_groups_slice_only_the_strategys_per_run_arrays(
+def test_compiled_lanes_slice_only_the_strategys_per_run_arrays(
     rooms_map, tmp_path, monkeypatch, policy
 ):
     """As many runs as the map has cells (30): a strategy's constant arrays (distances
     [C, C], walks, evap's powers) have as many rows as there are runs, and must not be
-    cut into groups with the per-run ones."""
-    from qpatrol import run
+    cut into lanes of runs (threads) with the per-run ones."""
+    from qpatrol.engines import threads
     from qpatrol.maps import get_map
 
-    monkeypatch.setattr(run, "COMPILED_BLOCK", 256)
-    monkeypatch.setattr(run, "COMPILED_GROUP_STEPS", 64)
+    monkeypatch.setattr(threads, "MIN_LANE_WORK", 1)
     n_cells = get_map(str(rooms_map)).distances().shape[0]
     flat = {
         **BASE,
@@ -379,31 +411,24 @@ def test_compiled_groups_slice_only_the_strategys_per_run_arrays(
         "agents": 2,
         "steps": 150,
         "battery.enabled": False,
+        "threads": 2,
     }
     assert both(flat, tmp_path) == ("numba", "")
 
 
 @pytest.mark.parametrize("battery", [True, False])
 @pytest.mark.parametrize("timeline", [0, 50])
-def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, timeline):
-    """Large batches go through the compiled loop a group of runs at a time (uniforms
-    drawn per group, output rows renumbered): shrunk limits force groups of 2 runs out
-    of 5 (the last group of 1) and blocks of 64 steps, with a short last block and runs
-    stopped early by an episode quota; every file equals the numpy engine's. Without
-    battery or timeline the Q-learning team kernel draws its uniforms itself, from the
-    streams' words (stepped past the blocks' steps that runs stopped early sat out):
-    nothing is drawn beforehand then."""
+def test_compiled_blocks_of_runs(rooms_map, tmp_path, monkeypatch, battery, timeline):
+    """Large batches go through the compiled loop in blocks of COMPILED_RUN_STEPS team
+    steps, one run after the other, each drawing its uniforms from its stream's words:
+    shrunk limits force blocks of 64 steps, with a short last block and runs stopped
+    early by an episode quota (their streams stepped past the steps they sat out);
+    every file equals the numpy engine's."""
     from qpatrol import run
 
     monkeypatch.setattr(run, "COMPILED_BLOCK", 256)
-    monkeypatch.setattr(run, "COMPILED_GROUP_STEPS", 64)
-    calls = []
-    draw = run.Streams.draw
-    monkeypatch.setattr(
-        run.Streams,
-        "draw",
-        lambda s, n, lo, hi, out: calls.append((lo, hi)) or draw(s, n, lo, hi, out),
-    )
+    monkeypatch.setattr(run, "COMPILED_RUN_STEPS", 64)
+    assert run.compiled_schedule(5, 2, False) == 64
     flat = {
         **BASE,
         "map": str(rooms_map),
@@ -417,10 +442,6 @@ def test_compiled_groups_of_runs(rooms_map, tmp_path, monkeypatch, battery, time
         "record.timeline": timeline,
     }
     assert both(flat, tmp_path) == ("numba", "")
-    if battery or timeline:
-        assert calls[:3] == [(0, 2), (2, 4), (4, 5)]
-    else:
-        assert calls == []
 
 
 # --- qlearning-idleness ---------------------------------------------------------------

@@ -1,8 +1,8 @@
 """numpy's PCG64 in the compiled loop, and the streams' words it steps.
 
-The kernels draw a run's uniforms from its stream's state (four uint64 words) instead
-of reading a block drawn by ``Generator.random``; the numbers, and where each stream
-stands afterwards, must be numpy's to the bit. The reference here is numpy itself:
+The compiled loop draws a run's uniforms from its stream's state (four uint64 words)
+where the numpy engine reads blocks drawn by ``Generator.random``; the numbers, and
+where each stream stands afterwards, must be numpy's to the bit. The reference here is numpy itself:
 ``Generator.random``, ``PCG64.advance`` and the generators' states.
 """
 
@@ -150,24 +150,23 @@ def test_old_pickles_of_streams_still_load():
 
 
 @pytest.mark.parametrize(("agents", "max_ep", "steps"), [(1, 250, 900), (3, 90, 300)])
-def test_kernels_draw_what_the_loop_would_read(
+def test_the_loop_draws_what_the_numpy_engine_draws(
     monkeypatch, tmp_path, rooms_map, agents, max_ep, steps
 ):
-    """The Q-learning kernels, drawing from the words, against the same compiled loop
-    reading uniforms drawn beforehand by ``Generator.random`` (the Loop given no
-    words): every file is the same, and every run's generator ends in the same state,
-    runs that met their episode quota early too (the kernels step their words past the
-    steps they sat out, as a drawn block would have)."""
+    """The compiled loop, drawing each step's uniforms from the words, against the numpy
+    engine, whose streams draw them with ``Generator.random``: every file is the same;
+    and every run's stream ends a whole number of team steps' draws from its start, the
+    same number for every run, runs that met their episode quota early too (the loop
+    steps their words past the steps they sat out)."""
     from qpatrol import run
-    from qpatrol.engines import numba_core
     from qpatrol.run import write_run
 
-    made: list[Streams] = []
+    made: list[tuple[tuple, Streams]] = []
 
     class Spy(Streams):
         def __init__(self, *a, **k):
             super().__init__(*a, **k)
-            made.append(self)
+            made.append((a, self))
 
     monkeypatch.setattr(run, "Streams", Spy)
     monkeypatch.setattr(run, "COMPILED_BLOCK", 1024)  # blocks of 1024 // (5 K) steps
@@ -182,29 +181,30 @@ def test_kernels_draw_what_the_loop_would_read(
         "max_episode_steps": max_ep,
         "learning.epsilon": 0.1,
         "battery.enabled": False,
-        "engine": "numba",
     }
-    real = numba_core.Loop.__init__
-    drew_itself = []
-
-    def loop(self, *a, words=None, **k):
-        real(self, *a, words=None if read else words, **k)
-        drew_itself.append(self.draws_itself)
-
-    monkeypatch.setattr(numba_core.Loop, "__init__", loop)
-    states, files = {}, {}
-    for read in (True, False):
+    files = {}
+    for engine in ("numpy", "numba"):
         made.clear()
-        result = run.simulate(from_flat(flat))
-        (streams,) = made
-        states[read] = [g.bit_generator.state for g in streams.generators]
-        out = write_run(result, tmp_path / str(read), meta={"started": "-", "ended": "-"})
-        files[read] = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "meta.json"}
+        result = run.simulate(from_flat({**flat, "engine": engine}))
+        ((args, streams),) = made
+        out = write_run(result, tmp_path / engine, meta={"started": "-", "ended": "-"})
+        files[engine] = {p.name: p.read_bytes() for p in out.iterdir() if p.name != "meta.json"}
         done = result.state.steps_done  # runs stopped at different steps, mid-block
         assert len(set(done.tolist())) >= 3 and done.max() < steps
-    assert drew_itself == [False, True]
-    assert files[True] == files[False]
-    assert states[True] == states[False]
+    assert files["numba"] == files["numpy"]
+    # where each stream of the compiled run stands: n team steps' draws from its start
+    ends = [g.bit_generator.state["state"]["state"] for g in streams.generators]
+    fresh = Streams(*args).generators
+    per_step = agents * 2
+    fresh[0].bit_generator.advance(int(done.max()) * per_step)
+    n = int(done.max())
+    while fresh[0].bit_generator.state["state"]["state"] != ends[0]:
+        assert n < steps + 1, "run 0's stream is not a whole number of steps on"
+        fresh[0].bit_generator.advance(per_step)
+        n += 1
+    for r, g in enumerate(fresh[1:], start=1):
+        g.bit_generator.advance(n * per_step)
+        assert g.bit_generator.state["state"]["state"] == ends[r], r
 
 
 def test_every_compiled_function_of_the_loop_is_keyed_on_the_package():

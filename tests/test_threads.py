@@ -3,8 +3,9 @@
 Each lane of runs (:func:`qpatrol.engines.threads.lanes`) is advanced by its own thread
 with its own working arrays and output buffers; every file of the run folder must be
 the one a single thread writes, byte for byte, whatever the number of threads, the
-compiled loop (lone and team kernels, the Q-learning loop, the general loop with the
-battery), the recorders, and runs that meet their episode quota at different steps.
+compiled loop (the lone robot's and the team's Q-learning loops, the Q-learning loop
+with Q-update records, the general loop with the battery), the recorders, and runs
+that meet their episode quota at different steps.
 """
 
 from __future__ import annotations
@@ -35,13 +36,9 @@ def lanes_seen(monkeypatch) -> list[tuple[int, int, int, str]]:
     seen: list[tuple[int, int, int, str]] = []
     real = numba_core.Loop._lane
 
-    def spy(self, lane, groups):
-        def watched():  # the groups as the lane draws them, one after the other
-            for lo, hi, u in groups:
-                seen.append((lane, lo, hi, threading.current_thread().name))
-                yield lo, hi, u
-
-        return real(self, lane, watched())
+    def spy(self, lane, n, lo, hi):
+        seen.append((lane, lo, hi, threading.current_thread().name))
+        return real(self, lane, n, lo, hi)
 
     monkeypatch.setattr(numba_core.Loop, "_lane", spy)
     return seen
@@ -103,11 +100,10 @@ def test_threads_write_the_same_files(tmp_path, lanes_seen, case):
 
 
 @pytest.mark.parametrize("timeline", [50, 0])
-def test_threads_in_groups_of_runs(tmp_path, lanes_seen, ring_map, timeline):
-    """A large batch goes through the compiled loop in groups of runs: with uniforms
-    drawn beforehand (the general loop, here for the timeline), each lane draws its runs'
-    uniforms and runs its groups (several per lane here); the lone kernel draws its own,
-    from the streams' words, and runs its lane's runs in one call."""
+def test_threads_of_large_batches(tmp_path, lanes_seen, ring_map, timeline):
+    """A large batch is cut into one lane of consecutive runs per thread, each lane
+    advanced in one call per block, its runs one after the other (the general loop,
+    here for the timeline, and the Q-learning loop alike)."""
     flat = {**BASE, "map": str(ring_map), "runs": 150, "agents": 1, "steps": 600}
     flat["battery.enabled"] = False
     flat["record.timeline"] = timeline
@@ -115,11 +111,7 @@ def test_threads_in_groups_of_runs(tmp_path, lanes_seen, ring_map, timeline):
     lanes_seen.clear()
     assert folder_bytes({**flat, "threads": 2}, tmp_path / "two") == one
     per_lane = {lane: {(lo, hi) for l2, lo, hi, _ in lanes_seen if l2 == lane} for lane in (0, 1)}
-    if timeline:
-        assert all(len(groups) > 1 for groups in per_lane.values())
-    else:
-        assert per_lane == {0: {(0, 75)}, 1: {(75, 150)}}
-    assert max(hi for _, hi in per_lane[0]) == 75 == min(lo for lo, _ in per_lane[1])
+    assert per_lane == {0: {(0, 75)}, 1: {(75, 150)}}
 
 
 def test_checkpointed_runs_in_threads(tmp_path, lanes_seen, stop_and_resume):
@@ -212,7 +204,7 @@ def test_lanes_only_for_calls_worth_a_hand_over(monkeypatch, tmp_path):
     lanes = []
     real = numba_core.Loop._lane
     monkeypatch.setattr(
-        numba_core.Loop, "_lane", lambda self, i, g: lanes.append(i) or real(self, i, g)
+        numba_core.Loop, "_lane", lambda self, i, *a: lanes.append(i) or real(self, i, *a)
     )
     flat = {**BASE, "runs": 4, "agents": 2, "steps": 3000, "threads": 2}
     simulate(from_flat(flat))  # one call of 4 x 2 x 3,000 agent-steps

@@ -110,11 +110,12 @@ def choose_by_config(cfg: Config) -> tuple[str, str]:
 def compiled_loop(cfg: Config) -> str | None:
     """Which of the compiled engine's loops runs ``cfg``, each its own machine code,
     compiled on its first use (and then kept in numba's on-disk cache): ``"any"`` (any
-    strategy, battery, timeline), ``"qlearning"`` (Q-learning with Q-update recorders),
-    ``"qlearning-solo"`` or ``"qlearning-team"`` (the Q-learning kernels); None when the
-    numpy engine runs it. The choice :class:`qpatrol.engines.numba_core.Loop` makes from
-    the prepared batch, read from the config (a test checks that they agree), so that
-    a pool of workers can compile different loops at once (:mod:`qpatrol.study.sweep`).
+    strategy, battery, timeline) or ``"qlearning"`` (Q-learning without battery or
+    timeline, with Q-update recorders), ``"qlearning-solo"`` or ``"qlearning-team"``
+    (without them); None when the numpy engine runs it. The choice
+    :class:`qpatrol.engines.numba_core.Loop` makes from the prepared batch, read from
+    the config (a test checks that they agree), so that a pool of workers can compile
+    different loops at once (:mod:`qpatrol.study.sweep`).
     Read from the config alone (:func:`choose_by_config`: whether the loop is cached
     does not change which one it is)."""
     if choose_by_config(cfg)[0] != "numba":

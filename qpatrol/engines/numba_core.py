@@ -19,48 +19,33 @@ station pockets and queues), episode quotas, and every recorder
 :func:`qpatrol.engines.compiled_gap`).
 
 A step is the world's phases, each a small compiled function in a module of
-:mod:`qpatrol.engines.compiled` named for it, written once and called by every loop:
-the battery's (:mod:`~qpatrol.engines.compiled.stations`: begin, asks, costs, stations),
-the moves (:mod:`~qpatrol.engines.compiled.moves`: open moves, traffic.resolve, waits,
-the right of way), entering cells and eating
-(:mod:`~qpatrol.engines.compiled.enter`), ending episodes
-(:mod:`~qpatrol.engines.compiled.episodes`), the strategy's ``act``/``learn``
-(``compiled/<strategy>.py``; the Q-learning update is
-:func:`qpatrol.engines.compiled.qlearning.update`), and the measures
+:mod:`qpatrol.engines.compiled` named for it, written once and called by the one loop,
+:func:`run_block`: the step's uniforms (:mod:`~qpatrol.engines.compiled.pcg`: each
+run's numpy PCG64 stream stepped in registers), the battery's
+(:mod:`~qpatrol.engines.compiled.stations`: begin, asks, costs, stations), the moves
+(:mod:`~qpatrol.engines.compiled.moves`: open moves, traffic.resolve, waits, the right
+of way), entering cells and eating (:mod:`~qpatrol.engines.compiled.enter`), ending
+episodes (:mod:`~qpatrol.engines.compiled.episodes`), the strategy's ``act``/``learn``
+(``compiled/<strategy>.py``; the Q-learning choice and update are
+:func:`qpatrol.engines.compiled.qlearning.choose` and ``update``), and the measures
 (:mod:`~qpatrol.engines.compiled.observe`). Their arguments are bundled as the numpy
 engine's objects are (:mod:`~qpatrol.engines.compiled.bundles`: ``Params``,
 ``World``, ``Meas``, ``Out``, ``Work``), the very arrays, so a phase names what it
-reads. The phases the general loop calls once a step (and the kernels only off their
-common path: episodes) are compiled as functions of their
-own, once for every loop that calls them (numba inlining them into each loop made the
-cold compile of the general loop about a third longer), and so are the per-robot ones
-(entering a cell, the measures' visit, the Q-update: small, LLVM inlines them back
-into the loops, whose speed is unchanged, while numba's inlining re-typed them at each
-call); the traffic rules' passes, which the team kernel takes about one step in ten
-(16 runs of 4 robots: about 10 % slower as calls), are inlined. The loops for
-Q-learning (``SPEC_QLEARNING`` and the kernels) call its ``act``/``learn`` directly,
-and every test of the battery or the timeline names the spec, so that numba leaves
-the other strategies' and the battery's code out before typing it (cold compile of
-the Q-learning loop: 23 s of CPU before, 9 s after). The strategies' small helpers
-(``qlearning_idleness``'s scores, ``evap``'s level, ``follow``'s advance) are
-functions of their own too (any strategy's loop: 29 s of CPU to compile before, 25 s
-after), but not the strategies' ``act``/``learn`` nor the dispatch to them
-(:func:`compiled.act`): as calls, each passing the argument bundles, the general loop
-took twice the time a step.
+reads. The phases are compiled as functions of their own, once for every
+specialisation of the loop that calls them (numba inlining them into the loop made
+its cold compile about a third longer; LLVM inlines the small ones back), and so are
+the strategies' small helpers, but not the strategies' ``act``/``learn`` nor the
+dispatch to them (:func:`compiled.act`): as calls, each passing the argument bundles,
+the loop took twice the time a step.
 
 The loop is compiled without numba's reference counting (``_nrt=False``): it
 allocates nothing (its working arrays come from :func:`bundles.work`), and every call
 of a strategy's ``act``/``learn`` would otherwise pay an atomic increment and decrement
-per array argument, which made the loop several times slower. It is compiled four
-times (``SPEC_*``): for any strategy; for Q-learning without battery or timeline, with
-the rest left out; and for Q-learning without battery, timeline or Q-update recorders,
-whose steps run the same phases in a loop of their own, one for a lone robot
-(:func:`_solo_qlearning`, its state in registers and the bootstrap max carried to the
-next choice: twice the speed of the general loop) and one for teams
-(:func:`_team_qlearning`, the battery's phases left out, a step without conflicts in
-one pass over the robots: about twice). Both draw their uniforms themselves, stepping
-each run's PCG64 state with numpy's arithmetic (:mod:`qpatrol.engines.compiled.pcg`);
-the other loops read them from blocks drawn beforehand.
+per array argument, which made the loop several times slower. The compiler
+specialises it (``SPEC_*``, a compile-time constant): for any strategy; and for
+Q-learning without battery or timeline, where every branch on the spec leaves the
+other strategies' and the battery's code out before numba types it (cold compile:
+about a third of the general loop's).
 
 The loop releases the GIL, and a batch's runs share nothing they write, so
 :meth:`Loop.run` may advance them in lanes of consecutive runs, one thread each, each
@@ -72,7 +57,7 @@ from __future__ import annotations
 import importlib
 import pkgutil
 import sys
-from collections.abc import Callable, Iterable
+from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor, wait
 
 import numpy as np
@@ -90,7 +75,7 @@ from qpatrol.engines.compiled import (
     qlearning,
     stations,
 )
-from qpatrol.engines.compiled.choice import MASKED, POPCOUNT, legal_bits, pick
+from qpatrol.engines.compiled.choice import legal_bits
 from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
 
@@ -102,7 +87,7 @@ EP_COLS = 9
 #: loop sees it as a constant): any strategy and setting; ``qlearning`` without battery
 #: or timeline (the other strategies' and the battery's code left out); and, without
 #: Q-update recorders either, a lone ``qlearning`` robot and a ``qlearning`` team, each
-#: in its own kernel (:func:`_solo_qlearning`, :func:`_team_qlearning`).
+#: a loop of its own (:func:`_solo_qlearning`, :func:`_team_qlearning`).
 SPEC_ANY = 1
 SPEC_QLEARNING = 2
 SPEC_QLEARNING_SOLO = 3
@@ -136,25 +121,17 @@ def _touch_tables(q_f, n_f):
     return warm
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _tables(sp, r):
-    """Run ``r``'s Q-learning parameters and tables: ``(gamma, epsilon, use_heading,
-    q_f, n_f)``, the tables ``[K, C, 4, 4]`` flat (one index, not four)."""
-    q_f, n_f = sp.q[r].reshape(-1), sp.n[r].reshape(-1)
-    return sp.row_f[r, 0], sp.row_f[r, 1], sp.ipar[0] != 0, q_f, n_f
-
-
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
+def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     """Run ``r`` of a batch of lone Q-learning robots (no battery, no recorder but the
-    trajectory), advanced by up to ``u.shape[1]`` steps after ``t0``: the phases of
+    trajectory), advanced by up to ``n_steps`` steps after ``t0``: the phases of
     :func:`run_block` with what a robot alone cannot meet left out (no one else blocks
     it, waits or holds the right of way; its open moves are its legal ones), and the
     robot's cell, heading, episode counters and measures' sums kept in registers. Its
     uniforms come from its stream's state ``words[r]`` (:mod:`pcg`), stepped past the
-    block's ``2 x u.shape[1]`` draws. Returns ``(last team step taken, episode rows
+    block's ``2 x n_steps`` draws. Returns ``(last team step taken, episode rows
     written)``."""
-    gamma, epsilon, use_heading, q_f, n_f = _tables(sp, r)
+    gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     weights = (p.reward_w[r, 0], p.reward_w[r, 1], p.reward_w[r, 2])
     nbrs, cell_moves, warmup = p.nbrs, p.cell_moves, m.warmup
     warm = _touch_tables(q_f, n_f)
@@ -179,29 +156,20 @@ def _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
     # no update between them writes that row (a move leaves its cell)
     best = -np.inf
     known = False
-    for i in range(u.shape[1]):
+    for i in range(n_steps):
         if not going:
             break
         t = t0 + i + 1
-        # --- the robot chooses: greedy over its legal moves (qlearning.act) -----------
+        # --- the robot chooses: greedy over its legal moves (qlearning.choose) --------
         hs = h if use_heading else 0
         at = (c * 4 + hs) * 4  # Q(c, hs, .), flat
+        legal = cell_moves[c]
         if not known:
-            best = -np.inf
-            for d in range(4):
-                if nbrs[c, d] >= 0 and q_f[at + d] > best:
-                    best = q_f[at + d]
-        # the step's two uniforms: the first for epsilon, the second to break ties, each
-        # computed only where read
+            best = qlearning.best_of(q_f, at, legal)
+        # the step's two uniforms: the first for epsilon, the second to break ties
         a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
         explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
-        bits = 0
-        count = 0
-        for d in range(4):
-            if nbrs[c, d] >= 0 and (explore or q_f[at + d] == best):
-                bits |= 1 << d
-                count += 1
-        aa = pick(bits, count, pcg.uniform(s_lo, s_hi))
+        aa = qlearning.choose(q_f, at, legal, best, explore, pcg.uniform(s_lo, s_hi), False)
         if aa >= 0:  # --- it moves and enters c1 --------------------------------------
             c1 = nbrs[c, aa]
             a, _, cnt, reward = enter.enter(c, c1, -1, t, nbrs, p.dot_value, grp, cnt, weights)
@@ -213,8 +181,7 @@ def _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
         if aa >= 0:  # --- it learns (qlearning.update), the measures see the visit -----
             hb = aa if use_heading else 0  # the state reached: (c1, hb)
             at1 = (c1 * 4 + hb) * 4  # Q(c1, hb, .), flat
-            m1 = MASKED[cell_moves[c1]]
-            best, _, _ = qlearning.update(q_f, n_f, at + aa, at1, m1, reward, gamma)
+            best, _, _ = qlearning.update(q_f, n_f, at + aa, at1, cell_moves[c1], reward, gamma)
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
             sums = observe.visit(c1, t, warmup, m_last_r, visits_r, window_visits_r, sums)
             c = c1
@@ -225,7 +192,7 @@ def _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
         if o.tail_n > 0:
             o.tail_pos[r, (t - 1) % o.tail_n, 0] = c
         t_end = t
-    pcg.store(words[r], s_lo, s_hi, (u.shape[1] - (t_end - t0)) * 2)
+    pcg.store(words[r], s_lo, s_hi, (n_steps - (t_end - t0)) * 2)
     s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0] = cnt
     observe.store_sums(m, r, sums)
     m.idle_total[r], m.measured[r] = idle_sum, n_measured
@@ -259,27 +226,27 @@ def _team_enters(r, k, c0, c1, t, learns, ha, aa, p, s, m, tables, sums):
         base = k * p.nbrs.shape[0]
         at0 = ((base + c0) * 4 + hs) * 4 + aa  # Q(c0, hs, aa), flat
         at1 = ((base + c1) * 4 + hb) * 4  # Q(c1, hb, .)
-        qlearning.update(q_f, n_f, at0, at1, MASKED[p.cell_moves[c1]], reward, gamma)
+        qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma)
     sums = observe.visit(c1, t, m.warmup, m.last[r], m.visits[r, k], m.window_visits[r, k], sums)
     return a, sums
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
+def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     """Run ``r`` of a batch of Q-learning teams (no battery, no recorder but the
-    trajectory), advanced by up to ``u.shape[1]`` team steps after ``t0``: the phases of
+    trajectory), advanced by up to ``n_steps`` team steps after ``t0``: the phases of
     :func:`run_block` with the battery's left out (every robot patrols and chooses;
     right of way by wait and turn alone), and the run's right of way and measures' sums
     kept in registers. A step in which every robot asks for a cell that is empty and
     that no other asks for (nine steps in ten for four robots on map_a) moves, enters,
     learns and measures each robot in one pass; any other step takes the traffic
     rules' passes (:func:`moves.resolve`). The uniforms come from the run's stream
-    state ``words[r]`` (:mod:`pcg`), stepped past the block's ``2 x K x u.shape[1]``
+    state ``words[r]`` (:mod:`pcg`), stepped past the block's ``2 x K x n_steps``
     draws. Returns ``(last team step taken, episode rows written)``."""
-    n_agents, n_cells = u.shape[2], p.nbrs.shape[0]
+    n_agents, n_cells = s.pos.shape[1], p.nbrs.shape[0]
     nbrs, cell_moves, avoid, diameter = p.nbrs, p.cell_moves, p.avoid, p.diameter
     want, ask, moved, as_asked = w.want, w.ask, w.moved, w.as_asked
-    gamma, epsilon, use_heading, q_f, n_f = _tables(sp, r)
+    gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     tables = (gamma, use_heading, q_f, n_f)
     w.sink[0] = _touch_tables(q_f, n_f)  # (16 x 4 and 256 x 4: about 10 % faster)
     # the run's stream (PCG64, pcg): its state, its increment, the increment of two draws
@@ -297,11 +264,11 @@ def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
         if wait_r[k] > 0:
             waiting += 1
     going = s.active[r]
-    never = t0 + u.shape[1] + 1
+    never = t0 + n_steps + 1
     deadline = episodes.deadline(s.ep_start[r], p.max_ep, never)
     t_end = t0
     t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
-    for i in range(u.shape[1]):
+    for i in range(n_steps):
         if not going:
             break
         t = t0 + i + 1
@@ -324,76 +291,37 @@ def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
                 if free == 0:  # base.prefer_open: every legal move where none is open
                     free = legal
             hs = head_r[k] if use_heading else 0
-            # the greatest Q of the open moves, with no branch per move (MASKED)
             at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
-            mf = MASKED[free]
-            v0 = q_f[at] + mf[0]
-            v1 = q_f[at + 1] + mf[1]
-            v2 = q_f[at + 2] + mf[2]
-            v3 = q_f[at + 3] + mf[3]
-            best = max(max(v0, v1), max(v2, v3))
-            # the robot's two uniforms of the step, each computed only where read
+            # the robot's two uniforms of the step (qlearning.choose)
             a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
             explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
-            if explore:
-                bits = free
-            else:
-                bits = (
-                    (1 if v0 == best else 0)
-                    | (2 if v1 == best else 0)
-                    | (4 if v2 == best else 0)
-                    | (8 if v3 == best else 0)
-                ) & free
-            aa = pick(bits, POPCOUNT[bits], pcg.uniform(s_lo, s_hi))
+            best = qlearning.best_of(q_f, at, free)
+            aa = qlearning.choose(q_f, at, free, best, explore, pcg.uniform(s_lo, s_hi), True)
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
-        # --- the common step: every robot asks for a cell that is empty now and that
-        # no other asks for. Then traffic.resolve moves every robot as asked whatever the
-        # order (the holder of the right of way pushes no one), no one waits, and the
-        # right of way stays with a holder that moved, for at most `diameter` steps
-        # (traffic.pass_token): each robot moves, enters, learns and is measured in one
-        # pass, in robot order (the order of the entries below)
-        clear = True
-        if avoid:
-            for a in range(n_agents):
-                wa = want[a]
-                if wa >= 0:
-                    if occ_r[wa] >= 0:
-                        clear = False
-                    for b in range(a + 1, n_agents):
-                        if want[b] == wa:
-                            clear = False
-        if clear:
+        # --- the moves: the common step, every robot asking for a cell that is empty
+        # and that no other asks for (moves.clear), moves each robot as asked, enters,
+        # learns and measures it in one pass, in robot order; any other step takes the
+        # traffic rules' passes (every robot patrols: priority by wait, then turn)
+        push_failed = False
+        if moves.clear(want, occ_r, avoid):
             for k in range(n_agents):
                 c1 = want[k]
+                moved[k] = as_asked[k] = c1 >= 0
                 if c1 < 0:
                     continue
                 c0 = pos_r[k]
-                if avoid:
-                    occ_r[c0] = -1
-                    occ_r[c1] = k
-                pos_r[k] = c1
+                moves.step_into(k, c1, avoid, occ_r, pos_r)
                 ha = head_r[k]
                 head_r[k], sums = _team_enters(
                     r, k, c0, c1, t, True, ha, ask[k], p, s, m, tables, sums
                 )
-            if waiting > 0:
-                for k in range(n_agents):
-                    wait_r[k] = 0
-                waiting = 0
-            longest = 0
-            if avoid:
-                if tok >= 0 and want[tok] >= 0 and held < diameter:
-                    held += 1
-                else:
-                    tok, held = -1, 0
         else:
             for k in range(n_agents):
                 w.prev_pos[k] = pos_r[k]
                 w.prev_head[k] = head_r[k]
                 moved[k] = False
                 as_asked[k] = False
-            # the traffic rules' passes (every robot patrols: priority by wait, then turn)
             push_failed = moves.resolve(r, tok, t_mod, waiting == 0, False, avoid, p, s, w)
             # each robot that moved enters its cell; one that made the move it chose
             # learns. Robot after robot: each touches only its group's dots and its own
@@ -404,9 +332,9 @@ def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
                     head_r[k], sums = _team_enters(
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
                     )
-            waiting, longest = moves.waits(r, False, s, w)
-            if avoid:
-                tok, held = moves.pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w)
+        waiting, longest = moves.waits(r, False, s, w)
+        if avoid:
+            tok, held = moves.pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w)
         # --- episodes: all dots eaten, or too long -------------------------------------
         if episodes.due(t, deadline, s.dots_left[r]):
             n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
@@ -419,7 +347,7 @@ def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
             wait_sum += waiting
         observe.trail(r, t, pos_r, o)
         t_end = t
-    pcg.store(words[r], s_lo, s_hi, (u.shape[1] - (t_end - t0)) * n_agents * 2)
+    pcg.store(words[r], s_lo, s_hi, (n_steps - (t_end - t0)) * n_agents * 2)
     s.token[r], s.token_held[r] = tok, held
     observe.store_sums(m, r, sums)
     m.idle_total[r], m.measured[r] = idle_sum, n_measured
@@ -430,40 +358,42 @@ def _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
-    """Advance every active run by up to ``u.shape[1]`` team steps after step ``t0``.
+def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
+    """Advance every active run by up to ``n_steps`` team steps after step ``t0``.
 
     ``spec_marker``: an int8 array whose ``ndim`` is the loop to compile (``SPEC_*``;
-    :class:`Loop` picks it). ``u``: float ``[R, T, K, 2]``, each robot's two uniforms
-    of each step; the Q-learning kernels (``SPEC_QLEARNING_SOLO``, ``_TEAM``) take its
-    shape alone (``[R, T, K, 0]``) and draw them from ``words`` (uint64 ``[R, 4]``, each
-    run's PCG64 state, :mod:`qpatrol.engines.compiled.pcg`), which they step past
-    ``T x K x 2`` draws. ``p``, ``s``, ``m``, ``o``, ``w``: the batch's constants, the
-    world, the measures, the recorders and output rows, and the working arrays
-    (:mod:`qpatrol.engines.compiled.bundles`), modified in place; ``code``, ``sp``: the
-    strategy and its :class:`~qpatrol.engines.compiled.pack.Pack`. Ended episodes are
-    written to ``o.ep_buf`` ``[E, EP_COLS]``; Q-updates of every robot
+    :class:`Loop` picks it): numba compiles one machine code per value and sees it as
+    a constant, so the code a loop never runs (other strategies, the battery, the
+    timeline) is left out before typing. ``words``: uint64 ``[R, 4]``, each run's
+    PCG64 state (:mod:`qpatrol.engines.compiled.pcg`), from which the loop draws each
+    robot's two uniforms of each step, as the numpy engine's streams do, and which it
+    steps past ``n_steps x K x 2`` draws. ``p``, ``s``, ``m``, ``o``, ``w``: the batch's
+    constants, the world, the measures, the recorders and output rows, and the working
+    arrays (:mod:`qpatrol.engines.compiled.bundles`), modified in place; ``code``,
+    ``sp``: the strategy and its :class:`~qpatrol.engines.compiled.pack.Pack`. Ended
+    episodes are written to ``o.ep_buf`` ``[E, EP_COLS]``; Q-updates of every robot
     (``o.record_all``) or of the ``o.watched`` cells go to ``o.up_int`` ``[U, UP_INT]``
     and ``o.up_float`` ``[U, UP_FLOAT]``; with ``o.tl_window`` > 0 each closed window of
     the idleness timeline is a row of ``o.tl_buf`` ``[W, 6]``.
 
     Each step of a run is the world's phases in the numpy engine's order
-    (:func:`qpatrol.engines.numpy_loop.advance`): the battery's begin (:mod:`stations`), the open
+    (:func:`qpatrol.engines.numpy_loop.advance`): the step's uniforms
+    (:func:`pcg.step_uniforms`), the battery's begin (:mod:`stations`), the open
     moves (:func:`moves.open_moves`), the strategy's choice (:func:`compiled.act`) and
     the battery's asks, the moves (:func:`moves.resolve`), entering cells
     (:func:`enter.all_enter`), the battery's costs and stations, waits and the right of
-    way, episodes (:func:`episodes.end`), the strategy's learning
+    way, episodes (:func:`episodes.step`), the strategy's learning
     (:func:`compiled.learn`) and the measures (:mod:`observe`).
 
     Returns ``(last team step taken by any run, episode rows, update rows written,
     timeline rows written)``.
     """
     spec = spec_marker.ndim  # a constant of the compiled code, one overload per value
-    n_runs, n_steps, n_agents = u.shape[0], u.shape[1], u.shape[2]
+    n_runs, n_agents = s.pos.shape
     battery, tl_window = p.battery, o.tl_window
-    # the other loops are Q-learning's without battery or timeline: their code is left
-    # out where a test names spec (numba prunes a branch on a constant it can see, not
-    # on a variable given two values, such as these)
+    # Q-learning's loop has no battery or timeline: their code is left out where a test
+    # names spec (numba prunes a branch on a constant it can see, not on a variable
+    # given two values, such as these)
     if spec >= SPEC_QLEARNING:
         battery = False
         tl_window = 0
@@ -475,32 +405,44 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
     n_ep = np.int64(0)
     n_up = 0
     n_tl = 0
+    never = t0 + n_steps + 1
     for r in range(n_runs):
         if spec == SPEC_QLEARNING_SOLO:
-            t_r, n_ep = _solo_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w)
+            t_r, n_ep = _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w)
             t_end = max(t_end, t_r)
             continue
         if spec == SPEC_QLEARNING_TEAM:
-            t_r, n_ep = _team_qlearning(r, t0, u, words, p, s, m, o, sp, n_ep, w)
+            t_r, n_ep = _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w)
             t_end = max(t_end, t_r)
             continue
+        # the run's stream (PCG64, pcg): its state, its increment, that of two draws
+        s_lo, s_hi, inc_lo, inc_hi = words[r, 0], words[r, 1], words[r, 2], words[r, 3]
+        inc2_lo, inc2_hi = pcg.double_inc(inc_lo, inc_hi)
+        when = episodes.deadline(s.ep_start[r], p.max_ep, never)
+        if spec == SPEC_QLEARNING:  # (the tables flat: a reshape is a call)
+            gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
+        sums = observe.sums_of(m, r)  # the measures' sums, in registers for the block
         t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
+        t_r = t0
         for i in range(n_steps):
             if not s.active[r]:
                 break
             t = t0 + i + 1
             t_mod = t_next_mod
             t_next_mod = t_mod + 1 if t_mod + 1 < n_agents else 0  # (t + 1) % n_agents
+            s_lo, s_hi = pcg.step_uniforms(
+                (s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi), w.uniforms
+            )
             tok = s.token[r]
             if spec == SPEC_ANY and battery:
                 stations.begin(r, t, p, s, w)
             moves.open_moves(r, tok, battery, avoid, p, s, w)
             if spec == SPEC_ANY:
-                compiled.act(code, r, i, t, u, battery, p, s, w, sp)
+                compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(
-                    r, i, u, s.pos, s.head, w.open_mask, w.choosing, w.ask, sp.row_f, sp.ipar,
-                    sp.q,
+                    w.uniforms, s.pos[r], s.head[r], w.open_mask, w.choosing, w.ask,
+                    epsilon, use_heading, q_f,
                 )  # fmt: skip
             if spec == SPEC_ANY and battery:
                 stations.ask(r, p, s, w)
@@ -517,32 +459,33 @@ def run_block(spec_marker, t0, u, words, p, code, sp, s, m, o, w):
                     r, tok, s.token_held[r], push_failed, t_next_mod, p.diameter, s, w
                 )
             s.steps_done[r] = t
-            n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
+            n_ep, when = episodes.step(r, t, p, s, o.ep_buf, n_ep, w.ended, when, never)
             if spec == SPEC_ANY:
                 n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
             else:
-                n_up = qlearning.learn(r, t, p, w, sp, o, n_up)
+                n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
             # --- the measures (Measures.observe), the timeline, the trajectory ring ----
-            sums = observe.sums_of(m, r)
             for k in range(n_agents):
                 if w.moved[k]:
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
                     sums = observe.visit(c, t, m.warmup, m.last[r], vk, wk, sums)
-            observe.store_sums(m, r, sums)
             if spec == SPEC_ANY and tl_window > 0:
                 n_tl = observe.timeline(r, t, tl_window, s.pos[r], w.moved, o, n_tl)
             if spec == SPEC_ANY and battery:
                 stations.lowest_charge(r, s, m.min_charge)
             observe.step_measures(r, t, n_cells, sums[0], waiting, longest, m)
             observe.trail(r, t, s.pos[r], o)
-            if t > t_end:
-                t_end = t
+            t_r = t
+        observe.store_sums(m, r, sums)
+        # the stream stepped past the draws of the steps the run sat out
+        pcg.store(words[r], s_lo, s_hi, (n_steps - (t_r - t0)) * n_agents * 2)
+        t_end = max(t_end, t_r)
     return t_end, n_ep, n_up, n_tl
 
 
 def _key_caches() -> None:
     """Key the cache of every compiled function of the loop that numba does not inline
-    (the loop, the kernels, the phases and strategies compiled as functions of their
+    (the loop, the phases and strategies compiled as functions of their
     own) on every file of :mod:`qpatrol.engines.compiled` and this one
     (:func:`compiled.key_cache`): each inlines code of other files."""
     names = [m.name for m in pkgutil.iter_modules(compiled.__path__)]
@@ -569,11 +512,10 @@ class Loop:
             (their arrays are updated in place).
         max_steps: most team steps one :meth:`run` will be given.
         timeline: the idleness timeline, or None.
-        words: where the loop may draw its uniforms itself
-            (:attr:`draws_itself`), the runs' streams: a function giving their PCG64
-            states, uint64 ``[R, 4]`` (:meth:`qpatrol.world.rng.Streams.words`), the same
-            array at every call, stepped in place by :meth:`run`. Otherwise (or
-            without it) each call of :meth:`run` reads uniforms drawn beforehand.
+        words: the runs' streams, from which the loop draws its uniforms itself: their
+            PCG64 states, uint64 ``[R, 4]`` (:meth:`qpatrol.world.rng.Streams.words`),
+            the same array at every call, stepped in place by :meth:`run` (call
+            ``words()`` again after anyone else drew from the streams).
     """
 
     #: Where :attr:`args` holds the output rows (``bundles.Out``).
@@ -588,8 +530,8 @@ class Loop:
         tail,
         rec,
         max_steps: int,
+        words: Callable[[], np.ndarray],
         timeline=None,
-        words: Callable[[], np.ndarray] | None = None,
     ):
         s, m = state, measures
         self.state, self.p = s, p
@@ -610,9 +552,8 @@ class Loop:
         reward_w[:, 0] = p.incremental_value
         reward_w[:, 1] = p.idle_horizon
         reward_w[:, 2] = p.lambda_weight
-        # uint64 [R, 4]: the runs' PCG64 states (rng.Streams.words), which the
-        # Q-learning kernels step as they draw (a placeholder until the spec is known)
-        self.words = np.zeros((n_runs, 4), dtype=np.uint64)
+        # uint64 [R, 4]: the runs' PCG64 states (rng.Streams.words), stepped as it draws
+        self.words = words()
         battery = (p.battery, p.homes, p.home_dist, p.home_dir, p.nearest_home_dist)
         pockets = (p.depart_len, p.pocket_of, p.pocket_depth, p.pocket_entry)
         consts = (p.neighbors, p.wall_legal, legal_bits(p.neighbors), p.dot_value, p.has_dot)
@@ -654,15 +595,8 @@ class Loop:
         self.spec = SPEC_ANY
         if self.code == compiled.QLEARNING and not p.battery and self.timeline is None:
             self.spec = SPEC_QLEARNING
-            if not rec.wants_updates and words is not None:
+            if not rec.wants_updates:
                 self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
-        #: the loop draws each run's uniforms itself, from its stream's words (the
-        #: Q-learning kernels): :meth:`run` is given their shape alone, ``[R, T, K, 0]``
-        self.draws_itself = self.spec in (SPEC_QLEARNING_SOLO, SPEC_QLEARNING_TEAM)
-        if self.draws_itself:
-            self.words = words()
-            self._per_run.add(id(self.words))
-            self.args = (self.words, *self.args[1:])
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self._lanes: list[tuple[int, tuple] | None] = [None]  # lane i > 0: (runs, args)
 
@@ -708,13 +642,12 @@ class Loop:
             return type(a)(*(self._slice(x, lo, hi) for x in a))
         return a[lo:hi] if id(a) in self._per_run else a
 
-    def _call(self, args: tuple, u: np.ndarray, lo: int, hi: int) -> tuple[int, int, int, int]:
-        """``run_block`` with a lane's ``args`` on batch rows ``lo..hi-1`` (``u``: their
-        uniforms ``[hi - lo, T, K, 2]``), the rows of its output buffers renumbered to
-        batch rows."""
+    def _call(self, args: tuple, n: int, lo: int, hi: int) -> tuple[int, int, int, int]:
+        """``run_block`` of ``n`` steps with a lane's ``args`` on batch rows ``lo..hi-1``,
+        the rows of its output buffers renumbered to batch rows."""
         if (lo, hi) != (0, self.n_runs):
             args = tuple(self._slice(a, lo, hi) for a in args)
-        t_end, n_ep, n_up, n_tl = run_block(self.spec_marker, self.t0, u, *args)
+        t_end, n_ep, n_up, n_tl = run_block(self.spec_marker, self.t0, n, *args)
         if lo:
             o = args[_OUT]
             o.ep_buf[:n_ep, 0] += lo
@@ -722,32 +655,27 @@ class Loop:
             o.tl_buf[:n_tl, 0] += lo
         return t_end, n_ep, n_up, n_tl
 
-    def _lane(self, lane: int, groups: Iterable[tuple[int, int, np.ndarray]]) -> tuple:
-        """Run a lane's groups of rows, one after the other: ``(last step, [episode
-        rows], [update int rows], [update float rows], [timeline rows])``, copies."""
-        o = self._lane_args(lane)[_OUT]
-        t_end, eps, ups_i, ups_f, tls = self.t0, [], [], [], []
-        for lo, hi, uu in groups:
-            t_g, n_ep, n_up, n_tl = self._call(
-                self._lane_args(lane), np.ascontiguousarray(uu), lo, hi
-            )
-            t_end = max(t_end, int(t_g))
-            eps.append(o.ep_buf[:n_ep].copy())
-            ups_i.append(o.up_int[:n_up].copy())
-            ups_f.append(o.up_float[:n_up].copy())
-            tls.append(o.tl_buf[:n_tl].copy())
-        return t_end, eps, ups_i, ups_f, tls
+    def _lane(self, lane: int, n: int, lo: int, hi: int) -> tuple:
+        """Run lane ``lane`` (batch rows ``lo..hi-1``) by ``n`` steps: ``(last step,
+        episode rows, update int rows, update float rows, timeline rows)``, copies."""
+        args = self._lane_args(lane)
+        o = args[_OUT]
+        t_end, n_ep, n_up, n_tl = self._call(args, n, lo, hi)
+        return (
+            max(self.t0, int(t_end)),
+            o.ep_buf[:n_ep].copy(),
+            o.up_int[:n_up].copy(),
+            o.up_float[:n_up].copy(),
+            o.tl_buf[:n_tl].copy(),
+        )
 
     def run(
-        self, lanes: list[tuple[int, int, Iterable[tuple[int, int, np.ndarray]]]]
+        self, n: int, lanes: list[tuple[int, int]]
     ) -> tuple[int, np.ndarray, np.ndarray, np.ndarray]:
-        """Advance the batch by up to ``T`` team steps. ``lanes``: ``(lo, hi, rows)``,
-        consecutive ranges of rows covering the batch in order, each with its groups of
-        rows ``(a, b, u)`` (``u`` float ``[b - a, T, K, 2]``, or ``[b - a, T, K, 0]``
-        when the loop :attr:`draws_itself`; the groups covering ``lo..hi-1`` in order),
-        run group after group, each group's arrays (tables, maps, uniforms) kept in
-        cache. With several lanes each runs in a thread of its own
-        (the loop releases the GIL): the same numbers, as every run is computed alone.
+        """Advance the batch by up to ``n`` team steps. ``lanes``: ``(lo, hi)``,
+        consecutive ranges of rows covering the batch in order. With several lanes each
+        runs in a thread of its own (the loop releases the GIL): the same numbers, as
+        every run is computed alone, from its own stream.
 
         Returns ``(team steps taken, episode rows int [E, EP_COLS], Q-update rows int
         [U, UP_INT] and float [U, UP_FLOAT])`` (updates only as the recorder wants them);
@@ -756,18 +684,18 @@ class Loop:
         s, p = self.state, self.p
         self.t0 = t0 = s.t
         if len(lanes) == 1:
-            done = [self._lane(0, lanes[0][2])]
+            done = [self._lane(0, n, *lanes[0])]
         else:
-            for i, (lo, hi, _) in enumerate(lanes):
+            for i, (lo, hi) in enumerate(lanes):
                 self._lane_args(i, hi - lo)  # allocated here, not in the threads
             pool = _pool(len(lanes))
-            futures = [pool.submit(self._lane, i, g) for i, (_, _, g) in enumerate(lanes)]
+            futures = [pool.submit(self._lane, i, n, lo, hi) for i, (lo, hi) in enumerate(lanes)]
             try:
                 done = [f.result() for f in futures]
             finally:  # an interrupt while waiting: the lanes still finish their calls
                 wait(futures)
         t_end = max(d[0] for d in done)
-        eps, ups_i, ups_f, tls = ([x for d in done for x in d[j]] for j in range(1, 5))
+        eps, ups_i, ups_f, tls = ([d[j] for d in done] for j in range(1, 5))
         if self.timeline is not None:
             for rows_tl in tls:
                 self.timeline.add_rows(rows_tl)

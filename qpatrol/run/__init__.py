@@ -307,17 +307,15 @@ def join(results: list[RunResult]) -> RunResult:
     )
 
 
-#: Agent-steps per call of the compiled loop: long enough to hide the call, short enough
-#: that the uniforms of a call stay in cache; and at least COMPILED_MIN_STEPS team
-#: steps, so each run's tables stay in cache for a while and the per-run draws of
-#: uniforms come in long blocks.
+#: Agent-steps per call of the compiled loop: long enough to hide the call; and at
+#: least COMPILED_MIN_STEPS team steps, so each run's tables stay in cache for a while.
 COMPILED_BLOCK = 1 << 16
 COMPILED_MIN_STEPS = 512
 #: Large batches (more than COMPILED_BLOCK agent-steps in COMPILED_MIN_STEPS team steps)
-#: go through the compiled loop in groups of runs, each for COMPILED_GROUP_STEPS team
-#: steps at a time: a run's tables are then loaded into cache once per 4,096 steps, not
-#: once per 512, and its uniforms are drawn just before they are used.
-COMPILED_GROUP_STEPS = 4096
+#: are called COMPILED_RUN_STEPS team steps at a time: the loop advances one run after
+#: the other, so a run's tables are loaded into cache once per 4,096 steps, not once per
+#: 512.
+COMPILED_RUN_STEPS = 4096
 #: Longest a call of the compiled loop should take, in seconds: progress, a due
 #: checkpoint and Ctrl-C wait for the end of a call. A batch so large that a call of its
 #: block takes longer gets shorter blocks (halved down to COMPILED_MIN_STEPS team steps,
@@ -327,20 +325,19 @@ COMPILED_CALL_SECONDS = 1.0
 
 def compiled_schedule(
     n_runs: int, n_agents: int, wants_updates: bool, every_step: bool = False
-) -> tuple[int, int]:
-    """``(block, group)``: the team steps of a call of the compiled loop and the runs of
-    a group within it (the runs of a call are advanced group after group), the same with
-    or without a checkpointer, so that ``qpatrol train`` runs the loop as the Python API,
-    ``sweep``, ``reproduce`` and ``bench`` do. ``every_step`` (a checkpointer that wants
-    to see every team step, tests only): one team step per call."""
+) -> int:
+    """The team steps of a call of the compiled loop, the same with or without a
+    checkpointer, so that ``qpatrol train`` runs the loop as the Python API, ``sweep``,
+    ``reproduce`` and ``bench`` do. ``every_step`` (a checkpointer that wants to see
+    every team step, tests only): one team step per call."""
     R, K = n_runs, n_agents
     if every_step:
-        return 1, R
+        return 1
     if wants_updates:  # the update buffers hold a row per agent-step of a block
-        return max(1, (COMPILED_BLOCK // 8) // (R * K)), R
+        return max(1, (COMPILED_BLOCK // 8) // (R * K))
     if R * K * COMPILED_MIN_STEPS > COMPILED_BLOCK:
-        return COMPILED_GROUP_STEPS, max(1, COMPILED_BLOCK // (K * COMPILED_GROUP_STEPS))
-    return max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (R * K)), R
+        return COMPILED_RUN_STEPS
+    return max(COMPILED_MIN_STEPS, COMPILED_BLOCK // (R * K))
 
 
 def _next_block(block: int, taken: int, seconds: float, largest: int) -> int:
@@ -393,34 +390,17 @@ def _compiled_loop(
 
     R, K = state.n_runs, p.n_agents
     every_step = checkpoint is not None and checkpoint.every_step
-    block, group = compiled_schedule(R, K, rec.wants_updates, every_step)
+    block = compiled_schedule(R, K, rec.wants_updates, every_step)
     largest = block = min(block, total)
-    loop = numba_core.Loop(
-        state, p, strategy, watch, tail, rec, block, timeline, words=streams.words
-    )
+    loop = numba_core.Loop(state, p, strategy, watch, tail, rec, block, streams.words, timeline)
     every = max(1, total // 200)  # progress of one-step calls
     i = first
-    bufs: dict[int, np.ndarray] = {}  # the uniforms' buffers, one per lane, refilled per call
     while i < total and state.active.any():
         began = time.perf_counter()
-        if loop.draws_itself:  # the kernels draw from the streams' words, in place
-            streams.words()  # (the generators fall behind again: a checkpoint caught them up)
-            n = min(block, total - i)
-            cuts = engine_threads.lanes(R, threads, R * K * n)
-            lanes = [(lo, hi, [(lo, hi, np.empty((hi - lo, n, K, 0)))]) for lo, hi in cuts]
-        else:
-            pending = streams.pending()  # uniforms drawn for every run by the numpy engine
-            n = min(block, total - i, pending or block)
-            cuts = engine_threads.lanes(R, threads, R * K * n)
-            if pending:
-                u = streams.take(n, out=_buffer(bufs, -1, (R, n, K, 2)))
-                lanes = [(lo, hi, [(lo, hi, u[lo:hi])]) for lo, hi in cuts]
-            else:  # each lane draws its runs' uniforms, group of runs after group
-                lanes = []
-                for j, (lo, hi) in enumerate(cuts):
-                    buf = _buffer(bufs, j, (min(group, hi - lo), n, K, 2))
-                    lanes.append((lo, hi, _row_groups(streams, n, buf, lo, hi)))
-        taken, ends, up_int, up_float = loop.run(lanes)
+        streams.words()  # (the loop draws from them; a checkpoint caught the generators up)
+        n = min(block, total - i)
+        lanes = engine_threads.lanes(R, threads, R * K * n)
+        taken, ends, up_int, up_float = loop.run(n, lanes)
         if compiled is not None:
             compiled()
             compiled = None
@@ -436,23 +416,6 @@ def _compiled_loop(
             break
         block = _next_block(block, taken, seconds, largest)
     return numba_core.SPEC_NAMES[loop.spec]
-
-
-def _buffer(bufs: dict[int, np.ndarray], key: int, shape: tuple[int, ...]) -> np.ndarray:
-    """``bufs[key]``, replaced by a new float64 array when its shape is not ``shape``."""
-    if key not in bufs or bufs[key].shape != shape:
-        bufs[key] = np.empty(shape)
-    return bufs[key]
-
-
-def _row_groups(streams: Streams, n: int, buf: np.ndarray, lo: int, hi: int):
-    """``(a, b, u)`` for consecutive groups of ``buf.shape[0]`` runs of rows ``lo..hi-1``:
-    each group's uniforms for the next ``n`` steps, drawn into ``buf`` when the group is
-    reached (by the thread that runs it: each run has its own stream)."""
-    width = buf.shape[0]
-    for a in range(lo, hi, width):
-        b = min(a + width, hi)
-        yield a, b, streams.draw(n, a, b, buf[: b - a])
 
 
 def check_finite(result: RunResult) -> None:

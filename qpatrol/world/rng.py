@@ -166,8 +166,8 @@ class Streams:
 
     The Python loop over runs happens once per ``block`` steps, not in every step.
     Drawing ``(B, K, 2)`` doubles twice gives the same numbers as ``(2B, K, 2)`` once,
-    so the block size never changes a result. The compiled engine's Q-learning kernels
-    draw the same numbers themselves, from the streams' states (:meth:`words`), and the
+    so the block size never changes a result. The compiled engine's loop draws
+    the same numbers itself, from the streams' states (:meth:`words`), and the
     generators catch up before anyone else draws or pickles them.
     """
 

@@ -85,9 +85,9 @@ def unpack(strategy, p: Pack, state=None) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(code, r, i, t, u, battery, p, s, w, sp):
-    """``w.ask[k]`` (int ``[K]``) for each robot of run ``r`` at team step ``t``, step
-    ``i`` of the block (``u`` float ``[R, T, K, 2]``); -1 for robots not choosing
+def act(code, r, t, ur, battery, p, s, w, sp):
+    """``w.ask[k]`` (int ``[K]``) for each robot of run ``r`` at team step ``t`` (``ur``
+    float ``[K, 2]``: each robot's two uniforms of the step); -1 for robots not choosing
     (``w.choosing``).
 
     ``p``, ``s``, ``w``: the loop's ``Params``, ``World`` (the world as the step
@@ -96,13 +96,13 @@ def act(code, r, i, t, u, battery, p, s, w, sp):
     the strategy's :class:`Pack`."""
     nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
-        qlearning.act(r, i, u, pos, s.head, open_mask, choosing, ask, sp.row_f, sp.ipar, sp.q)
+        _, epsilon, use_heading, q_f, _ = qlearning.tables(sp, r)
+        qlearning.act(ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f)
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r,
-            i,
             t,
-            u,
+            ur,
             nbrs,
             p.dot_value,
             p.communication,
@@ -114,16 +114,16 @@ def act(code, r, i, t, u, battery, p, s, w, sp):
             sp,
         )
     elif code == RANDOM:
-        random.act(r, i, u, open_mask, choosing, ask)
+        random.act(ur, open_mask, choosing, ask)
     elif code == CONSCIENTIOUS:
-        conscientious.act(r, i, u, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
+        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
     elif code == SHARED_CONSCIENTIOUS:
         shared_conscientious.act(
-            r, i, u, nbrs, p.communication, pos, s.last, open_mask, choosing, ask
+            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask
         )
     elif code == EVAP:
         evap.act(
-            r, i, t, u, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
+            r, t, ur, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
             sp.cell_i, sp.fpar,
         )  # fmt: skip
     elif code == CYCLIC or code == PARTITION:
@@ -146,7 +146,8 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
     bool ``[R]``: the runs that go on after it (an episode quota may have stopped run
     ``r``)."""
     if code == QLEARNING:
-        n_up = qlearning.learn(r, t, p, w, sp, o, n_up)
+        gamma, _, use_heading, q_f, n_f = qlearning.tables(sp, r)
+        n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
     elif code == QLEARNING_IDLENESS:
         n_up = qlearning_idleness.learn(r, t, p, s, w, sp, o, n_up)
     elif code == CONSCIENTIOUS:

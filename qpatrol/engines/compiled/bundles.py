@@ -138,6 +138,8 @@ class Work(NamedTuple):
     held back; ``order``, ``key`` ``[K]`` for sorting; ``open_mask`` bool ``[K, 4]``;
     ``ended`` bool ``[G]`` (the group's episode ended); and the push search's
     ``parent``, ``seen``, ``queue``, ``path`` ``[C]`` (``parent`` -2 between calls);
+    ``uniforms`` float64 ``[K, 2]``: each robot's two uniforms of the step (epsilon,
+    tie-break), drawn by the loop (:func:`qpatrol.engines.compiled.pcg.step_uniforms`);
     ``sink`` float64 ``[1]`` keeps a warming read."""
 
     want: np.ndarray
@@ -160,6 +162,7 @@ class Work(NamedTuple):
     seen: np.ndarray
     queue: np.ndarray
     path: np.ndarray
+    uniforms: np.ndarray
     sink: np.ndarray
 
 
@@ -181,5 +184,6 @@ def work(n_agents: int, n_groups: int, n_cells: int) -> Work:
         np.zeros(n_groups, b1),
         np.full(n_cells, -2, i8),
         *(np.zeros(n_cells, i8) for _ in range(3)),
+        np.zeros((k, 2), np.float64),
         np.zeros(1, np.float64),
     )

@@ -25,7 +25,7 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, u, nbrs, pos, open_mask, choosing, ask, memory):
+def act(r, ur, nbrs, pos, open_mask, choosing, ask, memory):
     """``ask[k]``: each choosing robot's open neighbour of oldest ``memory[r, k]``."""
     for k in range(choosing.shape[0]):
         if not choosing[k]:
@@ -33,7 +33,7 @@ def act(r, i, u, nbrs, pos, open_mask, choosing, ask, memory):
             continue
         c = pos[r, k]
         score = at_neighbours(memory[r, k], nbrs, c)
-        ask[k] = least(score, open_mask, k, u[r, i, k, 1])
+        ask[k] = least(score, open_mask, k, ur[k, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

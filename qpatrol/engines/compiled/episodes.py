@@ -87,3 +87,17 @@ def due(t, when, left_r):
         if left_r[g] == 0:
             return True
     return False
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def step(r, t, p, s, ep_buf, n_ep, ended, when, never):
+    """:func:`end` of run ``r`` at step ``t`` when an episode may end (:func:`due`,
+    ``when`` its :func:`deadline`), else only ``ended`` cleared. Returns ``(episode
+    rows now written, the run's deadline)``."""
+    if due(t, when, s.dots_left[r]):
+        n_ep = end(r, t, p, s, ep_buf, n_ep, ended)
+        when = deadline(s.ep_start[r], p.max_ep, never)
+    else:
+        for g in range(ended.shape[0]):
+            ended[g] = False
+    return n_ep, when

@@ -58,7 +58,7 @@ def _level(amount, since, pw, c, now):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, t, u, nbrs, communication, pos, open_mask, choosing, ask, amount, since, pw):
+def act(r, t, ur, nbrs, communication, pos, open_mask, choosing, ask, amount, since, pw):
     """``ask[k]``: each choosing robot's open neighbour of least pheromone as step ``t``
     starts (at ``t - 1``)."""
     now = t - 1
@@ -76,7 +76,7 @@ def act(r, i, t, u, nbrs, communication, pos, open_mask, choosing, ask, amount, 
             _level(a, s, pw, max(nbrs[c, 2], 0), now),
             _level(a, s, pw, max(nbrs[c, 3], 0), now),
         )
-        ask[k] = least(score, open_mask, k, u[r, i, k, 1])
+        ask[k] = least(score, open_mask, k, ur[k, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

@@ -303,3 +303,34 @@ def pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w):
         elif push_failed and blocker_waits:
             new = blocker
     return new, (held + 1 if (new == tok and new >= 0) else 0)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def clear(want, occ_r, avoid):
+    """Whether a step has no conflict: every robot that asks (``want`` ``[K]``, -1 for
+    none) asks for a cell that is empty now (``occ_r`` ``[C]``) and that no other asks
+    for (or collisions are not avoided). Then :func:`resolve` moves every robot as
+    asked whatever the order (the holder of the right of way pushes no one), and no one
+    waits: a loop may move them directly (:func:`step_into`)."""
+    if not avoid:
+        return True
+    n_agents = want.shape[0]
+    for a in range(n_agents):
+        wa = want[a]
+        if wa >= 0:
+            if occ_r[wa] >= 0:
+                return False
+            for b in range(a + 1, n_agents):
+                if want[b] == wa:
+                    return False
+    return True
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def step_into(k, c1, avoid, occ_r, pos_r):
+    """Robot ``k`` leaves its cell for ``c1`` (``pos_r`` ``[K]``; with ``avoid`` the
+    occupancy ``occ_r`` ``[C]`` follows)."""
+    if avoid:
+        occ_r[pos_r[k]] = -1
+        occ_r[c1] = k
+    pos_r[k] = c1

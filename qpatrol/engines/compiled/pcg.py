@@ -6,11 +6,10 @@ a 128-bit state ``s`` stepped by ``s <- s M + inc (mod 2**128)``, each step givi
 2**53`` (``Generator.random``). Here a state is four uint64 words ``(state low, state
 high, inc low, inc high)`` (:meth:`qpatrol.world.rng.Streams.words`, ``[R, 4]``), and the
 arithmetic is numpy's own, so the doubles are the same to the bit
-(``tests/test_pcg.py``). The Q-learning kernels draw a robot's two uniforms of a step
-here instead of reading them from a block drawn beforehand: the draws cost about 3 ns
-each through ``Generator.random`` and a trip through memory, and a kernel that computes
-a uniform only where it is read (the tie-break only among tied moves) pays little more
-than the state's two multiplications.
+(``tests/test_pcg.py``). The compiled loop draws each robot's two uniforms of a step
+here (:func:`step_uniforms`), a run's state in registers, instead of reading them from
+a block drawn beforehand by ``Generator.random``, which costs a trip through memory and
+a Python call per run and block.
 """
 
 from __future__ import annotations
@@ -127,3 +126,17 @@ def store(words_r, s_lo, s_hi, skipped):
     words_r[0], words_r[1] = s_lo, s_hi
     if skipped > 0:
         advance(words_r, skipped)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def step_uniforms(stream, ur):
+    """Draw one team step's uniforms into ``ur`` float64 ``[K, 2]`` (robot k's epsilon
+    and tie-break draws, in the order ``Generator.random((K, 2))`` gives them) from
+    ``stream`` ``(state lo, state hi, inc lo, inc hi, inc2 lo, inc2 hi)`` (``inc2``:
+    :func:`double_inc`). Returns the state after the draws ``(lo, hi)``."""
+    s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi = stream
+    for k in range(ur.shape[0]):
+        a_lo, a_hi, s_lo, s_hi = two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
+        ur[k, 0] = uniform(a_lo, a_hi)
+        ur[k, 1] = uniform(s_lo, s_hi)
+    return s_lo, s_hi

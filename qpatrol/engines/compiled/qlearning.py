@@ -15,7 +15,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import MASKED, pick
+from qpatrol.engines.compiled.choice import MASKED, POPCOUNT, pick
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 from qpatrol.engines.compiled.updates import record, wanted
 
@@ -44,45 +44,88 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, u, pos, head, open_mask, choosing, ask, row_f, ipar, q):
-    """``ask[k]`` for every choosing robot of run ``r``: the greedy open move (ties by
-    ``u[r, i, k, 1]``; with probability epsilon (``u[r, i, k, 0] < epsilon``) any open
-    move), -1 where there is none."""
-    epsilon = row_f[r, 1]
-    use_heading = ipar[0] != 0
-    for k in range(pos.shape[1]):
-        if not choosing[k]:
-            ask[k] = -1
-            continue
-        c = pos[r, k]
-        h = head[r, k] if use_heading else 0
-        # choice.greatest with the Q row read in place: through a tuple of the four
-        # values the whole loop ran about 12 % slower (2,000,000 steps, one robot)
-        best = -np.inf
-        for d in range(4):
-            if open_mask[k, d] and q[r, k, c, h, d] > best:
-                best = q[r, k, c, h, d]
-        explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
+def best_of(q_f, at, free):
+    """The greatest ``Q(s, .)`` (``q_f[at:at + 4]``) over the moves of ``free`` (a 4-bit
+    mask, N=1, E=2, S=4, W=8), taken with no branch per move (``MASKED``); -inf for
+    none."""
+    mf = MASKED[free]
+    return max(
+        max(q_f[at] + mf[0], q_f[at + 1] + mf[1]),
+        max(q_f[at + 2] + mf[2], q_f[at + 3] + mf[3]),
+    )
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def choose(q_f, at, free, best, explore, u_tie, branch_free):
+    """One robot's choice (``learner.choose``): the open move (``free``) of greatest
+    ``Q(s, .)`` (``q_f[at:at + 4]``; ``best``: :func:`best_of`, which a caller that
+    knows it passes), ties broken by ``u_tie``, or with ``explore`` any open move; -1
+    where none is open.
+
+    ``branch_free`` (a constant at each call, so the compiler keeps one of the two
+    forms) picks how the candidates are found, not which: a team's loop interleaves
+    robots whose masks vary, and there a branch per move mispredicts (branches: 20 %
+    slower, 4 robots); a lone robot's steps are one chain of dependent loads, and there
+    branches let the processor run ahead on the predicted move (branch-free: 14 %
+    slower). ``tests/test_engines.py`` checks that both forms choose alike."""
+    if branch_free:
+        bits = free
+        if not explore:
+            bits &= (
+                (1 if q_f[at] == best else 0)
+                | (2 if q_f[at + 1] == best else 0)
+                | (4 if q_f[at + 2] == best else 0)
+                | (8 if q_f[at + 3] == best else 0)
+            )
+        count = POPCOUNT[bits]
+    else:
         bits = 0
         count = 0
         for d in range(4):
-            if open_mask[k, d] and (explore or q[r, k, c, h, d] == best):
+            if free >> d & 1 and (explore or q_f[at + d] == best):
                 bits |= 1 << d
                 count += 1
-        ask[k] = pick(bits, count, u[r, i, k, 1])
+    return pick(bits, count, u_tie)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def tables(sp, r):
+    """Run ``r``'s parameters and tables: ``(gamma, epsilon, use_heading, q_f, n_f)``,
+    the tables ``[K, C, 4, 4]`` flat (one index, not four; a reshape is a call, taken
+    once per run and block in the Q-learning loop)."""
+    return sp.row_f[r, 0], sp.row_f[r, 1], sp.ipar[0] != 0, sp.q[r].reshape(-1), sp.n[r].reshape(-1)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f):
+    """``ask[k]`` for every choosing robot of a run (``pos_r``, ``head_r`` int ``[K]``;
+    ``open_mask`` bool ``[K, 4]``; ``ur`` float ``[K, 2]``: the step's uniforms;
+    ``q_f``: :func:`tables`): :func:`choose` over its open moves; -1 for the others."""
+    n_cells = q_f.shape[0] // (pos_r.shape[0] * 16)
+    for k in range(pos_r.shape[0]):
+        if not choosing[k]:
+            ask[k] = -1
+            continue
+        hs = head_r[k] if use_heading else 0
+        at = ((k * n_cells + pos_r[k]) * 4 + hs) * 4  # Q(c, hs, .), flat
+        free = (
+            (1 if open_mask[k, 0] else 0)
+            | (2 if open_mask[k, 1] else 0)
+            | (4 if open_mask[k, 2] else 0)
+            | (8 if open_mask[k, 3] else 0)
+        )
+        explore = epsilon > 0.0 and ur[k, 0] < epsilon
+        ask[k] = choose(q_f, at, free, best_of(q_f, at, free), explore, ur[k, 1], True)
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def update(q_f, n_f, at0, at1, m1, reward, gamma):
+def update(q_f, n_f, at0, at1, legal1, reward, gamma):
     """The Q-learning update of one robot, on its tables flat (``q_f`` float64, ``n_f``
     int32): ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max_{a' legal} Q(s', a') - Q(s,
-    a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+3``, the greatest taken
-    with no branch per move (``m1``: ``MASKED`` of the legal moves of s'). Returns
+    a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+3``, the greatest over the
+    legal moves of s' (``legal1``, a 4-bit mask: :func:`best_of`). Returns
     ``(max Q(s', .), alpha, Q(s, a) before)``."""
-    top = max(
-        max(q_f[at1] + m1[0], q_f[at1 + 1] + m1[1]),
-        max(q_f[at1 + 2] + m1[2], q_f[at1 + 3] + m1[3]),
-    )
+    top = best_of(q_f, at1, legal1)
     target = reward + gamma * top
     q_sa = q_f[at0]
     n_after = n_f[at0] + 1
@@ -93,15 +136,12 @@ def update(q_f, n_f, at0, at1, m1, reward, gamma):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, t, p, w, sp, o, n_up):
+def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
     """The update of every robot of run ``r`` that made the move it chose, in robot
-    order (:func:`update`); Q-updates recorded as :meth:`qpatrol.measures.records.Recorder.updates`
-    wants them. ``p``, ``w``, ``o``: the loop's ``Params``, ``Work`` and ``Out``
-    (:mod:`qpatrol.engines.compiled.bundles`). Returns the number of update rows now
-    written."""
-    gamma = sp.row_f[r, 0]
-    use_heading = sp.ipar[0] != 0
-    q_f, n_f = sp.q[r].reshape(-1), sp.n[r].reshape(-1)
+    order (:func:`update`; ``q_f``, ``n_f``: :func:`tables`); Q-updates recorded as
+    :meth:`qpatrol.measures.records.Recorder.updates` wants them. ``p``, ``w``, ``o``:
+    the loop's ``Params``, ``Work`` and ``Out`` (:mod:`qpatrol.engines.compiled.bundles`).
+    Returns the number of update rows now written."""
     n_cells = p.nbrs.shape[0]
     for k in range(w.prev_pos.shape[0]):
         if not w.as_asked[k] or not w.choosing[k]:
@@ -113,8 +153,7 @@ def learn(r, t, p, w, sp, o, n_up):
         hb = aa if use_heading else 0
         at = ((k * n_cells + ca) * 4 + ha) * 4  # Q(ca, ha, .), flat
         at1 = ((k * n_cells + cb) * 4 + hb) * 4  # Q(cb, hb, .)
-        m1 = MASKED[p.cell_moves[cb]]
-        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, m1, w.reward[k], gamma)
+        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, p.cell_moves[cb], w.reward[k], gamma)
         if wanted(o, ca):
             ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
             floats = (w.reward[k], alpha, q_sa, q_f[at + aa], gamma * top)

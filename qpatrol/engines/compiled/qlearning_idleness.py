@@ -121,10 +121,10 @@ def _score(sp, dot_value, nbrs, r, g, pk, c, slot, d, t):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp):
-    """``ask[k]`` for every choosing robot of run ``r`` at team step ``t`` (step ``i``
-    of the block, ``u`` float ``[R, T, K, 2]``): the open move of greatest ``r(s, a) +
-    Q(s, a)`` (ties by ``u[r, i, k, 1]``; with probability ``epsilon(t)`` (``u[r, i, k,
+def act(r, t, ur, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp):
+    """``ask[k]`` for every choosing robot of run ``r`` at team step ``t`` (``ur``
+    float ``[K, 2]``: the step's uniforms): the open move of greatest ``r(s, a) +
+    Q(s, a)`` (ties by ``ur[k, 1]``; with probability ``epsilon(t)`` (``ur[k,
     0]``) any open move), -1 where there is none. Every robot's idlest slot goes to
     ``robot_i[r, k, 0]``."""
     feat, ipar = sp.robot_i, sp.ipar
@@ -152,8 +152,8 @@ def act(r, i, t, u, nbrs, dot_value, communication, pos, head, open_mask, choosi
             _score(sp, dot_value, nbrs, r, g, pk, c, slot, 2, t),
             _score(sp, dot_value, nbrs, r, g, pk, c, slot, 3, t),
         )
-        explore = epsilon > 0.0 and u[r, i, k, 0] < epsilon
-        ask[k] = greatest(score, open_mask, k, explore, u[r, i, k, 1])
+        explore = epsilon > 0.0 and ur[k, 0] < epsilon
+        ask[k] = greatest(score, open_mask, k, explore, ur[k, 1])
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

@@ -22,8 +22,8 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, u, open_mask, choosing, ask):
-    """``ask[k]``: a uniform open move of each choosing robot of run ``r`` (by
-    ``u[r, i, k, 1]``), -1 for the others."""
+def act(ur, open_mask, choosing, ask):
+    """``ask[k]``: a uniform open move of each choosing robot (by its step's uniform
+    ``ur[k, 1]``, ``ur`` float ``[K, 2]``), -1 for the others."""
     for k in range(choosing.shape[0]):
-        ask[k] = any_open(open_mask, k, u[r, i, k, 1]) if choosing[k] else -1
+        ask[k] = any_open(open_mask, k, ur[k, 1]) if choosing[k] else -1

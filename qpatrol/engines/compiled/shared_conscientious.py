@@ -24,7 +24,7 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask):
+def act(r, ur, nbrs, communication, pos, last, open_mask, choosing, ask):
     """``ask[k]``: each choosing robot's open neighbour of oldest ``last[r, g]`` (``g`` =
     0 with communication, else k)."""
     for k in range(choosing.shape[0]):
@@ -33,4 +33,4 @@ def act(r, i, u, nbrs, communication, pos, last, open_mask, choosing, ask):
             continue
         c = pos[r, k]
         score = at_neighbours(last[r, 0 if communication else k], nbrs, c)
-        ask[k] = least(score, open_mask, k, u[r, i, k, 1])
+        ask[k] = least(score, open_mask, k, ur[k, 1])
