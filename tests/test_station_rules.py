@@ -76,13 +76,34 @@ class Team:
         if self.engine == "numpy":
             numpy_loop.advance(s, p, self.strategy, u)
             return
-        if self.loop is None:  # built on the hand-set state (the loop shares its arrays)
+        self._loop().run([(0, 1, [(0, 1, np.ascontiguousarray(u[:, None]))])])
+
+    def _loop(self):
+        """The compiled loop, built on the hand-set state (it shares the state's arrays)."""
+        if self.loop is None:
             from qpatrol.engines import numba_core
 
+            s, p, K = self.s, self.p, self.p.n_agents
             watch = measures.Measures(1, K, p.n_cells, 0)
             rec = Recorder(np.arange(1))
             self.loop = numba_core.Loop(s, p, self.strategy, watch, Tail(0, s), rec, 1)
-        self.loop.run([(0, 1, [(0, 1, np.ascontiguousarray(u[:, None]))])])
+        return self.loop
+
+    def end_of_step(self, asked: list[bool]) -> None:
+        """The battery's end of a step alone (``battery.end``, the compiled
+        ``stations.end``): no robot moved, ``asked`` says which asked for a move."""
+        if self.engine == "numpy":
+            from qpatrol.world import battery
+
+            moved = np.zeros((1, self.p.n_agents), dtype=bool)
+            battery.end(self.s, self.p, moved, np.array([asked]))
+            return
+        from qpatrol.engines.compiled import stations
+
+        _, bp, _, _, bs, _, _, w = self._loop().args
+        w.moved[:] = False
+        w.ask[:] = np.where(asked, 0, -1)
+        stations.end(0, bp, bs, w)
 
     def row(self, *ks: int) -> tuple:
         """``(holders of the stations, (cell, mode, charge) of robots ks)`` now."""
@@ -230,3 +251,253 @@ def test_wait_bound_exact_value():
     assert measures.wait_bound(p) == K * turnaround + diameter == 50
     off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
     assert measures.wait_bound(off) == diameter == 5
+
+
+# --- 4. charging, then holding the station while leaving -----------------------------------
+
+LINE_H = "H....\n"  # station on cell 0 of a line: no junction, depart_len 1
+
+
+@pytest.mark.parametrize("charge_steps", [1, 3])
+def test_charging_lasts_charge_steps_steps_and_the_station_is_kept_2_depart_len(
+    engine, charge_steps
+):
+    """A robot on its station charges ``charge_steps`` whole steps without moving, then
+    patrols with a full charge, keeping the station for ``2 x depart_len`` moves."""
+    team = Team(engine, LINE_H, [1], **{"battery.charge_steps": charge_steps})
+    s, p = team.s, team.p
+    assert p.depart_len.tolist() == [1]
+    s.charge[0, 0] = 2
+    # step 1: 1 move from H, 2 <= 1 + 0 + 1: it takes H and goes there (charge 1);
+    # steps 2 .. 1 + charge_steps: it charges, not moving (charge still 1);
+    # next step: charged, full (20), it leaves East (its only move) to cell 1 (19),
+    #   holding H 2 x 1 moves: still held after this step,
+    # and the step after it goes on to cell 2 (18) and H is released.
+    expect = (
+        [((0,), (0, C, 1))]
+        + [((0,), (0, C, 1))] * charge_steps
+        + [((0,), (1, P, 19)), ((-1,), (2, P, 18))]
+    )
+    got = []
+    for _ in expect:
+        team.step([FIRST])
+        got.append(team.row(0))
+    assert got == expect
+
+
+# The T of a dead end: the top row 0..4, the junction 2, the station H on cell 6 at the
+# end of the stem 5, 6: the pocket is cells 5 (depth 1) and 6 (depth 2), its junction 2;
+# depart_len 2 (6 -> 5 -> 2).
+DEAD_END = "..-..\n##.##\n##H##\n"
+
+
+def test_a_charged_robot_keeps_its_station_for_2_depart_len_moves(engine):
+    """Robot 0 finishes charging on H at step 1 and holds it for 2 x depart_len = 4
+    moves while it leaves; robot 1, which needs H from step 1 on, waits until then."""
+    team = Team(engine, DEAD_END, [6, 0], **{"battery.charge_steps": 2})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [6] and p.depart_len.tolist() == [2]
+    assert p.pocket_entry.tolist() == [2]
+    team.holds(0, 0, mode=CHARGING, rest=0)  # its last charging step was step 0
+    s.charge[0] = [3, 5]
+    # step 1: robot 0 is charged (20), holds H for 4 more moves: 5, 2, 3, 4 (FIRST: N
+    #   from 5, E from 2 and 3), steps 1-4 (charge 19 .. 16); H released after step 4.
+    #   Robot 1 (cell 0, 4 moves from H: 0 -> 1 -> 2 -> 5 -> 6, 5 <= 4 + 0 + 1) needs
+    #   H from step 1 on and waits, its charge kept.
+    # step 5: robot 1 takes H: 1, 2, 5, 6 (steps 5-8), arriving with 1. Robot 0: 3 (its
+    #   only move from 4), 4, 3, 4.
+    expect = [
+        ((0,), (5, P, 19), (0, Q, 5)),
+        ((0,), (2, P, 18), (0, Q, 5)),
+        ((0,), (3, P, 17), (0, Q, 5)),
+        ((-1,), (4, P, 16), (0, Q, 5)),
+        ((1,), (3, P, 15), (1, Hm, 4)),
+        ((1,), (4, P, 14), (2, Hm, 3)),
+        ((1,), (3, P, 13), (5, Hm, 2)),
+        ((1,), (4, P, 12), (6, C, 1)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_a_leaving_robot_that_stops_asking_releases_its_station_at_once(engine):
+    """The end of a step alone (``battery.end``; the compiled ``stations.end``), the
+    asks given: a robot leaving its station (``depart_left`` > 0) keeps it while it
+    asks to move, one move less to go each step, and releases it the step it asks for
+    none (the random strategy always asks, so the whole step cannot show this)."""
+    team = Team(engine, DEAD_END, [2])
+    s = team.s
+    team.holds(0, 0, depart_left=3)
+    team.end_of_step(asked=[True])
+    assert (s.reserved[0, 0], s.goal[0, 0], s.depart_left[0, 0]) == (0, 0, 2)
+    team.end_of_step(asked=[False])
+    assert (s.reserved[0, 0], s.goal[0, 0], s.depart_left[0, 0]) == (-1, -1, 0)
+
+
+# --- 5. pockets: kept clear while their station is held; yielding is free ----------------
+
+# A T with a longer dead end: the top row 0..4, the junction 2, the stem 5, 6 and the
+# station H on cell 7: the pocket is 5, 6, 7 (depths 1, 2, 3), its junction 2.
+# Distances to H: 7 - c for c = 5..7, 3 from cell 2, 4 from cells 1 and 3, 5 from 0 and 4.
+DEEP_END = "..-..\n##.##\n##.##\n##H##\n"
+
+
+def deep_end(engine: str, starts: list[int]) -> Team:
+    team = Team(engine, DEEP_END, starts, **{"battery.charge_steps": 2})
+    p = team.p
+    assert p.homes.tolist() == [7] and p.pocket_entry.tolist() == [2]
+    assert p.pocket_of.tolist() == [-1] * 5 + [0, 0, 0]
+    assert p.pocket_depth.tolist() == [0] * 5 + [1, 2, 3]
+    return team
+
+
+def test_a_queued_robot_leaves_a_held_pocket_free_and_credited_the_holder_waits(engine):
+    """Robot 1, waiting for a station (QUEUED) deep in the pocket of H, steps out when
+    robot 0 holds H: up to the junction, then off it, at no charge, credited the
+    distance it put between itself and the station (its charge grows by one a move).
+    Robot 0, homing, waits before the junction until the pocket is empty, then goes in."""
+    team = deep_end(engine, [0, 6])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.mode[0, 1] = QUEUED  # since step 0
+    s.charge[0] = [10, 2]
+    # step 1: robot 0 moves 0 -> 1 (not yet onto the junction; charge 9); robot 1 (in the
+    #   held pocket) steps out 6 -> 5: free, credited 2 - 1 = 1 more move to H: 3.
+    # step 2: robot 0 would enter the junction with robot 1 in the pocket: held back (it
+    #   waits, charge kept). Robot 1: 5 -> 2 (out of the pocket, 3 from H): 4.
+    # step 3: robot 1 on the junction steps off it to the first free cell outside the
+    #   pocket, N E S W: East, 3 (4 from H): 5. Robot 0 follows onto 2 (charge 8).
+    # steps 4-6: robot 0 goes 5, 6, 7 (7, 6, 5), charging from step 6; robot 1 waits on
+    #   3, neither in the pocket nor on its junction (QUEUED, charge 5).
+    expect = [
+        ((0,), (1, Hm, 9), (5, Q, 3)),
+        ((0,), (1, Hm, 9), (2, Q, 4)),
+        ((0,), (2, Hm, 8), (3, Q, 5)),
+        ((0,), (5, Hm, 7), (3, Q, 5)),
+        ((0,), (6, Hm, 6), (3, Q, 5)),
+        ((0,), (7, C, 5), (3, Q, 5)),
+    ]
+    got, waits0 = [], []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+        waits0.append(int(s.wait[0, 0]))
+    assert got == expect
+    assert waits0 == [0, 1, 0, 0, 0, 0]  # held back at step 2: a wait
+
+
+def test_a_homing_robot_on_the_junction_steps_aside_free_for_one_leaving_the_pocket(engine):
+    """Robot 0, homing to H, stands on the pocket's junction while robot 1 patrols in the
+    pocket: robot 0 yields (off the junction, at no charge, credited the detour), robot
+    1 walks out (its moves deeper are closed), then robot 0 goes in."""
+    team = deep_end(engine, [2, 5])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.charge[0] = [5, 20]
+    # step 1: robot 0 on the junction, robot 1 in the pocket: robot 0 steps off to the
+    #   first free neighbour outside the pocket (N E S W): 3, 4 moves from H instead of
+    #   3: free and credited 1 (charge 6). Robot 1: South (deeper) is closed, North is
+    #   taken: no open move, it asks for its first legal one, North, and follows onto 2
+    #   (a patrolling move: 19).
+    # step 2: robot 0 heads back onto 2 (the pocket is empty), where robot 1 stands;
+    #   robot 1's open moves: West only (East is robot 0's cell, South the held pocket):
+    #   it goes to 1 (18), robot 0 follows onto 2 (5).
+    # steps 3-5: robot 0 goes 5, 6, 7 (4, 3, 2), charging from step 5. Robot 1: East is
+    #   robot 0's cell at the start of step 3: West, to 0 (17); then East to 1 (16), and
+    #   from 1 East to 2 (15), free again.
+    expect = [
+        ((0,), (3, Hm, 6), (2, P, 19)),
+        ((0,), (2, Hm, 5), (1, P, 18)),
+        ((0,), (5, Hm, 4), (0, P, 17)),
+        ((0,), (6, Hm, 3), (1, P, 16)),
+        ((0,), (7, C, 2), (2, P, 15)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
+    """Robot 1 patrols on the junction of H's pocket while robot 0, homing, holds H:
+    the move South, into the pocket, is not open to it."""
+    team = deep_end(engine, [4, 2])
+    team.holds(0, 0, mode=HOMING)
+    # step 1: robot 1's open moves are East and West (South is closed): MID takes the
+    #   second, West, to 1 (with South open it would take South, into the pocket).
+    #   Robot 0: 4 -> 3.
+    # step 2: robot 1 at 1: East (2, free) and West (0): MID, West, to 0. Robot 0: 2.
+    # step 3: robot 0 into the pocket: 5. Robot 1: its only move, back to 1.
+    expect = [
+        ((0,), (3, Hm, 19), (1, P, 19)),
+        ((0,), (2, Hm, 18), (0, P, 18)),
+        ((0,), (5, Hm, 17), (1, P, 17)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, MID])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
+    """The robot with right of way (robot 0, homing to H) pushes the robots in its way
+    along the nearest empty cells, but not into the pocket of a held station: robot 1 on
+    the junction goes East (shifting robot 2 on), not South into the empty pocket."""
+    team = deep_end(engine, [1, 2, 3])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.token[0] = 0
+    s.charge[0, 0] = 10
+    # step 1: robot 0 asks for 2 (East, towards H), taken by robot 1. The push search
+    #   from 2 (N E S W, not through robot 0's cell 1, not into the held pocket 5, 6, 7)
+    #   finds 3 (robot 2) then the empty cell 4: robot 2 shifts 3 -> 4, robot 1 2 -> 3,
+    #   robot 0 takes 2 (charge 9). Robot 2 asked for East (its only open move): as
+    #   asked, it pays (19); robot 1 asked for West (LAST of its legal moves, none being
+    #   open): pushed, free (20).
+    # step 2: robot 0 goes on, 5 (8); robot 1 at 3 and robot 2 at 4 have no open move
+    #   (their neighbours are taken at the start of the step): robot 1 asks for its
+    #   last legal move, West, robot 2 for its only one, West: each follows the robot
+    #   ahead, 1 to 2 (19), 2 to 3 (18).
+    expect = [
+        ((0,), (2, Hm, 9), (3, P, 20), (4, P, 19)),
+        ((0,), (5, Hm, 8), (2, P, 19), (3, P, 18)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, LAST, FIRST])
+        got.append(team.row(0, 1, 2))
+    assert got == expect
+
+
+# --- 6. pushes: free, and credited to a robot that needs a station ------------------------
+
+LINE_9 = "H........\n"  # station on cell 0, cell c is c moves from it
+
+
+@pytest.mark.parametrize("mode", [HOMING, QUEUED])
+def test_a_robot_needing_a_station_pushed_away_is_credited_the_detour(engine, mode):
+    """Robot 0, with right of way, moves East into robot 1's cell 3: robot 1 is pushed
+    on to 4, one move farther from H. Robot 1 needs H (homing to it, or queued while
+    robot 2 charges on it): the push costs it nothing and it is credited that move.
+    Robot 0 pays its own move."""
+    team = Team(engine, LINE_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
+    s = team.s
+    s.token[0] = 0
+    s.charge[0] = [20, 4, 20]
+    if mode == HOMING:
+        team.holds(1, 0, mode=HOMING)  # robot 1 holds H; robot 2 patrols far away
+    else:
+        team.holds(2, 0, mode=CHARGING, rest=5)  # robot 2 charges on H
+        s.mode[0, 1] = QUEUED  # 4 <= 3 + 0 + 1, and H is held: it waits
+    # step 1: robot 0 (token: sees every legal move open) FIRST: East, into 3: robot 1
+    #   shifts to 4 (the nearest empty cell away from robot 0): 4 - 3 = 1 more move to
+    #   H, credited: 4 + 1 = 5. Robot 0 pays 1: 19.
+    team.step([FIRST, FIRST, FIRST])
+    assert s.pos[0, :2].tolist() == [3, 4]
+    assert s.charge[0, :2].tolist() == [19, 5]
+    assert s.mode[0, 1] == mode
