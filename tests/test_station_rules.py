@@ -62,7 +62,9 @@ class Team:
         self.engine = engine
         self.loop = None
 
-    def holds(self, k: int, h: int, mode: int = PATROL, rest: int = 0, depart_left: int = 0):
+    def holds(
+        self, k: int, h: int, mode: int = PATROL, rest: int = 0, depart_left: int = 0
+    ) -> None:
         """Robot k holds station h (it stands on it unless homing), in ``mode``."""
         s = self.s
         s.goal[0, k], s.reserved[0, h] = h, k
@@ -247,8 +249,10 @@ def test_wait_bound_exact_value():
     depart_len, diameter = [2, 3], 5
     assert p.homes.tolist() == [0, 7]
     assert p.depart_len.tolist() == depart_len and p.diameter == diameter
+    # the formula's terms, spelled out (a new formula: rewrite these two lines from the
+    # hand-counted quantities above, not from what wait_bound returns)
     turnaround = charge_steps + 2 * max(depart_len) + diameter  # 4 + 6 + 5 = 15
-    assert measures.wait_bound(p) == K * turnaround + diameter == 50
+    assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 15 + 5 == 50
     off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
     assert measures.wait_bound(off) == diameter == 5
 
@@ -258,23 +262,25 @@ def test_wait_bound_exact_value():
 LINE_H = "H....\n"  # station on cell 0 of a line: no junction, depart_len 1
 
 
-@pytest.mark.parametrize("charge_steps", [1, 3])
+@pytest.mark.parametrize("charge_steps", [0, 1, 3])
 def test_charging_lasts_charge_steps_steps_and_the_station_is_kept_2_depart_len(
     engine, charge_steps
 ):
     """A robot on its station charges ``charge_steps`` whole steps without moving, then
-    patrols with a full charge, keeping the station for ``2 x depart_len`` moves."""
+    patrols with a full charge, keeping the station for ``2 x depart_len`` moves. With
+    ``charge_steps`` 0 it is full on arrival."""
     team = Team(engine, LINE_H, [1], **{"battery.charge_steps": charge_steps})
     s, p = team.s, team.p
     assert p.depart_len.tolist() == [1]
     s.charge[0, 0] = 2
-    # step 1: 1 move from H, 2 <= 1 + 0 + 1: it takes H and goes there (charge 1);
+    # step 1: 1 move from H, 2 <= 1 + 0 + 1: it takes H and goes there (charge 1),
+    #   charging (with charge_steps 0: full at once, 20, and leaving);
     # steps 2 .. 1 + charge_steps: it charges, not moving (charge still 1);
     # next step: charged, full (20), it leaves East (its only move) to cell 1 (19),
     #   holding H 2 x 1 moves: still held after this step,
     # and the step after it goes on to cell 2 (18) and H is released.
     expect = (
-        [((0,), (0, C, 1))]
+        [((0,), (0, C, 1) if charge_steps else (0, P, 20))]
         + [((0,), (0, C, 1))] * charge_steps
         + [((0,), (1, P, 19)), ((-1,), (2, P, 18))]
     )
