@@ -1,0 +1,524 @@
+"""The station rules (``docs/model.md``, "Batteries and stations"), by hand, each engine alone.
+
+Every test here runs a tiny hand-built map from a hand-set state on the numpy engine
+and, separately, on the compiled one (skipped without numba), and checks each against
+values derived by hand in the test: neither engine is compared with the other, so a
+rule broken in :mod:`qpatrol.world.battery` fails the numpy case and one broken in
+:mod:`qpatrol.engines.compiled.stations` the compiled case, even without the other
+engine at hand.
+
+The robots' asks are fixed: every robot runs the ``random`` strategy with a fixed
+uniform per robot, which picks among its *open* moves (not into a wall, a robot's
+cell or a held station's pocket; every legal move if none is open) the ``floor(u x
+n)``-th in N, E, S, W order. So ``FIRST`` (u = 0) asks for the first open move,
+``LAST`` the last one, and ``MID`` (u = 0.5) the second of two or of three. On the
+numpy engine one team step is :func:`qpatrol.engines.numpy_loop.advance`
+(``world.begin_step``, the strategy, ``world.step``); on the compiled engine one call
+of :class:`qpatrol.engines.numba_core.Loop` for one step. Robots needing a station
+(homing, queued, charging) do not choose: their uniform is not read.
+
+Cells are numbered row by row over the free cells of the map.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from qpatrol import measures, strategies, world
+from qpatrol.config import from_flat
+from qpatrol.engines import numpy_loop
+from qpatrol.maps import parse_map
+from qpatrol.measures.records import Recorder, Tail
+from qpatrol.world.battery import CHARGING, HOMING, PATROL, QUEUED
+
+FIRST, MID, LAST = 0.0, 0.5, 0.999  # a robot's fixed uniform: its first, second, last open move
+P, Hm, Q, C = PATROL, HOMING, QUEUED, CHARGING  # short names for the tables of modes
+
+
+class Team:
+    """One run on map ``text``, robots on cells ``starts``, stepped by one engine.
+
+    The battery is on with full batteries and no margin unless ``flat`` says
+    otherwise; set the state by hand (:meth:`holds`, ``s.charge``, ...) before the
+    first :meth:`step`.
+    """
+
+    def __init__(self, engine: str, text: str, starts: list[int], **flat):
+        base = {
+            "agents": len(starts),
+            "policy": "random",
+            "battery.enabled": True,
+            "battery.capacity": 20,
+            "battery.margin": 0,
+            "battery.initial_charge": "full",
+        }
+        cfg = from_flat({**base, **flat})
+        m = parse_map(text)
+        self.p = p = world.make_params(cfg, m)
+        cells = np.array([starts], dtype=np.int64)
+        self.s = world.init_state(p, cells)
+        self.strategy = strategies.make("random", cfg, m, p, cells)
+        self.engine = engine
+        self.loop = None
+
+    def holds(
+        self, k: int, h: int, mode: int = PATROL, rest: int = 0, depart_left: int = 0
+    ) -> None:
+        """Robot k holds station h (it stands on it unless homing), in ``mode``."""
+        s = self.s
+        s.goal[0, k], s.reserved[0, h] = h, k
+        s.mode[0, k], s.rest[0, k], s.depart_left[0, k] = mode, rest, depart_left
+
+    def step(self, picks: list[float]) -> None:
+        """One team step; ``picks``: each robot's uniform (FIRST, MID, LAST)."""
+        s, p, K = self.s, self.p, self.p.n_agents
+        u = np.zeros((1, K, 2))
+        u[0, :, 1] = picks
+        if self.engine == "numpy":
+            numpy_loop.advance(s, p, self.strategy, u)
+            return
+        self._loop().run([(0, 1, [(0, 1, np.ascontiguousarray(u[:, None]))])])
+
+    def _loop(self):
+        """The compiled loop, built on the hand-set state (it shares the state's arrays)."""
+        if self.loop is None:
+            from qpatrol.engines import numba_core
+
+            s, p, K = self.s, self.p, self.p.n_agents
+            watch = measures.Measures(1, K, p.n_cells, 0)
+            rec = Recorder(np.arange(1))
+            self.loop = numba_core.Loop(s, p, self.strategy, watch, Tail(0, s), rec, 1)
+        return self.loop
+
+    def end_of_step(self, asked: list[bool]) -> None:
+        """The battery's end of a step alone (``battery.end``, the compiled
+        ``stations.end``): no robot moved, ``asked`` says which asked for a move."""
+        if self.engine == "numpy":
+            from qpatrol.world import battery
+
+            moved = np.zeros((1, self.p.n_agents), dtype=bool)
+            battery.end(self.s, self.p, moved, np.array([asked]))
+            return
+        from qpatrol.engines.compiled import stations
+
+        _, bp, _, _, bs, _, _, w = self._loop().args
+        w.moved[:] = False
+        w.ask[:] = np.where(asked, 0, -1)
+        stations.end(0, bp, bs, w)
+
+    def row(self, *ks: int) -> tuple:
+        """``(holders of the stations, (cell, mode, charge) of robots ks)`` now."""
+        s = self.s
+        robots = tuple((int(s.pos[0, k]), int(s.mode[0, k]), int(s.charge[0, k])) for k in ks)
+        return (tuple(s.reserved[0].tolist()), *robots)
+
+
+@pytest.fixture(params=["numpy", "numba"])
+def engine(request) -> str:
+    if request.param == "numba":
+        pytest.importorskip("numba")
+    return request.param
+
+
+# --- 1. first come, first served ---------------------------------------------------------
+
+# A T: the top row 0..6 with the station H on the junction 3, a stem 7, 8, 9 under it.
+# H is on a junction: no pocket, depart_len 1 (a holder keeps it 2 steps after charging).
+T_MAP = "...H...\n###.###\n###.###\n###.###\n"
+
+
+def test_two_robots_queued_at_once_are_served_first_come_first_served(engine):
+    """Robots 1 and 2 both wait for the one station, held by robot 0; robot 2 began to
+    need it a step before robot 1, so robot 2 gets it first although its index is
+    higher (and it is no nearer: both are 3 moves away). Robot 1 waits where it is, at
+    no cost, until robot 2 has charged and left."""
+    team = Team(engine, T_MAP, [3, 1, 6], **{"battery.charge_steps": 2})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [3] and p.depart_len.tolist() == [1]
+    team.holds(0, 0, depart_left=2 * 1)  # robot 0 has just charged on H: leaving
+    s.charge[0] = [20, 4, 4]
+    # Threshold: charge <= distance + margin + 1 = distance + 1.
+    # step 1: robot 2 (cell 6, 3 from H, charge 4 <= 4) needs a station from step 1 on:
+    #   H is held, it waits (QUEUED). Robot 1 (cell 1, 2 from H, 4 > 3) patrols: open W,
+    #   E, LAST = West, to cell 0 (charge 3). Robot 0 (MID of E, S, W = South) to 7.
+    # step 2: robot 1 (cell 0, 3 from H, 3 <= 4) needs one from step 2 on: waits.
+    #   Robot 0 (MID of N, S = South) to 8; it has made 2 x depart_len moves: H released.
+    # step 3: the queue: robot 2 (since step 1) before robot 1 (since step 2); robot 2
+    #   takes H and goes 5, 4, 3 (steps 3-5, charge 3, 2, 1), charges in steps 6 and 7,
+    #   then leaves (FIRST of E, S, W = East) to 4 and 5 (steps 8, 9, full charge 20
+    #   less a move each): H released after step 9.
+    # step 10: robot 1 (charge 3, 3 moves from H) takes H, goes 1, 2, 3 (steps 10-12),
+    #   arriving with charge 0. Robot 2 meanwhile: 6 (step 10, East), 5 (only West), 6.
+    # Robot 0 shuttles in the stem: 9, 8, 9, ... (MID at 8 is South, 9 has only North).
+    expect = [
+        # holder of H, (cell, mode, charge) of robot 1, of robot 2
+        ((0,), (0, P, 3), (6, Q, 4)),  # step 1
+        ((-1,), (0, Q, 3), (6, Q, 4)),  # step 2
+        ((2,), (0, Q, 3), (5, Hm, 3)),  # step 3
+        ((2,), (0, Q, 3), (4, Hm, 2)),  # step 4
+        ((2,), (0, Q, 3), (3, C, 1)),  # step 5
+        ((2,), (0, Q, 3), (3, C, 1)),  # step 6
+        ((2,), (0, Q, 3), (3, C, 1)),  # step 7
+        ((2,), (0, Q, 3), (4, P, 19)),  # step 8
+        ((-1,), (0, Q, 3), (5, P, 18)),  # step 9
+        ((1,), (1, Hm, 2), (6, P, 17)),  # step 10
+        ((1,), (2, Hm, 1), (5, P, 16)),  # step 11
+        ((1,), (3, C, 0), (6, P, 15)),  # step 12
+    ]
+    got, cells0, waits1 = [], [], []
+    for _ in expect:
+        team.step([MID, LAST, FIRST])
+        got.append(team.row(1, 2))
+        cells0.append(int(s.pos[0, 0]))
+        waits1.append(int(s.wait[0, 1]))
+    assert got == expect
+    assert cells0 == [7, 8, 9, 8, 9, 8, 9, 8, 9, 8, 9, 8]
+    # robot 1 waits for a station from step 2 to step 9, a wait that grows each step
+    assert waits1 == [0, 1, 2, 3, 4, 5, 6, 7, 8, 0, 0, 0]
+
+
+# --- 2. the nearest free station -----------------------------------------------------------
+
+# A line of 11 cells, stations on cells 0 (station 0) and 8 (station 1); cell c is c
+# moves from station 0 and |8 - c| from station 1.
+LINE_2H = "H.......H..\n"
+
+
+@pytest.mark.parametrize(
+    "charge, margin, other, expect",
+    [
+        # Robot 0 on cell 5 (5 from station 0, 3 from station 1), charge 7, margin 3:
+        # 7 <= 3 + 3 + 1, it needs a station at step 1. Both are free and within reach
+        # (5 <= 7, 3 <= 7): it takes the nearer, station 1 (the higher index), and goes
+        # 6, 7, 8, one unit a move, arriving (charging) at step 3 with 4.
+        (7, 3, None, [((-1, 0), (6, Hm, 6)), ((-1, 0), (7, Hm, 5)), ((-1, 0), (8, C, 4))]),
+        # The same, but robot 1 charges on station 1: robot 0 takes the nearest *free*
+        # station, station 0, 5 moves away: 4, 3, 2, 1, 0, arriving with 2.
+        (
+            7,
+            3,
+            "charging",
+            [
+                ((0, 1), (4, Hm, 6)),
+                ((0, 1), (3, Hm, 5)),
+                ((0, 1), (2, Hm, 4)),
+                ((0, 1), (1, Hm, 3)),
+                ((0, 1), (0, C, 2)),
+            ],
+        ),
+        # Station 1 held again, and robot 0 has charge 4, margin 0 (4 <= 3 + 0 + 1): the
+        # free station 0 is 5 moves away, out of its reach: it waits on cell 5 (QUEUED,
+        # no move, no charge spent).
+        (4, 0, "charging", [((-1, 1), (5, Q, 4))] * 5),
+    ],
+)
+def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, other, expect):
+    starts = [5] if other is None else [5, 10]
+    team = Team(engine, LINE_2H, starts, **{"battery.margin": margin, "battery.charge_steps": 9})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [0, 8]
+    if other is not None:
+        s.occ[0, 10], s.pos[0, 1], s.occ[0, 8] = -1, 8, 1
+        team.holds(1, 1, mode=CHARGING, rest=9)  # on station 1 for the whole test
+    s.charge[0, 0] = charge
+    got = []
+    for _ in expect:
+        team.step([FIRST] * len(starts))
+        got.append(team.row(0))
+    assert got == expect
+
+
+# --- 3. the bound on a wait ------------------------------------------------------------------
+
+# A T with two dead ends holding stations: the top row 0..4 (station 0 on cell 0), the
+# junction 2, the stem 5, 6, 7 under it (station 1 on cell 7).
+TWO_DEAD_ENDS = "H.-..\n##.##\n##.##\n##H##\n"
+
+
+def test_wait_bound_exact_value():
+    """``measures.wait_bound``, the fair-queue bound of docs/model.md, on a map whose
+    quantities are counted by hand: ``K x (charge_steps + 2 x max depart_len +
+    diameter) + diameter`` with the battery on, ``diameter`` without."""
+    K, charge_steps = 3, 4
+    cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
+    p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
+    # by hand: station 0 (cell 0) is 2 moves from the junction (0 -> 1 -> 2), station 1
+    # (cell 7) 3 moves (7 -> 6 -> 5 -> 2); the longest shortest path joins the two
+    # stations, 0 -> 1 -> 2 -> 5 -> 6 -> 7 (5 moves; 4 -> 7 is 5 moves too).
+    depart_len, diameter = [2, 3], 5
+    assert p.homes.tolist() == [0, 7]
+    assert p.depart_len.tolist() == depart_len and p.diameter == diameter
+    # the formula's terms, spelled out (a new formula: rewrite these two lines from the
+    # hand-counted quantities above, not from what wait_bound returns)
+    turnaround = charge_steps + 2 * max(depart_len) + diameter  # 4 + 6 + 5 = 15
+    assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 15 + 5 == 50
+    off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
+    assert measures.wait_bound(off) == diameter == 5
+
+
+# --- 4. charging, then holding the station while leaving -----------------------------------
+
+LINE_H = "H....\n"  # station on cell 0 of a line: no junction, depart_len 1
+
+
+@pytest.mark.parametrize("charge_steps", [0, 1, 3])
+def test_charging_lasts_charge_steps_steps_and_the_station_is_kept_2_depart_len(
+    engine, charge_steps
+):
+    """A robot on its station charges ``charge_steps`` whole steps without moving, then
+    patrols with a full charge, keeping the station for ``2 x depart_len`` moves. With
+    ``charge_steps`` 0 it is full on arrival."""
+    team = Team(engine, LINE_H, [1], **{"battery.charge_steps": charge_steps})
+    s, p = team.s, team.p
+    assert p.depart_len.tolist() == [1]
+    s.charge[0, 0] = 2
+    # step 1: 1 move from H, 2 <= 1 + 0 + 1: it takes H and goes there (charge 1),
+    #   charging (with charge_steps 0: full at once, 20, and leaving);
+    # steps 2 .. 1 + charge_steps: it charges, not moving (charge still 1);
+    # next step: charged, full (20), it leaves East (its only move) to cell 1 (19),
+    #   holding H 2 x 1 moves: still held after this step,
+    # and the step after it goes on to cell 2 (18) and H is released.
+    expect = (
+        [((0,), (0, C, 1) if charge_steps else (0, P, 20))]
+        + [((0,), (0, C, 1))] * charge_steps
+        + [((0,), (1, P, 19)), ((-1,), (2, P, 18))]
+    )
+    got = []
+    for _ in expect:
+        team.step([FIRST])
+        got.append(team.row(0))
+    assert got == expect
+
+
+# The T of a dead end: the top row 0..4, the junction 2, the station H on cell 6 at the
+# end of the stem 5, 6: the pocket is cells 5 (depth 1) and 6 (depth 2), its junction 2;
+# depart_len 2 (6 -> 5 -> 2).
+DEAD_END = "..-..\n##.##\n##H##\n"
+
+
+def test_a_charged_robot_keeps_its_station_for_2_depart_len_moves(engine):
+    """Robot 0 finishes charging on H at step 1 and holds it for 2 x depart_len = 4
+    moves while it leaves; robot 1, which needs H from step 1 on, waits until then."""
+    team = Team(engine, DEAD_END, [6, 0], **{"battery.charge_steps": 2})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [6] and p.depart_len.tolist() == [2]
+    assert p.pocket_entry.tolist() == [2]
+    team.holds(0, 0, mode=CHARGING, rest=0)  # its last charging step was step 0
+    s.charge[0] = [3, 5]
+    # step 1: robot 0 is charged (20), holds H for 4 more moves: 5, 2, 3, 4 (FIRST: N
+    #   from 5, E from 2 and 3), steps 1-4 (charge 19 .. 16); H released after step 4.
+    #   Robot 1 (cell 0, 4 moves from H: 0 -> 1 -> 2 -> 5 -> 6, 5 <= 4 + 0 + 1) needs
+    #   H from step 1 on and waits, its charge kept.
+    # step 5: robot 1 takes H: 1, 2, 5, 6 (steps 5-8), arriving with 1. Robot 0: 3 (its
+    #   only move from 4), 4, 3, 4.
+    expect = [
+        ((0,), (5, P, 19), (0, Q, 5)),
+        ((0,), (2, P, 18), (0, Q, 5)),
+        ((0,), (3, P, 17), (0, Q, 5)),
+        ((-1,), (4, P, 16), (0, Q, 5)),
+        ((1,), (3, P, 15), (1, Hm, 4)),
+        ((1,), (4, P, 14), (2, Hm, 3)),
+        ((1,), (3, P, 13), (5, Hm, 2)),
+        ((1,), (4, P, 12), (6, C, 1)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_a_leaving_robot_that_stops_asking_releases_its_station_at_once(engine):
+    """The end of a step alone (``battery.end``; the compiled ``stations.end``), the
+    asks given: a robot leaving its station (``depart_left`` > 0) keeps it while it
+    asks to move, one move less to go each step, and releases it the step it asks for
+    none (the random strategy always asks, so the whole step cannot show this)."""
+    team = Team(engine, DEAD_END, [2])
+    s = team.s
+    team.holds(0, 0, depart_left=3)
+    team.end_of_step(asked=[True])
+    assert (s.reserved[0, 0], s.goal[0, 0], s.depart_left[0, 0]) == (0, 0, 2)
+    team.end_of_step(asked=[False])
+    assert (s.reserved[0, 0], s.goal[0, 0], s.depart_left[0, 0]) == (-1, -1, 0)
+
+
+# --- 5. pockets: kept clear while their station is held; yielding is free ----------------
+
+# A T with a longer dead end: the top row 0..4, the junction 2, the stem 5, 6 and the
+# station H on cell 7: the pocket is 5, 6, 7 (depths 1, 2, 3), its junction 2.
+# Distances to H: 7 - c for c = 5..7, 3 from cell 2, 4 from cells 1 and 3, 5 from 0 and 4.
+DEEP_END = "..-..\n##.##\n##.##\n##H##\n"
+
+
+def deep_end(engine: str, starts: list[int]) -> Team:
+    team = Team(engine, DEEP_END, starts, **{"battery.charge_steps": 2})
+    p = team.p
+    assert p.homes.tolist() == [7] and p.pocket_entry.tolist() == [2]
+    assert p.pocket_of.tolist() == [-1] * 5 + [0, 0, 0]
+    assert p.pocket_depth.tolist() == [0] * 5 + [1, 2, 3]
+    return team
+
+
+def test_a_queued_robot_leaves_a_held_pocket_free_and_credited_the_holder_waits(engine):
+    """Robot 1, waiting for a station (QUEUED) deep in the pocket of H, steps out when
+    robot 0 holds H: up to the junction, then off it, at no charge, credited the
+    distance it put between itself and the station (its charge grows by one a move).
+    Robot 0, homing, waits before the junction until the pocket is empty, then goes in."""
+    team = deep_end(engine, [0, 6])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.mode[0, 1] = QUEUED  # since step 0
+    s.charge[0] = [10, 2]
+    # step 1: robot 0 moves 0 -> 1 (not yet onto the junction; charge 9); robot 1 (in the
+    #   held pocket) steps out 6 -> 5: free, credited 2 - 1 = 1 more move to H: 3.
+    # step 2: robot 0 would enter the junction with robot 1 in the pocket: held back (it
+    #   waits, charge kept). Robot 1: 5 -> 2 (out of the pocket, 3 from H): 4.
+    # step 3: robot 1 on the junction steps off it to the first free cell outside the
+    #   pocket, N E S W: East, 3 (4 from H): 5. Robot 0 follows onto 2 (charge 8).
+    # steps 4-6: robot 0 goes 5, 6, 7 (7, 6, 5), charging from step 6; robot 1 waits on
+    #   3, neither in the pocket nor on its junction (QUEUED, charge 5).
+    expect = [
+        ((0,), (1, Hm, 9), (5, Q, 3)),
+        ((0,), (1, Hm, 9), (2, Q, 4)),
+        ((0,), (2, Hm, 8), (3, Q, 5)),
+        ((0,), (5, Hm, 7), (3, Q, 5)),
+        ((0,), (6, Hm, 6), (3, Q, 5)),
+        ((0,), (7, C, 5), (3, Q, 5)),
+    ]
+    got, waits0 = [], []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+        waits0.append(int(s.wait[0, 0]))
+    assert got == expect
+    assert waits0 == [0, 1, 0, 0, 0, 0]  # held back at step 2: a wait
+
+
+def test_a_homing_robot_on_the_junction_steps_aside_free_for_one_leaving_the_pocket(engine):
+    """Robot 0, homing to H, stands on the pocket's junction while robot 1 patrols in the
+    pocket: robot 0 yields (off the junction, at no charge, credited the detour), robot
+    1 walks out (its moves deeper are closed), then robot 0 goes in."""
+    team = deep_end(engine, [2, 5])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.charge[0] = [5, 20]
+    # step 1: robot 0 on the junction, robot 1 in the pocket: robot 0 steps off to the
+    #   first free neighbour outside the pocket (N E S W): 3, 4 moves from H instead of
+    #   3: free and credited 1 (charge 6). Robot 1: South (deeper) is closed, North is
+    #   taken: no open move, it asks for its first legal one, North, and follows onto 2
+    #   (a patrolling move: 19).
+    # step 2: robot 0 heads back onto 2 (the pocket is empty), where robot 1 stands;
+    #   robot 1's open moves: West only (East is robot 0's cell, South the held pocket):
+    #   it goes to 1 (18), robot 0 follows onto 2 (5).
+    # steps 3-5: robot 0 goes 5, 6, 7 (4, 3, 2), charging from step 5. Robot 1: East is
+    #   robot 0's cell at the start of step 3: West, to 0 (17); then East to 1 (16), and
+    #   from 1 East to 2 (15), free again.
+    expect = [
+        ((0,), (3, Hm, 6), (2, P, 19)),
+        ((0,), (2, Hm, 5), (1, P, 18)),
+        ((0,), (5, Hm, 4), (0, P, 17)),
+        ((0,), (6, Hm, 3), (1, P, 16)),
+        ((0,), (7, C, 2), (2, P, 15)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, FIRST])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
+    """Robot 1 patrols on the junction of H's pocket while robot 0, homing, holds H:
+    the move South, into the pocket, is not open to it."""
+    team = deep_end(engine, [4, 2])
+    team.holds(0, 0, mode=HOMING)
+    # step 1: robot 1's open moves are East and West (South is closed): MID takes the
+    #   second, West, to 1 (with South open it would take South, into the pocket).
+    #   Robot 0: 4 -> 3.
+    # step 2: robot 1 at 1: East (2, free) and West (0): MID, West, to 0. Robot 0: 2.
+    # step 3: robot 0 into the pocket: 5. Robot 1: its only move, back to 1.
+    expect = [
+        ((0,), (3, Hm, 19), (1, P, 19)),
+        ((0,), (2, Hm, 18), (0, P, 18)),
+        ((0,), (5, Hm, 17), (1, P, 17)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, MID])
+        got.append(team.row(0, 1))
+    assert got == expect
+
+
+def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
+    """The robot with right of way (robot 0, homing to H) pushes the robots in its way
+    along the nearest empty cells, but not into the pocket of a held station: robot 1 on
+    the junction goes East (shifting robot 2 on), not South into the empty pocket."""
+    team = deep_end(engine, [1, 2, 3])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.token[0] = 0
+    s.charge[0, 0] = 10
+    # step 1: robot 0 asks for 2 (East, towards H), taken by robot 1. The push search
+    #   from 2 (N E S W, not through robot 0's cell 1, not into the held pocket 5, 6, 7)
+    #   finds 3 (robot 2) then the empty cell 4: robot 2 shifts 3 -> 4, robot 1 2 -> 3,
+    #   robot 0 takes 2 (charge 9). Robot 2 asked for East (its only open move): as
+    #   asked, it pays (19); robot 1 asked for West (LAST of its legal moves, none being
+    #   open): pushed, free (20).
+    # step 2: robot 0 goes on, 5 (8); robot 1 at 3 and robot 2 at 4 have no open move
+    #   (their neighbours are taken at the start of the step): robot 1 asks for its
+    #   last legal move, West, robot 2 for its only one, West: each follows the robot
+    #   ahead, 1 to 2 (19), 2 to 3 (18).
+    expect = [
+        ((0,), (2, Hm, 9), (3, P, 20), (4, P, 19)),
+        ((0,), (5, Hm, 8), (2, P, 19), (3, P, 18)),
+    ]
+    got = []
+    for _ in expect:
+        team.step([FIRST, LAST, FIRST])
+        got.append(team.row(0, 1, 2))
+    assert got == expect
+
+
+# --- 6. pushes: free, and credited to a robot that needs a station ------------------------
+
+LINE_9 = "H........\n"  # station on cell 0, cell c is c moves from it
+
+
+@pytest.mark.parametrize("mode", [HOMING, QUEUED])
+def test_a_robot_needing_a_station_pushed_away_is_credited_the_detour(engine, mode):
+    """Robot 0, with right of way, moves East into robot 1's cell 3: robot 1 is pushed
+    on to 4, one move farther from H. Robot 1 needs H (homing to it, or queued while
+    robot 2 charges on it): the push costs it nothing and it is credited that move.
+    Robot 0 pays its own move."""
+    team = Team(engine, LINE_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
+    s = team.s
+    s.token[0] = 0
+    s.charge[0] = [20, 4, 20]
+    if mode == HOMING:
+        team.holds(1, 0, mode=HOMING)  # robot 1 holds H; robot 2 patrols far away
+    else:
+        team.holds(2, 0, mode=CHARGING, rest=5)  # robot 2 charges on H
+        s.mode[0, 1] = QUEUED  # 4 <= 3 + 0 + 1, and H is held: it waits
+    # step 1: robot 0 (token: sees every legal move open) FIRST: East, into 3: robot 1
+    #   shifts to 4 (the nearest empty cell away from robot 0): 4 - 3 = 1 more move to
+    #   H, credited: 4 + 1 = 5. Robot 0 pays 1: 19.
+    team.step([FIRST, FIRST, FIRST])
+    assert s.pos[0, :2].tolist() == [3, 4]
+    assert s.charge[0, :2].tolist() == [19, 5]
+    assert s.mode[0, 1] == mode
+
+
+def test_a_charging_robot_is_not_pushed_off_its_station(engine):
+    """Robot 0, with right of way, asks for the station cell where robot 1 charges: a
+    charging robot cannot be pushed, so robot 0 steps aside instead (its first other
+    neighbour that is empty), at no charge."""
+    team = Team(engine, "..H..\n", [1, 2])
+    s = team.s
+    team.holds(1, 0, mode=CHARGING, rest=5)
+    s.token[0] = 0
+    # step 1: robot 0 (token: East and West open) FIRST: East, into 2: robot 1 charges
+    #   there, no push; robot 0 takes its other neighbour, West, 0 (not the move it
+    #   asked for: a yield, free: 20). Robot 1 stays on H, charging (20).
+    team.step([FIRST, FIRST])
+    assert team.row(0, 1) == ((1,), (0, P, 20), (2, C, 20))
