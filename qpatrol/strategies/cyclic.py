@@ -38,6 +38,7 @@ class Strategy(follow.WalkFollower):
         for r in range(self.n_runs):
             self.target[r] = match_slots(self.dist, walk, slots, start_cells[r])
         self.hold[:] = True
+        self.start_spacing()
         self.gather_until = 3 * p.diameter
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
