@@ -58,6 +58,9 @@ class WalkFollower(base.Strategy):
 
     #: The spacing rule is on (a test switches it off to see the bound fail).
     keep_spacing: bool = True
+    #: Robots about to meet head-on exchange plans before they move (a test switches
+    #: it off: they then meet, and only exchange once they blocked each other).
+    exchange_early: bool = True
 
     def __init__(
         self,
@@ -122,7 +125,7 @@ class WalkFollower(base.Strategy):
         self._advance(obs, obs.choosing)
         self._skip_held_pockets(obs)
         ask = self._asks(obs)
-        if self.params.avoid_collisions:
+        if self.params.avoid_collisions and self.exchange_early:
             swapped = self._exchange_before_meeting(obs, ask)
             if swapped.any():
                 self._advance(obs, swapped)

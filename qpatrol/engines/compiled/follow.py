@@ -17,7 +17,8 @@ Pack: ``robot_i`` int64 ``[R, K, 6]`` = (``wid``, ``target``, ``hold`` as 0/1,
 ``blocked_by``, ``spacing``, scratch) of each robot, copied from the strategy and back
 by :func:`unpack` (not the scratch); ``table_i`` = ``walk`` int64 ``[W, Lmax]``;
 ``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, C]``; ``ipar = [gather (1:
-cyclic), gather_until, Lmax, avoid collisions, spacing rule on]``.
+cyclic), gather_until, Lmax, early exchanges on (collisions avoided), spacing rule
+on]``.
 """
 
 from __future__ import annotations
@@ -50,7 +51,7 @@ def pack(strategy) -> Pack:
         int(gather),
         strategy.gather_until if gather else 0,
         int(strategy.length.max()),
-        int(strategy.params.avoid_collisions),
+        int(strategy.params.avoid_collisions and strategy.exchange_early),
         int(strategy.keep_spacing),
     ]
     return dummy_pack(
