@@ -135,8 +135,9 @@ def test_no_deep_dead_end_worst_interval_within_a_tenth_of_l_over_k(name, k, tmp
 
 
 #: Dead-end floors (one-wide corridors, dead ends deeper than L/(2K)) and the bound
-#: reached there (docs/model.md): 1.1 L/K + 2 up to 4 robots; with 8 robots crowding
-#: a comb of 35 cells, 1.5 L/K + 2.
+#: reached there (docs/model.md): 1.1 L/K + 2 up to 4 robots and with 8 on the ring
+#: floor and the maze with loops; 1.5 L/K + 2 with 8 robots crowding a tree of 59 cells
+#: and a comb of 41.
 DEEP = [
     ("ring-floor", 4, 1.1),
     ("ring-floor", 8, 1.1),
