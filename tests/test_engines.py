@@ -749,6 +749,44 @@ def test_checkpoint_resumed_on_the_other_engine(rooms_map, tmp_path, policy):
     same_files(whole, write_run(rest, tmp_path / "rest", meta=META), flat)
 
 
+@pytest.mark.parametrize(
+    "policy, agents, battery, switch",
+    [
+        ("cyclic", 4, False, None),
+        ("cyclic", 8, False, None),
+        ("cyclic", 8, True, None),
+        ("partition", 8, True, None),
+        ("cyclic", 8, False, "keep_spacing"),
+        ("cyclic", 4, True, "exchange_early"),
+    ],
+)
+def test_compiled_walk_followers_on_a_dead_end_floor(
+    tmp_path, monkeypatch, policy, agents, battery, switch
+):
+    """Walk followers on one-wide corridors with dead ends deeper than L/(2K): robots
+    wait for their spacing, exchange plans before meeting head-on, are pushed aside and
+    (battery on) go home and come back; the rules switched off one at a time too. Every
+    file and the strategy's arrays equal the numpy engine's."""
+    from qpatrol.strategies import follow
+
+    if switch is not None:
+        monkeypatch.setattr(follow.WalkFollower, switch, False)
+    path = tmp_path / "floor.txt"
+    path.write_text(mazes.random_maze(6, 8, 4, loops=0.15, dead_end_stations=False))
+    flat = {
+        **BASE,
+        "map": str(path),
+        "policy": policy,
+        "agents": agents,
+        "battery.enabled": battery,
+        "battery.capacity": 150,
+        "battery.charge_steps": 5,
+        "steps": 700,
+        "max_episode_steps": 200,
+    }
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+
+
 #: Each compiled strategy given the code of another whose pack it can feed (so the
 #: loop reads only arrays that exist): the comparison must see the difference.
 WRONG_CODE = {

@@ -281,10 +281,11 @@ def test_cyclic_gathers_on_evenly_spaced_slots_then_advances_together(text, k):
 def test_cyclic_head_on_robots_exchange_their_plans():
     """Two cyclic robots put head-on on the 12-ring (walk 0 4 6 8 9 10 11 7 5 3 2 1):
     robot 0 on cell 8 (index 3) heading for index 5 (cell 10), robot 1 on cell 9 (index
-    4), displaced, heading back for index 2 (cell 6). Step 1: each asks for the other's
-    cell; neither moves. Step 2: they exchange walks and targets: robot 0 turns back to
-    cell 6, robot 1 goes on to 10, the cells they would have entered by passing through
-    each other; then both follow the walk without blocking again."""
+    4), displaced, heading back for index 2 (cell 6); their spacings are the 3 and 9
+    walk steps between their targets. Each robot's next cell is the other's: before
+    they move they exchange walks, targets and spacings, so in the first step robot 0
+    turns back to cell 6 and robot 1 goes on to 10, the cells they would have entered by
+    passing through each other; then both follow the walk without blocking again."""
     _, m, p, s, strat = setup(RING12, [0, 2], "cyclic")
     walk = walks.closed_walk(m)
     assert walk.tolist() == [0, 4, 6, 8, 9, 10, 11, 7, 5, 3, 2, 1]
@@ -293,19 +294,31 @@ def test_cyclic_head_on_robots_exchange_their_plans():
         s.pos[0, k] = cell
         s.occ[0, cell] = k
     strat.target[0] = [5, 2]
+    strat.spacing[0] = [9, 3]
     strat.hold[:] = False
     out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
-    assert s.pos[0].tolist() == [8, 9]
-    assert out.ask[0].tolist() == [EAST, WEST] and out.blocked_by[0].tolist() == [1, 0]
-    out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
-    assert strat.target[0].tolist() == [2, 5]
-    assert s.pos[0].tolist() == [6, 10] and out.as_asked[0].all()
+    assert out.ask[0].tolist() == [NORTH, EAST] and out.as_asked[0].all()
+    assert strat.target[0].tolist() == [2, 5] and strat.spacing[0].tolist() == [3, 9]
+    assert s.pos[0].tolist() == [6, 10]
     # robot 0 now carries robot 1's plan (index 2 -> 3 -> ...), robot 1 robot 0's
     i0, i1 = 2, 5
     for _ in range(20):
         out = numpy_loop.advance(s, p, strat, u_for(0.0, agents=2))
         i0, i1 = (i0 + 1) % 12, (i1 + 1) % 12
         assert s.pos[0].tolist() == [walk[i0], walk[i1]] and out.as_asked[0].all()
+
+
+def test_walk_followers_that_blocked_each_other_exchange_their_plans():
+    """The fallback: two robots that blocked each other in the last step (the outcome's
+    ``blocked_by``) exchange walks, targets and spacings when they next choose, wherever
+    they stand (on the 12-ring, robots on cells 0 and 11, far from meeting)."""
+    _, m, p, s, strat = setup(RING12, [0, 11], "cyclic")
+    strat.hold[:] = False
+    strat.target[0] = [1, 6]
+    strat.spacing[0] = [5, 7]
+    strat.blocked_by[0] = [1, 0]
+    strat.act(world.begin_step(s, p), u_for(0.0, agents=2))
+    assert strat.target[0].tolist() == [6, 1] and strat.spacing[0].tolist() == [7, 5]
 
 
 # --- partition --------------------------------------------------------------------------

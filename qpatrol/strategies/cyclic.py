@@ -7,7 +7,9 @@ matched to slots nearest first, walk to them and wait there until the whole team
 gathered (or ``3 x diameter`` steps have passed); then every robot advances one cell
 per step. With K robots and no disturbance every cell is visited every ``L / K`` steps,
 the bound reported beside the results. Battery trips and yielding shift robots; each
-rejoins the walk where it left it (see :mod:`qpatrol.strategies.follow`).
+rejoins the walk where it left it, and each robot keeps its slot's distance behind the
+next robot ahead by waiting, so that the spacing comes back (see
+:mod:`qpatrol.strategies.follow`).
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ class Strategy(follow.WalkFollower):
         for r in range(self.n_runs):
             self.target[r] = match_slots(self.dist, walk, slots, start_cells[r])
         self.hold[:] = True
+        self.start_spacing()
         self.gather_until = 3 * p.diameter
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:

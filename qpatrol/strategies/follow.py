@@ -13,6 +13,17 @@ would have visited by passing through each other, and neither has to wait.
 A target in the pocket of a charging station that another robot holds (see
 :mod:`qpatrol.world.battery`) is skipped: the robot heads for the first cell of its walk past
 the pocket, and patrols the pocket again on a later lap.
+
+Robots on one walk keep their spacing. Each robot's plan carries a *spacing*: how many
+walk steps its target must stay behind the target of the next patrolling robot ahead on
+the same walk (for ``cyclic`` the distance between their slots, about ``L / K``; a robot
+alone on its walk, as in ``partition``, never waits). A robot on its target advances it
+only if the target ahead is at least its spacing further along the walk; else it waits
+there. So a robot that lost steps (a yield, a push, a head-on meeting, a battery trip)
+is not run into by the robots behind: each of them waits the steps it lost, one after
+the other, and the team regains its spacing within K steps, every robot the same number
+of steps late. Targets compared are those before this step's advances; on a tie (two
+targets on one index) the robot of lower index counts as ahead.
 """
 
 from __future__ import annotations
@@ -40,7 +51,16 @@ class WalkFollower(base.Strategy):
         target: int ``[R, K]``, the index on its walk the robot heads for.
         hold: bool ``[R, K]``, the robot waits on its target (e.g. for the team to
             gather) instead of advancing.
+        spacing: int ``[R, K]``, the walk steps the robot's target keeps behind the
+            target of the next robot ahead on its walk (set by the strategy with
+            :meth:`start_spacing` once the targets are placed).
     """
+
+    #: The spacing rule is on (a test switches it off to see the bound fail).
+    keep_spacing: bool = True
+    #: Robots about to meet head-on exchange plans before they move (a test switches
+    #: it off: they then meet, and only exchange once they blocked each other).
+    exchange_early: bool = True
 
     def __init__(
         self,
@@ -59,13 +79,34 @@ class WalkFollower(base.Strategy):
         self.target = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
         self.hold = np.zeros((self.n_runs, self.n_agents), dtype=bool)
         self.blocked_by = np.full((self.n_runs, self.n_agents), -1, dtype=np.int64)
+        self.spacing = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
+
+    def start_spacing(self) -> None:
+        """Each robot's spacing: the walk steps from its target to the next target ahead
+        on its walk (its walk's length when it is alone on it), as the targets are now."""
+        self.spacing = self.gap_ahead(np.ones((self.n_runs, self.n_agents), dtype=bool))
+
+    def gap_ahead(self, counted: np.ndarray) -> np.ndarray:
+        """int ``[R, K]``: walk steps from each robot's target forward to the nearest
+        target of another ``counted`` robot (bool ``[R, K]``) on the same walk; on a tie
+        the robot of lower index is ahead (0 steps); the walk's length if none."""
+        L = self.length[self.wid]  # [R, K]
+        ahead = (self.target[:, None, :] - self.target[:, :, None]) % L[:, :, None]  # [R, k, j]
+        k = np.arange(self.n_agents)
+        ahead = np.where((ahead == 0) & (k[None, :] > k[:, None])[None], L[:, :, None], ahead)
+        other = (
+            (self.wid[:, None, :] == self.wid[:, :, None])
+            & counted[:, None, :]
+            & (k[None, :] != k[:, None])[None]
+        )
+        return np.where(other, ahead, L[:, :, None]).min(axis=-1)
 
     def goal_cells(self) -> np.ndarray:
         """int ``[R, K]``: the cell each robot heads for."""
         return self.walk[self.wid, self.target]
 
     def _exchange_head_on(self, choosing: np.ndarray) -> None:
-        """Robots that blocked each other last step swap walks and targets."""
+        """Robots that blocked each other last step swap walks, targets and spacings."""
         bb = self.blocked_by
         R, K = bb.shape
         rows = np.arange(R)[:, None]
@@ -76,18 +117,60 @@ class WalkFollower(base.Strategy):
         if rr.size == 0:
             return
         jj = bb[rr, kk]
-        for arr in (self.wid, self.target):
+        for arr in (self.wid, self.target, self.spacing):
             arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
-        s = obs.state
         self._exchange_head_on(obs.choosing)
-        goal = self.goal_cells()
-        advance = obs.choosing & (s.pos == goal) & ~self.hold
-        self.target = np.where(advance, (self.target + 1) % self.length[self.wid], self.target)
+        self._advance(obs, obs.choosing)
         self._skip_held_pockets(obs)
-        goal = self.goal_cells()
-        return np.where(obs.choosing, self.step_towards(s.pos, goal), -1)
+        ask = self._asks(obs)
+        if self.params.avoid_collisions and self.exchange_early:
+            swapped = self._exchange_before_meeting(obs, ask)
+            if swapped.any():
+                self._advance(obs, swapped)
+                self._skip_held_pockets(obs)
+                ask = self._asks(obs)
+        return ask
+
+    def _advance(self, obs: Observation, mask: np.ndarray) -> None:
+        """Robots of ``mask`` (bool ``[R, K]``) standing on their target advance it by one,
+        unless held or (spacing rule) the next target ahead is nearer than their spacing."""
+        advance = mask & obs.choosing & (obs.state.pos == self.goal_cells()) & ~self.hold
+        if self.keep_spacing:
+            advance &= self.gap_ahead(obs.choosing) >= self.spacing
+        self.target = np.where(advance, (self.target + 1) % self.length[self.wid], self.target)
+
+    def _asks(self, obs: Observation) -> np.ndarray:
+        """int ``[R, K]``: each choosing robot's first move towards its target cell."""
+        return np.where(obs.choosing, self.step_towards(obs.state.pos, self.goal_cells()), -1)
+
+    def _exchange_before_meeting(self, obs: Observation, ask: np.ndarray) -> np.ndarray:
+        """Two choosing robots each of whose next cell is the other's cell swap walks,
+        targets and spacings before they move; bool ``[R, K]``, the robots that did.
+
+        A robot's next cell is the one it asks for, or for a robot waiting on its target
+        the walk's cell after it."""
+        pos = obs.state.pos
+        after = self.walk[self.wid, (self.target + 1) % self.length[self.wid]]
+        waits = (ask < 0) & (pos == self.goal_cells())
+        nxt = np.where(
+            ask >= 0,
+            self.params.neighbors[pos, np.maximum(ask, 0)],
+            np.where(waits, after, -1),
+        )
+        nxt = np.where(obs.choosing, nxt, -1)
+        k = np.arange(self.n_agents)
+        meets = (nxt[:, :, None] == pos[:, None, :]) & (nxt[:, None, :] == pos[:, :, None])
+        meets &= (k[:, None] < k[None, :])[None]  # [R, k, j], k < j
+        rr, kk, jj = np.nonzero(meets)
+        swapped = np.zeros_like(obs.choosing)
+        if rr.size == 0:
+            return swapped
+        for arr in (self.wid, self.target, self.spacing):
+            arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
+        swapped[rr, kk] = swapped[rr, jj] = True
+        return swapped
 
     def _skip_held_pockets(self, obs: Observation) -> None:
         """Move targets that lie in another robot's held station pocket past it."""

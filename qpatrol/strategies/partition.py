@@ -37,6 +37,7 @@ class Strategy(follow.WalkFollower):
             for k in range(self.n_agents):
                 w = region_walks[self.wid[r, k]]
                 self.target[r, k] = follow.nearest_index(self.dist, w, int(start_cells[r, k]))
+        self.start_spacing()
 
     def describe(self) -> dict[str, object]:
         return {"region_walk_lengths": [int(x) for x in self.length]}

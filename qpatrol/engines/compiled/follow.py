@@ -5,14 +5,20 @@ strategies, :mod:`qpatrol.strategies.cyclic` (one walk for the team, robots hold
 their slots until the team has gathered) and :mod:`qpatrol.strategies.partition` (one
 walk per region). Per run, in the twin's order: (cyclic) release the hold once the team
 has gathered or ``gather_until`` has passed; robots that blocked each other head-on swap
-walks and targets; a robot on its target advances it; targets in another robot's held
+walks, targets and spacings; a robot on its target advances it unless held or (spacing
+rule) the next patrolling robot's target ahead on its walk is nearer than its spacing
+(all decided on the targets before the advances); targets in another robot's held
 station pocket are skipped; each choosing robot asks for the first move (N, E, S, W) of
-a shortest path to its target cell. Learning keeps who blocked whom.
+a shortest path to its target cell. Then (collisions avoided) two robots each of whose
+next cell is the other's cell swap plans, advance, skip and ask again. Learning keeps
+who blocked whom.
 
-Pack: ``robot_i`` int64 ``[R, K, 4]`` = (``wid``, ``target``, ``hold`` as 0/1,
-``blocked_by``) of each robot, copied from the strategy and back by :func:`unpack`;
-``table_i`` = ``walk`` int64 ``[W, Lmax]``; ``row_i`` = ``length`` int64 ``[W]``;
-``dist`` int64 ``[C, C]``; ``ipar = [gather (1: cyclic), gather_until, Lmax]``.
+Pack: ``robot_i`` int64 ``[R, K, 6]`` = (``wid``, ``target``, ``hold`` as 0/1,
+``blocked_by``, ``spacing``, scratch) of each robot, copied from the strategy and back
+by :func:`unpack` (not the scratch); ``table_i`` = ``walk`` int64 ``[W, Lmax]``;
+``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, C]``; ``ipar = [gather (1:
+cyclic), gather_until, Lmax, early exchanges on (collisions avoided), spacing rule
+on]``.
 """
 
 from __future__ import annotations
@@ -23,20 +29,33 @@ from numba import njit
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 #: Columns of ``robot_i``.
-WID, TARGET, HOLD, BLOCKED = 0, 1, 2, 3
+WID, TARGET, HOLD, BLOCKED, SPACING, SCRATCH = 0, 1, 2, 3, 4, 5
 
 
 def pack(strategy) -> Pack:
-    """The walks, distances and each robot's walk, target, hold and blocker."""
+    """The walks, distances and each robot's walk, target, hold, blocker and spacing."""
+    scratch = np.zeros_like(strategy.target)
     robots = np.stack(
-        [strategy.wid, strategy.target, strategy.hold, strategy.blocked_by], axis=-1
+        [
+            strategy.wid,
+            strategy.target,
+            strategy.hold,
+            strategy.blocked_by,
+            strategy.spacing,
+            scratch,
+        ],
+        axis=-1,
     ).astype(np.int64)
     gather = strategy.name == "cyclic"
+    ipar = [
+        int(gather),
+        strategy.gather_until if gather else 0,
+        int(strategy.length.max()),
+        int(strategy.params.avoid_collisions and strategy.exchange_early),
+        int(strategy.keep_spacing),
+    ]
     return dummy_pack(
-        ipar=np.array(
-            [int(gather), strategy.gather_until if gather else 0, int(strategy.length.max())],
-            dtype=np.int64,
-        ),
+        ipar=np.array(ipar, dtype=np.int64),
         robot_i=np.ascontiguousarray(robots),
         table_i=np.ascontiguousarray(strategy.walk, dtype=np.int64),
         row_i=np.ascontiguousarray(strategy.length, dtype=np.int64),
@@ -45,12 +64,13 @@ def pack(strategy) -> Pack:
 
 
 def unpack(p: Pack, strategy) -> None:
-    """Copy each robot's walk, target, hold and blocker back into the strategy."""
+    """Copy each robot's walk, target, hold, blocker and spacing back into the strategy."""
     ri = p.robot_i
     strategy.wid = ri[..., WID].copy()
     strategy.target = ri[..., TARGET].copy()
     strategy.hold = ri[..., HOLD] != 0
     strategy.blocked_by = ri[..., BLOCKED].copy()
+    strategy.spacing = ri[..., SPACING].copy()
 
 
 def sat_out(strategy, state) -> None:
@@ -72,6 +92,73 @@ def sat_out(strategy, state) -> None:
 def _advance(ri, k, length):
     """Robot k's target, one index further along its walk."""
     ri[k, TARGET] = (ri[k, TARGET] + 1) % length[ri[k, WID]]
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _gap_ahead(ri, k, choosing, length):
+    """Walk steps from robot k's target forward to the nearest target of another
+    choosing robot on its walk (lower index ahead on a tie); the walk's length if none."""
+    L = length[ri[k, WID]]
+    gap = L
+    for j in range(choosing.shape[0]):
+        if j == k or not choosing[j] or ri[j, WID] != ri[k, WID]:
+            continue
+        d = ri[j, TARGET] - ri[k, TARGET]
+        if d < 0:
+            d += L
+        if d == 0 and j > k:
+            d = L
+        if d < gap:
+            gap = d
+    return gap
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _advance_on_target(r, pos, choosing, mask, ipar, ri, walk, length):
+    """Robots with ``mask[k] != 0`` standing on their target advance it, unless held or
+    too near the target ahead (decided for all on the targets before the advances;
+    ``mask`` is overwritten with the decisions)."""
+    n_agents = choosing.shape[0]
+    for k in range(n_agents):
+        go = mask[k] != 0 and choosing[k] and ri[k, HOLD] == 0
+        go = go and pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]
+        if go and ipar[4] != 0:
+            go = _gap_ahead(ri, k, choosing, length) >= ri[k, SPACING]
+        mask[k] = 1 if go else 0
+    for k in range(n_agents):
+        if mask[k] != 0:
+            _advance(ri, k, length)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _skip_and_ask(
+    r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
+):
+    """Skip targets in another robot's held station pocket, then ``ask[k]``: the first
+    move (N, E, S, W) of a shortest path to the target cell, -1 for robots not choosing
+    (or on their target)."""
+    n_agents = choosing.shape[0]
+    if battery:  # skip targets in another robot's held station pocket
+        for k in range(n_agents):
+            if not choosing[k]:
+                continue
+            for _ in range(ipar[2]):
+                h = pocket_of[walk[ri[k, WID], ri[k, TARGET]]]
+                if h < 0 or reserved[r, h] < 0 or reserved[r, h] == k:
+                    break
+                _advance(ri, k, length)
+    for k in range(n_agents):  # the first move of a shortest path, N, E, S, W first
+        ask[k] = -1
+        if not choosing[k]:
+            continue
+        c = pos[r, k]
+        goal = walk[ri[k, WID], ri[k, TARGET]]
+        closer = dist[c, goal] - 1
+        for d in range(4):
+            nb = nbrs[c, d]
+            if nb >= 0 and dist[nb, goal] == closer:
+                ask[k] = d
+                break
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -97,32 +184,47 @@ def act(
     for k in range(n_agents):  # robots that blocked each other head-on swap plans
         j = ri[k, BLOCKED]
         if j > k and choosing[k] and choosing[j] and ri[j, BLOCKED] == k:
-            for col in (WID, TARGET):
+            for col in (WID, TARGET, SPACING):
                 ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
+    for k in range(n_agents):  # every robot is considered (ask serves as the mask)
+        ask[k] = 1
+    _advance_on_target(r, pos, choosing, ask, ipar, ri, walk, length)
+    _skip_and_ask(
+        r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
+    )
+    if ipar[3] == 0:
+        return
+    # robots each of whose next cell is the other's cell swap plans before they move: a
+    # robot's next cell is the one it asks for or, waiting on its target, the walk's next
     for k in range(n_agents):
-        if choosing[k] and ri[k, HOLD] == 0 and pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]:
-            _advance(ri, k, length)
-    if battery:  # skip targets in another robot's held station pocket
-        for k in range(n_agents):
-            if not choosing[k]:
-                continue
-            for _ in range(ipar[2]):
-                h = pocket_of[walk[ri[k, WID], ri[k, TARGET]]]
-                if h < 0 or reserved[r, h] < 0 or reserved[r, h] == k:
-                    break
-                _advance(ri, k, length)
-    for k in range(n_agents):  # the first move of a shortest path, N, E, S, W first
-        ask[k] = -1
-        if not choosing[k]:
+        nxt = -1
+        if choosing[k]:
+            c = pos[r, k]
+            if ask[k] >= 0:
+                nxt = nbrs[c, ask[k]]
+            elif c == walk[ri[k, WID], ri[k, TARGET]]:
+                nxt = walk[ri[k, WID], (ri[k, TARGET] + 1) % length[ri[k, WID]]]
+        ri[k, SCRATCH] = nxt
+    swapped = False
+    for k in range(n_agents):
+        if ri[k, SCRATCH] < 0:
             continue
-        c = pos[r, k]
-        goal = walk[ri[k, WID], ri[k, TARGET]]
-        closer = dist[c, goal] - 1
-        for d in range(4):
-            nb = nbrs[c, d]
-            if nb >= 0 and dist[nb, goal] == closer:
-                ask[k] = d
+        for j in range(k + 1, n_agents):
+            if ri[k, SCRATCH] == pos[r, j] and ri[j, SCRATCH] == pos[r, k]:
+                for col in (WID, TARGET, SPACING):
+                    ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
+                ri[k, SCRATCH] = -2  # swapped (a pair is never matched again)
+                ri[j, SCRATCH] = -2
+                swapped = True
                 break
+    if not swapped:
+        return
+    for k in range(n_agents):  # the robots that swapped advance, skip and ask again
+        ask[k] = 1 if ri[k, SCRATCH] == -2 else 0
+    _advance_on_target(r, pos, choosing, ask, ipar, ri, walk, length)
+    _skip_and_ask(
+        r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
+    )
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
