@@ -14,7 +14,10 @@ n)``-th in N, E, S, W order. So ``FIRST`` (u = 0) asks for the first open move,
 ``LAST`` the last one, and ``MID`` (u = 0.5) the second of two or of three. On the
 numpy engine one team step is :func:`qpatrol.engines.numpy_loop.advance`
 (``world.begin_step``, the strategy, ``world.step``); on the compiled engine one call
-of :class:`qpatrol.engines.numba_core.Loop` for one step. Robots needing a station
+of :class:`qpatrol.engines.numba_core.Loop` for one step. The compiled loop draws its
+uniforms itself from the run's PCG64 state, so each step starts it from a state whose
+next draws fall where the fixed uniform's choice is made whatever the number of open
+moves (:func:`stream_for`). Robots needing a station
 (homing, queued, charging) do not choose: their uniform is not read.
 
 Cells are numbered row by row over the free cells of the map.
@@ -33,6 +36,27 @@ from qpatrol.measures.records import Recorder, Tail
 from qpatrol.world.battery import CHARGING, HOMING, PATROL, QUEUED
 
 FIRST, MID, LAST = 0.0, 0.5, 0.999  # a robot's fixed uniform: its first, second, last open move
+#: The uniforms that choose as FIRST, MID and LAST do among 1 to 4 open moves:
+#: floor(u n) is 0 for u < 1/4, (n - 1) for u >= 3/4, and floor(0.5 n) for u in [1/2, 2/3).
+CHOOSE_ALIKE = {FIRST: (0.0, 0.25), MID: (0.5, 2 / 3), LAST: (0.75, 1.0)}
+M64 = (1 << 64) - 1
+
+
+def stream_for(picks: list[float]) -> np.ndarray:
+    """uint64 ``[4]``: a PCG64 state (state low, high, inc low, high) whose next ``2 K``
+    uniforms give each robot k a tie-break uniform that chooses as ``picks[k]`` does
+    (``CHOOSE_ALIKE``), found by trying seeds in turn."""
+    for seed in range(1_000_000):
+        g = np.random.Generator(np.random.PCG64(seed))
+        st = g.bit_generator.state["state"]
+        ties = g.random((len(picks), 2))[:, 1]
+        bounds = [CHOOSE_ALIKE[pick] for pick in picks]
+        if all(lo <= x < hi for x, (lo, hi) in zip(ties, bounds, strict=True)):
+            s, inc = st["state"], st["inc"]
+            return np.array([s & M64, s >> 64, inc & M64, inc >> 64], dtype=np.uint64)
+    raise AssertionError(f"no stream found for {picks}")
+
+
 P, Hm, Q, C = PATROL, HOMING, QUEUED, CHARGING  # short names for the tables of modes
 
 
@@ -78,7 +102,9 @@ class Team:
         if self.engine == "numpy":
             numpy_loop.advance(s, p, self.strategy, u)
             return
-        self._loop().run([(0, 1, [(0, 1, np.ascontiguousarray(u[:, None]))])])
+        loop = self._loop()
+        loop.words[0] = stream_for(picks)
+        loop.run(1, [(0, 1)])
 
     def _loop(self):
         """The compiled loop, built on the hand-set state (it shares the state's arrays)."""
@@ -88,7 +114,9 @@ class Team:
             s, p, K = self.s, self.p, self.p.n_agents
             watch = measures.Measures(1, K, p.n_cells, 0)
             rec = Recorder(np.arange(1))
-            self.loop = numba_core.Loop(s, p, self.strategy, watch, Tail(0, s), rec, 1)
+            words = np.zeros((1, 4), dtype=np.uint64)
+            tail = Tail(0, s)
+            self.loop = numba_core.Loop(s, p, self.strategy, watch, tail, rec, 1, lambda: words)
         return self.loop
 
     def end_of_step(self, asked: list[bool]) -> None:
