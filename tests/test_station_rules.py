@@ -267,7 +267,7 @@ TWO_DEAD_ENDS = "H.-..\n##.##\n##.##\n##H##\n"
 def test_wait_bound_exact_value():
     """``measures.wait_bound``, the fair-queue bound of docs/model.md, on a map whose
     quantities are counted by hand: ``K x (charge_steps + 2 x max depart_len +
-    diameter) + diameter`` with the battery on, ``diameter`` without."""
+    diameter) + diameter`` with the battery on, ``(K - 1)(diameter + 1) + 1`` without."""
     K, charge_steps = 3, 4
     cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
     p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
@@ -282,7 +282,7 @@ def test_wait_bound_exact_value():
     turnaround = charge_steps + 2 * max(depart_len) + diameter  # 4 + 6 + 5 = 15
     assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 15 + 5 == 50
     off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
-    assert measures.wait_bound(off) == diameter == 5
+    assert measures.wait_bound(off) == (K - 1) * (diameter + 1) + 1 == 2 * 6 + 1 == 13
 
 
 # --- 4. charging, then holding the station while leaving -----------------------------------

@@ -279,7 +279,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             c = pos_r[k]
             legal = cell_moves[c]
             free = legal
-            if avoid and k != tok:  # the legal moves into cells no robot stands in
+            if avoid:  # the legal moves into cells no robot stands in
                 nb = nbrs[c]  # (a wall's -1 reads the last cell: masked by legal)
                 taken = (
                     (1 if occ_r[nb[0]] >= 0 else 0)
@@ -288,6 +288,10 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                     | (8 if occ_r[nb[3]] >= 0 else 0)
                 )
                 free = legal & ~taken
+                if k == tok:  # the holder: and those a push can make room for
+                    for d in range(4):
+                        if (taken & legal) >> d & 1 and moves.pushable(r, c, nb[d], False, p, s, w):
+                            free |= 1 << d
                 if free == 0:  # base.prefer_open: every legal move where none is open
                     free = legal
             hs = head_r[k] if use_heading else 0

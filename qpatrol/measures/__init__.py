@@ -136,18 +136,21 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
 
 
 def wait_bound(p: Params) -> int:
-    """The longest wait a live team may show: a fair station queue, then a crossing.
+    """The longest wait a live team may show.
 
-    With the battery on, a robot may queue behind every other robot of the team, each of
-    which travels to a station (at most ``diameter`` moves), charges (``charge_steps``)
-    and clears the station's pocket (``2 x depart_len``); then it crosses the map. So
-    ``K x (charge_steps + 2 x max depart_len + diameter) + diameter``; without battery
-    ``diameter`` (a robot blocked longer than a crossing is stuck). A yardstick, not a
-    theorem: the trip home is not proven to take at most ``diameter`` steps, and on
-    some maps no rule can bound a station wait (``docs/model.md``, "What is proven").
+    Without battery, ``(K - 1)(diameter + 1) + 1``: a theorem for the strategies that
+    choose among their open moves (``docs/model.md``, "What is proven": the right of way
+    reaches a blocked robot after at most K - 1 holders of at most ``diameter + 1``
+    steps each, and a holder makes its move). With the battery on, a robot may queue
+    behind every other robot of the team, each of which travels to a station (at most
+    ``diameter`` moves), charges (``charge_steps``) and clears the station's pocket
+    (``2 x depart_len``); then it crosses the map. So ``K x (charge_steps + 2 x max
+    depart_len + diameter) + diameter``: a yardstick, not a theorem, as the trip home is
+    not proven to take at most ``diameter`` steps, and on some maps no rule can bound a
+    station wait.
     """
     if not p.battery:
-        return p.diameter
+        return (p.n_agents - 1) * (p.diameter + 1) + 1
     turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + p.diameter
     return p.n_agents * turnaround + p.diameter
 

@@ -172,13 +172,21 @@ def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
         progress = progress and behind
 
 
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def pushable(r, c, nb, battery, p, s, w):
+    """Whether the holder of the right of way on cell ``c`` of run ``r`` can enter its
+    occupied neighbour ``nb``: a push path empties it (:func:`push_path`;
+    traffic.feasible_moves)."""
+    return push_path(p.nbrs, s.occ[r], c, nb, w, battery, s.mode[r], p.pocket_of, s.reserved[r]) > 0
+
+
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def open_moves(r, tok, battery, avoid, p, s, w):
     """world.begin_step of run ``r``: who chooses (patrolling robots), and each robot's
     open moves ``w.open_mask`` (legal, not deeper into another robot's held station
     pocket (battery.closed_cells), not into a robot's cell but for the holder of the
-    right of way ``tok``, who may move where a push makes room (battery on:
-    traffic.feasible_moves); every legal move where none is open, base.prefer_open); the
+    right of way ``tok``, who may move where a push makes room
+    (traffic.feasible_moves); every legal move where none is open, base.prefer_open); the
     step's outcome cleared (``w.prev_pos``, ``prev_head``, ``moved``, ...)."""
     nbrs, pocket_of, pocket_depth, occ = p.nbrs, p.pocket_of, p.pocket_depth, s.occ
     for k in range(s.pos.shape[1]):
@@ -198,15 +206,8 @@ def open_moves(r, tok, battery, avoid, p, s, w):
                         if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
                             ok = False
             if ok and avoid and occ[r, nb] >= 0:
-                if k != tok:
-                    ok = False
-                elif battery:  # the holder: a move a push can make room for
-                    ok = (
-                        push_path(
-                            nbrs, occ[r], c, nb, w, battery, s.mode[r], pocket_of, s.reserved[r]
-                        )
-                        > 0
-                    )
+                # the holder of the right of way: a move a push can make room for
+                ok = k == tok and pushable(r, c, nb, battery, p, s, w)
             w.open_mask[k, d] = ok
             any_open = any_open or ok
         if not any_open:
