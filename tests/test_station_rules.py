@@ -538,15 +538,17 @@ def test_a_robot_needing_a_station_pushed_away_is_credited_the_detour(engine, mo
 
 
 def test_a_charging_robot_is_not_pushed_off_its_station(engine):
-    """Robot 0, with right of way, asks for the station cell where robot 1 charges: a
-    charging robot cannot be pushed, so robot 0 steps aside instead (its first other
-    neighbour that is empty), at no charge."""
+    """Robot 0 holds the right of way beside the station cell where robot 1 charges: a
+    charging robot cannot be pushed, so the move into it is not among the holder's open
+    moves (traffic.feasible_moves) and robot 0 takes its other one, West, as its own
+    move (it pays for it). Were charging robots pushable, East would be open, robot 0
+    would take it (its FIRST move) and push robot 1 off the station."""
     team = Team(engine, "..H..\n", [1, 2])
     s = team.s
     team.holds(1, 0, mode=CHARGING, rest=5)
     s.token[0] = 0
-    # step 1: robot 0 (token: East and West open) FIRST: East, into 2: robot 1 charges
-    #   there, no push; robot 0 takes its other neighbour, West, 0 (not the move it
-    #   asked for: a yield, free: 20). Robot 1 stays on H, charging (20).
+    # step 1: robot 0 (token): East into 2 would need a push of the charging robot 1,
+    #   so only West is open; FIRST of one: West, to 0, its own move: 20 - 1 = 19.
+    #   Robot 1 stays on H, charging (20).
     team.step([FIRST, FIRST])
-    assert team.row(0, 1) == ((1,), (0, P, 20), (2, C, 20))
+    assert team.row(0, 1) == ((1,), (0, P, 19), (2, C, 20))
