@@ -61,7 +61,6 @@ Livelock (the fairness notion)
 from __future__ import annotations
 
 import itertools
-import os
 from collections import deque
 from dataclasses import dataclass, field, fields
 
@@ -674,19 +673,52 @@ def check_all(cases: list[Case], max_states: int = 2_000_000, verbose: bool = Fa
     return results
 
 
-if __name__ == "__main__":  # pragma: no cover - a quick look by hand
-    import sys
+def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
+    """Check a family from the command line; prints counts and the smallest livelock."""
+    import argparse
     import time
 
-    n = int(sys.argv[1]) if len(sys.argv) > 1 else 5
-    t0 = time.time()
-    cases = family(range(4, n + 1), battery=bool(os.environ.get("BATTERY")))
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="4-6", help="cells per map, e.g. 4-6")
+    ap.add_argument("--k", default="", help="team sizes, e.g. 2-3 (default 2 to C/2)")
+    ap.add_argument("--battery", action="store_true")
+    ap.add_argument("--charge-steps", type=int, default=1)
+    ap.add_argument("--extra-capacity", type=int, default=0, help="above the smallest")
+    ap.add_argument("--initial-charge", default="staggered")
+    ap.add_argument("--adversary", default="open", choices=("open", "legal"))
+    ap.add_argument("--show", type=int, default=1, help="livelocks to draw")
+    a = ap.parse_args(argv)
+
+    def span(text: str) -> range:
+        lo, _, hi = text.partition("-")
+        return range(int(lo), int(hi or lo) + 1)
+
+    t0 = time.perf_counter()
+    kw = {"adversary": a.adversary}
+    if a.battery:
+        kw.update(charge_steps=a.charge_steps, initial_charge=a.initial_charge)
+    cases = family(span(a.sizes), span(a.k) if a.k else None, battery=a.battery, **kw)
+    if a.extra_capacity:
+        from dataclasses import replace
+
+        cases = [
+            replace(c, capacity=smallest_capacity(parse_map(c.text)) + a.extra_capacity)
+            for c in cases
+        ]
     res = check_all(cases)
     bad = [r for r in res if r.livelocks]
     print(
-        f"{len(cases)} cases, {sum(r.states for r in res)} states, "
-        f"{sum(r.edges for r in res)} edges, {len(bad)} with livelocks, {time.time() - t0:.1f} s"
+        f"{len({c.text for c in cases})} maps, {len(cases)} cases, "
+        f"{sum(r.states for r in res)} states, {sum(r.edges for r in res)} transitions, "
+        f"{len(bad)} cases with a livelock, {time.perf_counter() - t0:.1f} s"
     )
-    if bad:
-        best = min(bad, key=lambda r: (r.states, len(r.livelocks[0].cycle)))
-        print(best.checker.report(best.livelocks[0]))  # type: ignore[attr-defined]
+    bad.sort(key=lambda r: (r.checker.p.n_cells, r.case.k, len(r.livelocks[0].cycle)))
+    for r in bad[: a.show]:
+        print(r.checker.report(r.livelocks[0]))
+        print("replayed with R=1, the robot's wait after each turn of the cycle:")
+        print(replay(r.checker, r.livelocks[0]).tolist())
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())

@@ -45,6 +45,15 @@ def _cases(full: bool) -> list[mc.Case]:
 FULL = os.environ.get("QPATROL_MODELCHECK", "") == "full"
 
 
+#: The rules of today are not live: the smallest livelock the checker finds (run the
+#: test to see it drawn) is two robots on a corridor of 4 cells with a station at one end
+#: and the smallest capacity: one robot needs a station while standing on it, the other
+#: holds it and cannot get in, and the first waits for ever. Strict: when the rules are
+#: made live the test passes and this mark must go.
+KNOWN_LIVELOCK = "K=2 on H... (a station ending a corridor without a junction)"
+
+
+@pytest.mark.xfail(reason=f"livelocks in today's rules, e.g. {KNOWN_LIVELOCK}", strict=True)
 def test_no_robot_can_be_starved_on_small_maps():
     """Zero livelocks on the family; prints what was explored."""
     cases = _cases(FULL)
