@@ -101,7 +101,8 @@ class Case:
     text: str  # the map, in qpatrol's format
     k: int
     battery: bool = False
-    capacity: int = 0  # 0: the smallest the config accepts (battery.margin 0)
+    capacity: int = 0  # 0: the smallest the config accepts (battery.margin 0) + extra
+    extra_capacity: int = 0
     charge_steps: int = 1
     initial_charge: str = "staggered"
     adversary: str = "open"  # 'open' or 'legal'
@@ -109,7 +110,8 @@ class Case:
     def label(self) -> str:
         rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
         bat = (
-            f"battery cap={self.capacity or 'min'} charge_steps={self.charge_steps}"
+            f"battery cap={self.capacity or f'min+{self.extra_capacity}'} "
+            f"charge_steps={self.charge_steps} initial={self.initial_charge}"
             if self.battery
             else "battery off"
         )
@@ -162,7 +164,8 @@ class Checker:
         if case.battery:
             flat.update(
                 {
-                    "battery.capacity": case.capacity or smallest_capacity(self.m),
+                    "battery.capacity": case.capacity
+                    or smallest_capacity(self.m) + case.extra_capacity,
                     "battery.margin": 0,
                     "battery.charge_steps": case.charge_steps,
                     "battery.initial_charge": case.initial_charge,
@@ -644,11 +647,15 @@ def station_choices(cells: frozenset[tuple[int, int]]) -> list[tuple[tuple[int, 
     return out
 
 
-def family(sizes: range, ks: range | None = None, battery: bool = False, **kw) -> list[Case]:
-    """Cases on every tree and one-loop shape of each size, K from 2 to half the cells."""
+def family(
+    sizes: range, ks: range | None = None, battery: bool = False, every: int = 1, **kw
+) -> list[Case]:
+    """Cases on every tree and one-loop shape of each size (``every``: one shape in that
+    many, in a fixed order), K from 2 to half the cells (or ``ks``); ``kw``: the
+    :class:`Case` fields."""
     out = []
     for n in sizes:
-        for sh in shapes(n):
+        for sh in shapes(n)[::every]:
             for k in ks or range(2, n // 2 + 1):
                 if k > n // 2:
                     continue
@@ -696,15 +703,12 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
     t0 = time.perf_counter()
     kw = {"adversary": a.adversary}
     if a.battery:
-        kw.update(charge_steps=a.charge_steps, initial_charge=a.initial_charge)
+        kw.update(
+            charge_steps=a.charge_steps,
+            initial_charge=a.initial_charge,
+            extra_capacity=a.extra_capacity,
+        )
     cases = family(span(a.sizes), span(a.k) if a.k else None, battery=a.battery, **kw)
-    if a.extra_capacity:
-        from dataclasses import replace
-
-        cases = [
-            replace(c, capacity=smallest_capacity(parse_map(c.text)) + a.extra_capacity)
-            for c in cases
-        ]
     res = check_all(cases)
     bad = [r for r in res if r.livelocks]
     print(

@@ -25,19 +25,24 @@ from qpatrol.world import battery, traffic
 def _cases(full: bool) -> list[mc.Case]:
     if not full:
         return (
-            # battery off: every shape of 4-6 cells with two robots (K <= C / 2), the
-            # avoiding adversary, and the insisting one on 4-5 cells
+            # battery off: every shape of 4-6 cells with two robots, one in four of 6
+            # cells with three (K <= C / 2); the avoiding adversary, and the insisting
+            # one on 4-5 cells
             mc.family(range(4, 7), ks=range(2, 3))
+            + mc.family(range(6, 7), ks=range(3, 4), every=4)
             + mc.family(range(4, 6), adversary="legal")
-            # battery on, smallest capacity, a station at a dead end or on a junction
+            # battery on, the smallest capacity the config accepts and 4 more, a station
+            # at a dead end or on a junction
             + mc.family(range(4, 6), battery=True, charge_steps=0)
-            + mc.family(range(4, 6), battery=True, charge_steps=1)
+            + mc.family(range(4, 7), ks=range(2, 3), battery=True, charge_steps=1)
+            + mc.family(range(4, 6), battery=True, charge_steps=1, extra_capacity=4)
         )
     return (
-        mc.family(range(4, 9))
+        mc.family(range(4, 8))
         + mc.family(range(4, 7), adversary="legal")
         + mc.family(range(4, 7), battery=True, charge_steps=0)
         + mc.family(range(4, 7), battery=True, charge_steps=1)
+        + mc.family(range(4, 7), battery=True, charge_steps=1, extra_capacity=4)
         + mc.family(range(4, 6), battery=True, charge_steps=2, initial_charge="full")
     )
 
