@@ -55,7 +55,9 @@ Livelock (the fairness notion)
     (iterative Tarjan, :func:`strong_components`). Every state is reachable, so each such
     component is a reachable livelock. The checker reports, for each, the robot, a
     shortest path from a starting placement and one cycle, and whether the robot is at
-    least pushed around on it or never leaves its cell.
+    least pushed around on it or never leaves its cell. Safety is checked on every
+    transition on the way: one robot per cell, no swaps, moves between neighbours only,
+    no charge below 0.
 """
 
 from __future__ import annotations
@@ -251,27 +253,20 @@ class Checker:
         ok = np.where(obs.choosing[:, None, :], ok_dir, (tab == 0)[None])
         src, combo = np.nonzero(ok.all(axis=2))
         choice = np.where(obs.choosing[src], tab[combo], -1)
-        s2 = world.State(
-            **{
-                f.name: (
-                    getattr(s, f.name)
-                    if f.name == "t"
-                    else np.asarray(getattr(s, f.name))[src].copy()
-                )
-                for f in fields(s)
-            }
-        )
-        obs2 = world.Observation(
-            t=obs.t,
-            state=s2,
-            params=self.p,
-            choosing=obs.choosing[src],
-            legal=obs.legal[src],
-            open=obs.open[src],
-        )
+        s2 = _rows_of(s, src)
+        obs2 = _rows_of(obs, src)
+        obs2.state = s2
         out = world.step(s2, self.p, obs2, choice)
-        cells = np.sort(s2.pos, axis=1)
+        # safety on every transition: one robot per cell, no swaps, moves between
+        # neighbours only, no charge below 0
+        before, after = s.pos[src], s2.pos
+        cells = np.sort(after, axis=1)
         assert not (cells[:, 1:] == cells[:, :-1]).any(), "two robots in one cell"
+        swap = (after[:, :, None] == before[:, None, :]) & (before[:, :, None] == after[:, None, :])
+        assert not (swap & ~np.eye(K, dtype=bool)[None]).any(), "two robots swapped cells"
+        step = after != before
+        adjacent = (self.p.neighbors[before] == after[..., None]).any(axis=-1)
+        assert adjacent[step].all(), "a robot jumped"
         assert (s2.charge >= 0).all(), "a charge below 0"
         succ = self.encode(s2, (tmod + 1) % K)
         return src, succ, s2.wait > 0, out.moved, choice
@@ -562,6 +557,16 @@ def dense_rank(v: np.ndarray, mask: np.ndarray, with_zero: bool) -> np.ndarray:
     return np.where(mask, rank, 0)
 
 
+def _rows_of(obj, src: np.ndarray):
+    """A copy of a world dataclass (State, Observation) whose arrays keep the runs
+    ``src`` (int ``[M]``) of their leading runs axis; other fields as they are."""
+    values = {}
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        values[f.name] = v[src].copy() if isinstance(v, np.ndarray) and v.ndim else v
+    return type(obj)(**values)
+
+
 def _keys(rows: np.ndarray) -> list[bytes]:
     a = np.ascontiguousarray(rows, dtype=np.int8)
     return a.view(np.dtype((np.void, a.shape[1]))).ravel().tolist()
@@ -634,8 +639,11 @@ def degree(cells: frozenset[tuple[int, int]], x: tuple[int, int]) -> int:
     return sum((r + dr, c + dc) in cells for dr, dc in ((-1, 0), (0, 1), (1, 0), (0, -1)))
 
 
-def station_choices(cells: frozenset[tuple[int, int]]) -> list[tuple[tuple[int, int], ...]]:
-    """One station at the first dead end (row-major) and one on the first junction."""
+def station_choices(
+    cells: frozenset[tuple[int, int]], two: bool = False
+) -> list[tuple[tuple[int, int], ...]]:
+    """One station at the first dead end (row-major), one on the first junction, and
+    with ``two`` both at once."""
     ordered = sorted(cells)
     out = []
     dead = [x for x in ordered if degree(cells, x) == 1]
@@ -644,15 +652,25 @@ def station_choices(cells: frozenset[tuple[int, int]]) -> list[tuple[tuple[int, 
         out.append((dead[0],))
     if junction:
         out.append((junction[0],))
+    if two and dead and junction:
+        out.append((dead[0], junction[0]))
+    elif two and len(dead) >= 2:
+        out.append((dead[0], dead[-1]))
     return out
 
 
 def family(
-    sizes: range, ks: range | None = None, battery: bool = False, every: int = 1, **kw
+    sizes: range,
+    ks: range | None = None,
+    battery: bool = False,
+    every: int = 1,
+    two_stations: bool = False,
+    **kw,
 ) -> list[Case]:
     """Cases on every tree and one-loop shape of each size (``every``: one shape in that
-    many, in a fixed order), K from 2 to half the cells (or ``ks``); ``kw``: the
-    :class:`Case` fields."""
+    many, in a fixed order), K from 2 to half the cells (or ``ks``); with the battery, a
+    station at a dead end, on a junction, and with ``two_stations`` two at once
+    (:func:`station_choices`); ``kw``: the :class:`Case` fields."""
     out = []
     for n in sizes:
         for sh in shapes(n)[::every]:
@@ -660,7 +678,7 @@ def family(
                 if k > n // 2:
                     continue
                 if battery:
-                    for st in station_choices(sh):
+                    for st in station_choices(sh, two_stations):
                         out.append(Case(map_text(sh, st), k, battery=True, **kw))
                 else:
                     out.append(Case(map_text(sh), k, **kw))
@@ -693,6 +711,7 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
     ap.add_argument("--extra-capacity", type=int, default=0, help="above the smallest")
     ap.add_argument("--initial-charge", default="staggered")
     ap.add_argument("--adversary", default="open", choices=("open", "legal"))
+    ap.add_argument("--two-stations", action="store_true", help="also two stations at once")
     ap.add_argument("--show", type=int, default=1, help="livelocks to draw")
     a = ap.parse_args(argv)
 
@@ -708,7 +727,8 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
             initial_charge=a.initial_charge,
             extra_capacity=a.extra_capacity,
         )
-    cases = family(span(a.sizes), span(a.k) if a.k else None, battery=a.battery, **kw)
+    ks = span(a.k) if a.k else None
+    cases = family(span(a.sizes), ks, battery=a.battery, two_stations=a.two_stations, **kw)
     res = check_all(cases)
     bad = [r for r in res if r.livelocks]
     print(
