@@ -121,6 +121,17 @@ def test_compiled_battery_on_dead_end_stations(tmp_path, seed, agents):
     assert both(flat, tmp_path) == ("numba", "")
 
 
+def test_compiled_crowded_dead_end_floor(tmp_path):
+    """Eight learners on a 62-cell floor of one-wide corridors with both stations at the
+    ends of dead ends: token holders offered only the moves a push makes room for
+    (the steps that froze the old rules)."""
+    path = tmp_path / "floor.txt"
+    path.write_text(mazes.random_maze(5, 6, 6, loops=0.08))
+    flat = {**BASE, "map": str(path), "agents": 8, "steps": 2500, "runs": 2}
+    flat.update({"battery.capacity": 200, "battery.charge_steps": 20})
+    assert both(flat, tmp_path) == ("numba", "")
+
+
 @pytest.mark.parametrize(
     "extra",
     [

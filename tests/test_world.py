@@ -698,6 +698,29 @@ def test_pushes_are_free_yields():
     assert s.charge[0].tolist() == [19, 13]
 
 
+def test_the_token_holder_is_offered_only_moves_a_push_can_make_room_for():
+    """Rule (battery on): the holder of the right of way sees as open the moves into an
+    empty cell or into one a push empties, not a move into a full dead end, so a holder
+    that chooses among open moves always makes the move it chose."""
+    text = "H......\n###.###\n###.###\n"  # cells 0-6, dead end 7 (under 3), 8
+    on = {"battery.enabled": True, "battery.capacity": 50, "policy": "random"}
+    w = build(text, [3, 7, 8, 4], **on)
+    w.s.token[0] = 0
+    obs = world.begin_step(w.s, w.p)
+    # N: wall; E: robot 3 pushed to 5; S: the dead end is full; W: empty
+    assert obs.open[0, 0].tolist() == [False, True, False, True]
+    assert obs.open[0, 3].tolist() == [False, True, False, False]  # not the holder
+    out = world.step(w.s, w.p, obs, np.array([[EAST, -1, -1, -1]]))
+    assert out.as_asked[0, 0] and w.s.pos[0].tolist() == [4, 7, 8, 5]
+    # a move it was not offered (a walk follower's or a homing robot's insisting) fails:
+    # it steps aside instead, into the first move it can make
+    w = build(text, [3, 7, 8, 4], **on)
+    w.s.token[0] = 0
+    obs = world.begin_step(w.s, w.p)
+    out = world.step(w.s, w.p, obs, np.array([[SOUTH, -1, -1, -1]]))
+    assert out.moved[0, 0] and not out.as_asked[0, 0] and w.s.pos[0, 0] == 4
+
+
 # --- homing around a busy station ---------------------------------------------------------
 
 RING_WITH_TWO_STATIONS = "H1.0..\n.####.\n...H..\n"

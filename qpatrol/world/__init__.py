@@ -428,6 +428,11 @@ def begin_step(state: State, p: Params) -> Observation:
         open_ = legal_open & ~occupied
         r_tok = np.flatnonzero(s.token >= 0)
         open_[r_tok, s.token[r_tok]] = legal_open[r_tok, s.token[r_tok]]
+        if p.battery:
+            # the holder of the right of way: the moves it can make, pushing if need be
+            for r in np.flatnonzero((s.token >= 0) & s.active).tolist():
+                k = int(s.token[r])
+                open_[r, k] = traffic.feasible_moves(s, p, r, k, legal_open[r, k])
     else:
         open_ = legal_open.copy()
     choosing = s.active[:, None] & (s.mode == PATROL)

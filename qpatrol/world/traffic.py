@@ -69,6 +69,24 @@ def priority(s: State, t: int) -> np.ndarray:
     return (cls * (1 << 40) + np.minimum(s.wait, (1 << 30)) * K + turn[None, :]).astype(np.int64)
 
 
+def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) -> np.ndarray:
+    """bool ``[4]``: the moves robot ``k`` of run ``r`` can make as the holder of the right
+    of way: among ``legal_open`` (bool ``[4]``), those into an empty cell or into one a
+    push empties (:func:`_push_path`: not through the holder's cell, charging robots nor
+    held pockets). The world offers the holder these as its open moves, so a holder
+    whose strategy chooses among open moves always makes the move it chose."""
+    nbrs = _neighbour_lists(p)
+    own = int(s.pos[r, k])
+    occ = s.occ[r].tolist()
+    may_move = (s.mode[r] != battery.CHARGING).tolist()
+    out = battery.held_pockets(s, p, r).tolist() if p.battery else None
+    ok = np.zeros(4, dtype=bool)
+    for d, cell in enumerate(nbrs[own]):
+        if cell >= 0 and legal_open[d]:
+            ok[d] = occ[cell] < 0 or _push_path(nbrs, occ, own, cell, may_move, out) is not None
+    return ok
+
+
 def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     """Move the robots of every active run (in place: ``s.pos``, ``s.occ``).
 

@@ -177,7 +177,8 @@ def open_moves(r, tok, battery, avoid, p, s, w):
     """world.begin_step of run ``r``: who chooses (patrolling robots), and each robot's
     open moves ``w.open_mask`` (legal, not deeper into another robot's held station
     pocket (battery.closed_cells), not into a robot's cell but for the holder of the
-    right of way ``tok``; every legal move where none is open, base.prefer_open); the
+    right of way ``tok``, who may move where a push makes room (battery on:
+    traffic.feasible_moves); every legal move where none is open, base.prefer_open); the
     step's outcome cleared (``w.prev_pos``, ``prev_head``, ``moved``, ...)."""
     nbrs, pocket_of, pocket_depth, occ = p.nbrs, p.pocket_of, p.pocket_depth, s.occ
     for k in range(s.pos.shape[1]):
@@ -196,8 +197,16 @@ def open_moves(r, tok, battery, avoid, p, s, w):
                     if holder >= 0 and holder != k:
                         if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
                             ok = False
-            if ok and avoid and k != tok and occ[r, nb] >= 0:
-                ok = False
+            if ok and avoid and occ[r, nb] >= 0:
+                if k != tok:
+                    ok = False
+                elif battery:  # the holder: a move a push can make room for
+                    ok = (
+                        push_path(
+                            nbrs, occ[r], c, nb, w, battery, s.mode[r], pocket_of, s.reserved[r]
+                        )
+                        > 0
+                    )
             w.open_mask[k, d] = ok
             any_open = any_open or ok
         if not any_open:
