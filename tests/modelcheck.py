@@ -69,7 +69,7 @@ from dataclasses import dataclass, field, fields
 import numpy as np
 
 from qpatrol import world
-from qpatrol.config import from_flat
+from qpatrol.config import ConfigError, from_flat
 from qpatrol.maps import Map, parse_map
 from qpatrol.strategies.base import prefer_open
 
@@ -668,21 +668,30 @@ def family(
     **kw,
 ) -> list[Case]:
     """Cases on every tree and one-loop shape of each size (``every``: one shape in that
-    many, in a fixed order), K from 2 to half the cells (or ``ks``); with the battery, a
-    station at a dead end, on a junction, and with ``two_stations`` two at once
-    (:func:`station_choices`); ``kw``: the :class:`Case` fields."""
+    many, in a fixed order), K from 2 up to the density limit (or ``ks``); with the
+    battery, a station at a dead end, on a junction, and with ``two_stations`` two at
+    once (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
+    refuses (:func:`qpatrol.world.make_params`: too many robots for the map, a capacity
+    too small, ...) are left out: the density limit is whatever the world accepts."""
     out = []
     for n in sizes:
         for sh in shapes(n)[::every]:
-            for k in ks or range(2, n // 2 + 1):
-                if k > n // 2:
-                    continue
+            for k in ks or range(2, n + 1):
                 if battery:
                     for st in station_choices(sh, two_stations):
                         out.append(Case(map_text(sh, st), k, battery=True, **kw))
                 else:
                     out.append(Case(map_text(sh), k, **kw))
-    return out
+    return [c for c in out if accepted(c)]
+
+
+def accepted(case: Case) -> bool:
+    """The config and the world accept the case (:func:`qpatrol.world.make_params`)."""
+    try:
+        Checker(case)
+    except ConfigError:
+        return False
+    return True
 
 
 def check_all(cases: list[Case], max_states: int = 2_000_000, verbose: bool = False):
