@@ -133,11 +133,14 @@ class Livelock:
 
 @dataclass
 class Result:
+    """What :meth:`Checker.explore` found on one case."""
+
     case: Case
     states: int
     edges: int
     livelocks: list[Livelock] = field(default_factory=list)
     complete: bool = True  # False: max_states reached
+    checker: Checker | None = None  # the explored graph (for reports and replays)
 
 
 def smallest_capacity(m: Map, margin: int = 0) -> int:
@@ -700,7 +703,7 @@ def check_all(cases: list[Case], max_states: int = 2_000_000, verbose: bool = Fa
     for case in cases:
         ck = Checker(case)
         res = ck.explore(max_states=max_states)
-        res.checker = ck  # type: ignore[attr-defined]
+        res.checker = ck
         results.append(res)
         if verbose and res.livelocks:
             print(ck.report(res.livelocks[0]))
