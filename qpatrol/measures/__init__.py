@@ -142,7 +142,9 @@ def wait_bound(p: Params) -> int:
     which travels to a station (at most ``diameter`` moves), charges (``charge_steps``)
     and clears the station's pocket (``2 x depart_len``); then it crosses the map. So
     ``K x (charge_steps + 2 x max depart_len + diameter) + diameter``; without battery
-    ``diameter`` (a robot blocked longer than a crossing is stuck).
+    ``diameter`` (a robot blocked longer than a crossing is stuck). A yardstick, not a
+    theorem: the trip home is not proven to take at most ``diameter`` steps, and on
+    some maps no rule can bound a station wait (``docs/model.md``, "What is proven").
     """
     if not p.battery:
         return p.diameter
