@@ -105,6 +105,7 @@ class Case:
     battery: bool = False
     capacity: int = 0  # 0: the smallest the config accepts (battery.margin 0) + extra
     extra_capacity: int = 0
+    departure: bool = False  # add 2 x max depart_len to the capacity (the departure)
     charge_steps: int = 1
     initial_charge: str = "staggered"
     adversary: str = "open"  # 'open' or 'legal'
@@ -112,7 +113,8 @@ class Case:
     def label(self) -> str:
         rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
         bat = (
-            f"battery cap={self.capacity or f'min+{self.extra_capacity}'} "
+            f"battery cap={self.capacity or f'min+{self.extra_capacity}'}"
+            f"{'+departure' if self.departure else ''} "
             f"charge_steps={self.charge_steps} initial={self.initial_charge}"
             if self.battery
             else "battery off"
@@ -149,6 +151,22 @@ def smallest_capacity(m: Map, margin: int = 0) -> int:
     return nearest + margin + 2
 
 
+def departure_length(m: Map) -> int:
+    """The longest ``depart_len`` of the map's stations (:class:`qpatrol.world.Params`)."""
+    dist = m.distances()
+    junction = m.degree >= 3
+    if not junction.any():
+        return 1
+    return max(max(1, int(dist[h][junction].min())) for h in m.homes.tolist())
+
+
+def is_line(case: Case) -> bool:
+    """The map is a one-wide line (no junction, no loop): robots there never change
+    their order, so a station can serve only the robots nearest it (docs/model.md)."""
+    m = parse_map(case.text)
+    return bool((m.degree <= 2).all() and (m.degree == 1).sum() == 2) or m.n_cells == 1
+
+
 class Checker:
     """The state graph of one :class:`Case`, explored breadth-first from every placement."""
 
@@ -167,10 +185,12 @@ class Checker:
             "max_episode_steps": None,
         }
         if case.battery:
+            capacity = case.capacity or smallest_capacity(self.m) + case.extra_capacity
+            if case.departure:
+                capacity += 2 * departure_length(self.m)
             flat.update(
                 {
-                    "battery.capacity": case.capacity
-                    or smallest_capacity(self.m) + case.extra_capacity,
+                    "battery.capacity": capacity,
                     "battery.margin": 0,
                     "battery.charge_steps": case.charge_steps,
                     "battery.initial_charge": case.initial_charge,
