@@ -43,10 +43,11 @@ def _cases(full: bool) -> list[mc.Case]:
     return (
         mc.family(range(4, 8))
         + mc.family(range(4, 7), adversary="legal")
-        + mc.family(range(4, 7), battery=True, charge_steps=0)
-        + mc.family(range(4, 7), battery=True, charge_steps=1)
-        + mc.family(range(4, 7), battery=True, charge_steps=1, extra_capacity=4)
-        + mc.family(range(4, 7), battery=True, departure=True)
+        + mc.family(range(4, 7), ks=range(2, 3), battery=True, charge_steps=0)
+        + mc.family(range(4, 7), ks=range(2, 3), battery=True, charge_steps=1)
+        + mc.family(range(4, 7), ks=range(2, 3), battery=True, departure=True)
+        + mc.family(range(4, 7), battery=True, two_stations=True, extra_capacity=4)
+        + mc.family(range(6, 7), ks=range(3, 4), battery=True, every=3)
         + mc.family(range(4, 6), battery=True, charge_steps=2, initial_charge="full")
     )
 
