@@ -4,8 +4,9 @@ On every tree and one-loop map of a few cells, for every team size up to the den
 limit, the checker explores every state the rules reach when the strategy is an
 adversary, from every placement of the robots, and looks for a reachable cycle on which
 some robot fails at every step (a livelock). The family run by default fits in well under
-a minute on one core; ``QPATROL_MODELCHECK=full`` runs a larger one (larger maps, three
-robots, the battery on bigger maps), for a benchmark or a release.
+a minute on one core; ``QPATROL_MODELCHECK=full`` runs a larger one (7 cells, three
+robots with the battery on, two stations), for a benchmark or a release: it takes more
+than half an hour of one core (it was not run to its end).
 
 The tests print how many maps, cases, states and transitions they explored (``pytest -s``).
 """
