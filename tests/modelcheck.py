@@ -1,0 +1,782 @@
+"""An exhaustive model checker of the movement and battery rules: every reachable state.
+
+The checker explores, on one small map and one team size, every state the world's rules
+can reach when the strategy is an *adversary* that may choose any of a patrolling robot's
+moves at every step, from every placement of the robots. It does not restate the rules:
+each transition is one call of :func:`qpatrol.world.begin_step` and
+:func:`qpatrol.world.step`, the functions every engine's reference is, with the
+adversary's choices passed as the strategy's ``choice`` (one batch row per state and
+choice vector: the rows of a batch are independent runs, so this is R = 1 many times
+over, :func:`replay` re-runs a found cycle with R = 1).
+
+Adversaries (:class:`Case.adversary`)
+    ``open``: each choosing (patrolling) robot asks for any one of its open moves, or any
+    legal move when none is open (:func:`qpatrol.strategies.base.prefer_open`, what
+    every avoiding strategy chooses among). ``legal``: any non-wall move (the walk
+    followers insist on their walk, which may run into a robot). Robots that are not
+    choosing (homing, queued, charging) ask what the rules make them ask. A patrolling
+    robot always asks for some move (every strategy does).
+
+State (what the rules read), :func:`Checker.encode`
+    Robot positions (``occ`` is derived from them and checked), the token and how long it
+    has been held, ``t mod K`` (priority's rotating turn), and per robot mode, charge,
+    charging steps left, held station, ``depart_left`` and the order of ``queued_since``;
+    ``reserved`` is derived from the held stations and checked. Any field of
+    :class:`qpatrol.world.State` not named in :data:`IGNORED` or :data:`ORDER_ONLY` is
+    kept as it is, so a field the rules gain later is part of the state (if it grows
+    without bound the exploration stops at ``max_states`` and says so).
+
+Abstraction of the unbounded counters (why it is sound, and exact)
+    ``wait`` grows by one each step a robot fails and drops to 0 otherwise; the rules read
+    it only by comparing robots (:func:`qpatrol.world.traffic.priority`: class, then
+    wait, then a turn). ``queued_since`` is the step a robot began to need a station,
+    read only to order the queued robots (first come, first served, ties by index). ``t``
+    is read through ``t mod K`` (the turn) and as the ``queued_since`` given to robots
+    that start queueing, which is later than every earlier one. So two states that agree
+    on everything else, on the *order with ties* of the waits together with 0, and on the
+    order with ties of the queued robots' ``queued_since``, take the same moves under the
+    same choices, and their successors again agree in that sense (failing robots' waits
+    all grow by one, so their order is kept and they rise above the 0 of the others). The
+    checker therefore stores waits as dense ranks among ``{0} | waits`` and
+    ``queued_since`` as dense ranks among the queued robots: the quotient is a
+    bisimulation, every abstract cycle is an infinite run of the real rules along which
+    the waits really grow (:func:`replay` shows it with R = 1), and every real run is a
+    path of the graph. ``test_abstraction_is_exact`` checks the claim on the live rules
+    (random order-preserving waits and queue times, garbage in the ignored fields, same
+    successors). Fields in :data:`IGNORED` are read only by strategies, rewards,
+    episodes and measures (``episodes`` is null, so no run ever stops).
+
+Livelock (the fairness notion)
+    Robot i is *starved* on an infinite run if from some step on it fails at every step:
+    it asks for a move and does not make it, or waits for a station (exactly the steps
+    that add to its ``wait``; ``max_wait`` grows without bound). In the finite graph
+    that is a cycle all of whose edges fail robot i: a strongly connected component (more
+    than one state, or one state with a self-loop) of the subgraph of edges that fail i
+    (iterative Tarjan, :func:`strong_components`). Every state is reachable, so each such
+    component is a reachable livelock. The checker reports, for each, the robot, a
+    shortest path from a starting placement and one cycle, and whether the robot is at
+    least pushed around on it or never leaves its cell. Safety is checked on every
+    transition on the way: one robot per cell, no swaps, moves between neighbours only,
+    no charge below 0.
+"""
+
+from __future__ import annotations
+
+import itertools
+from collections import deque
+from dataclasses import dataclass, field, fields
+
+import numpy as np
+
+from qpatrol import world
+from qpatrol.config import ConfigError, from_flat
+from qpatrol.maps import Map, parse_map
+from qpatrol.strategies.base import prefer_open
+
+#: State fields the rules never read (strategies, rewards, episodes, measures only);
+#: ``occ`` and ``reserved`` are derived from positions and held stations (and checked).
+IGNORED = {
+    "t",
+    "head",
+    "occ",
+    "reserved",
+    "dots",
+    "last",
+    "dots_left",
+    "ep_dots",
+    "ep_visits",
+    "ep_start",
+    "ep_count",
+    "ep_seen",
+    "ep_seen_state",
+    "active",
+    "steps_done",
+}
+#: Unbounded counters the rules only compare between robots: kept as dense ranks.
+ORDER_ONLY = ("wait", "queued_since")
+
+
+@dataclass(frozen=True)
+class Case:
+    """One model-checking problem: a map, a team size, battery settings, an adversary."""
+
+    text: str  # the map, in qpatrol's format
+    k: int
+    battery: bool = False
+    capacity: int = 0  # 0: the smallest the config accepts (battery.margin 0) + extra
+    extra_capacity: int = 0
+    departure: bool = False  # add 2 x max depart_len to the capacity (the departure)
+    charge_steps: int = 1
+    initial_charge: str = "staggered"
+    adversary: str = "open"  # 'open' or 'legal'
+
+    def label(self) -> str:
+        rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
+        bat = (
+            f"battery cap={self.capacity or f'min+{self.extra_capacity}'}"
+            f"{'+departure' if self.departure else ''} "
+            f"charge_steps={self.charge_steps} initial={self.initial_charge}"
+            if self.battery
+            else "battery off"
+        )
+        return f"K={self.k} {bat} adversary={self.adversary} map " + "/".join(rows)
+
+
+@dataclass
+class Livelock:
+    """A reachable cycle of states on which ``robot`` fails at every step."""
+
+    robot: int
+    component: int  # states in its strongly connected component
+    prefix: list[tuple[bytes, tuple[int, ...]]]  # (state, choice) from a start
+    cycle: list[tuple[bytes, tuple[int, ...]]]  # (state, choice) back to cycle[0]
+    pushed: bool  # the robot changes cells somewhere on the cycle
+
+
+@dataclass
+class Result:
+    """What :meth:`Checker.explore` found on one case."""
+
+    case: Case
+    states: int
+    edges: int
+    livelocks: list[Livelock] = field(default_factory=list)
+    complete: bool = True  # False: max_states reached
+    checker: Checker | None = None  # the explored graph (for reports and replays)
+
+
+def smallest_capacity(m: Map, margin: int = 0) -> int:
+    """The smallest ``battery.capacity`` :func:`qpatrol.world.make_params` accepts."""
+    nearest = int(m.distances()[m.homes].min(axis=0).max())
+    return nearest + margin + 2
+
+
+def departure_length(m: Map) -> int:
+    """The longest ``depart_len`` of the map's stations (:class:`qpatrol.world.Params`)."""
+    dist = m.distances()
+    junction = m.degree >= 3
+    if not junction.any():
+        return 1
+    return max(max(1, int(dist[h][junction].min())) for h in m.homes.tolist())
+
+
+def is_line(case: Case) -> bool:
+    """The map is a one-wide line (no junction, no loop): robots there never change
+    their order, so a station can serve only the robots nearest it (docs/model.md)."""
+    m = parse_map(case.text)
+    return bool((m.degree <= 2).all() and (m.degree == 1).sum() == 2) or m.n_cells == 1
+
+
+class Checker:
+    """The state graph of one :class:`Case`, explored breadth-first from every placement."""
+
+    def __init__(self, case: Case):
+        self.case = case
+        self.m = parse_map(case.text)
+        flat = {
+            "agents": case.k,
+            "runs": 1,
+            "policy": "random",
+            "team.avoid_collisions": True,
+            "team.communication": True,
+            "battery.enabled": case.battery,
+            "battery.capacity": 1,  # battery off: a constant charge, never read
+            "episodes": None,
+            "max_episode_steps": None,
+        }
+        if case.battery:
+            capacity = case.capacity or smallest_capacity(self.m) + case.extra_capacity
+            if case.departure:
+                capacity += 2 * departure_length(self.m)
+            flat.update(
+                {
+                    "battery.capacity": capacity,
+                    "battery.margin": 0,
+                    "battery.charge_steps": case.charge_steps,
+                    "battery.initial_charge": case.initial_charge,
+                }
+            )
+        self.p = world.make_params(from_flat(flat), self.m)
+        probe = world.init_state(self.p, np.arange(case.k, dtype=np.int64)[None])
+        names = [f.name for f in fields(probe)]
+        self.fields = [n for n in names if n not in IGNORED]
+        self.shapes = {n: np.shape(getattr(probe, n))[1:] for n in self.fields}
+        self.width = 1 + sum(int(np.prod(s)) for s in self.shapes.values())
+        # every choice vector of K robots, directions 0..3
+        self.table = np.array(list(itertools.product(range(4), repeat=case.k)), dtype=np.int64)
+
+    # --- abstract states <-> world states -------------------------------------------
+    def encode(self, s: world.State, tmod: int) -> np.ndarray:
+        """int8 ``[R, width]``: the abstract state of every row of ``s``."""
+        R, K = s.pos.shape
+        occ = np.full_like(s.occ, -1)
+        occ[np.arange(R)[:, None], s.pos] = np.arange(K)[None]
+        assert (occ == s.occ).all(), "occ disagrees with pos"
+        if self.p.homes.size:
+            res = np.full_like(s.reserved, -1)
+            rr, kk = np.nonzero(s.goal >= 0)
+            res[rr, s.goal[rr, kk]] = kk
+            assert (res == s.reserved).all(), "reserved disagrees with goal"
+        cols = [np.full((R, 1), tmod, dtype=np.int64)]
+        for n in self.fields:
+            v = np.asarray(getattr(s, n)).reshape(R, -1)
+            if n == "wait":
+                v = dense_rank(v, v >= 0, with_zero=True)
+            elif n == "queued_since":
+                v = dense_rank(v, s.mode == world.QUEUED, with_zero=False)
+            cols.append(v.astype(np.int64))
+        out = np.concatenate(cols, axis=1)
+        assert out.min() >= -128 and out.max() <= 127, "a state value out of int8"
+        return out.astype(np.int8)
+
+    def decode(self, rows: np.ndarray, t: int | None = None) -> world.State:
+        """A world of ``len(rows)`` runs in the abstract states ``rows`` (all one ``t mod
+        K``); ``t``: the steps taken (default: one above every stored queue rank)."""
+        K = self.case.k
+        tmod = int(rows[0, 0])
+        assert (rows[:, 0] == tmod).all()
+        R = rows.shape[0]
+        values = {}
+        i = 1
+        for n in self.fields:
+            size = int(np.prod(self.shapes[n]))
+            values[n] = rows[:, i : i + size].astype(np.int64).reshape((R,) + self.shapes[n])
+            i += size
+        s = world.init_state(self.p, values["pos"])
+        for n, v in values.items():
+            setattr(s, n, v.copy())
+        s.t = t if t is not None else K * (K + 2) + tmod
+        if self.p.homes.size:
+            s.reserved[:] = -1
+            rr, kk = np.nonzero(s.goal >= 0)
+            s.reserved[rr, s.goal[rr, kk]] = kk
+        return s
+
+    def starts(self) -> np.ndarray:
+        """The abstract states before the first step: every placement of the K robots."""
+        c, K = self.p.n_cells, self.case.k
+        pos = np.array(list(itertools.permutations(range(c), K)), dtype=np.int64)
+        return self.encode(world.init_state(self.p, pos), 0)
+
+    # --- one step of every row, under every choice of the adversary ----------------
+    def successors(self, rows: np.ndarray, t: int | None = None, perturb=None):
+        """``(src [M], succ [M, width], fail [M, K], moved [M, K], choice [M, K])``: one
+        entry per row of ``rows`` (abstract states, one ``t mod K``) and adversary choice
+        vector; ``fail``: the step added to the robot's wait. ``perturb(state)``, if
+        given, edits the decoded world first (``test_abstraction_is_exact``)."""
+        K = self.case.k
+        tmod = int(rows[0, 0])
+        s = self.decode(rows, t)
+        if perturb is not None:
+            perturb(s)
+        obs = world.begin_step(s, self.p)
+        allowed = prefer_open(obs) if self.case.adversary == "open" else obs.legal
+        tab = self.table
+        ok_dir = allowed[:, np.arange(K)[None, :], tab]  # [R, T, K]: choice t allowed for k
+        ok = np.where(obs.choosing[:, None, :], ok_dir, (tab == 0)[None])
+        src, combo = np.nonzero(ok.all(axis=2))
+        choice = np.where(obs.choosing[src], tab[combo], -1)
+        s2 = _rows_of(s, src)
+        obs2 = _rows_of(obs, src)
+        obs2.state = s2
+        out = world.step(s2, self.p, obs2, choice)
+        # safety on every transition: one robot per cell, no swaps, moves between
+        # neighbours only, no charge below 0
+        before, after = s.pos[src], s2.pos
+        cells = np.sort(after, axis=1)
+        assert not (cells[:, 1:] == cells[:, :-1]).any(), "two robots in one cell"
+        swap = (after[:, :, None] == before[:, None, :]) & (before[:, :, None] == after[:, None, :])
+        assert not (swap & ~np.eye(K, dtype=bool)[None]).any(), "two robots swapped cells"
+        step = after != before
+        adjacent = (self.p.neighbors[before] == after[..., None]).any(axis=-1)
+        assert adjacent[step].all(), "a robot jumped"
+        assert (s2.charge >= 0).all(), "a charge below 0"
+        succ = self.encode(s2, (tmod + 1) % K)
+        return src, succ, s2.wait > 0, out.moved, choice
+
+    # --- the whole graph ----------------------------------------------------------
+    def explore(self, max_states: int = 2_000_000, chunk: int = 4000) -> Result:
+        """Every reachable state and transition; then the livelocks (:func:`livelocks`)."""
+        K = self.case.k
+        start = self.starts()
+        keys = _keys(start)
+        ids: dict[bytes, int] = {}
+        order: list[bytes] = []
+        for key in keys:
+            if key not in ids:
+                ids[key] = len(order)
+                order.append(key)
+        frontier = np.arange(len(order))
+        store = [np.frombuffer(b"".join(order), dtype=np.int8).reshape(-1, self.width)]
+        n_start = len(order)
+        e_src, e_dst, e_fail, e_moved, e_choice = [], [], [], [], []
+        weights = (1 << np.arange(K)).astype(np.int64)
+        complete = True
+        while frontier.size:
+            nxt: list[int] = []
+            all_rows = _rows(store, frontier, self.width)
+            for lo in range(0, frontier.size, chunk):
+                rows = all_rows[lo : lo + chunk]
+                src, succ, fail, moved, choice = self.successors(rows)
+                skeys = _keys(succ)
+                dst = np.empty(src.size, dtype=np.int64)
+                new_keys = []
+                for j, key in enumerate(skeys):
+                    i = ids.get(key)
+                    if i is None:
+                        i = ids[key] = len(order)
+                        order.append(key)
+                        new_keys.append(key)
+                        nxt.append(i)
+                    dst[j] = i
+                if new_keys:
+                    store.append(
+                        np.frombuffer(b"".join(new_keys), dtype=np.int8).reshape(-1, self.width)
+                    )
+                e_src.append(frontier[lo : lo + chunk][src])
+                e_dst.append(dst)
+                e_fail.append(fail.astype(np.int64) @ weights)
+                e_moved.append(moved.astype(np.int64) @ weights)
+                e_choice.append((choice + 1) @ (5 ** np.arange(K)))
+            if len(order) > max_states:
+                complete = False
+                break
+            frontier = np.array(nxt, dtype=np.int64)
+        self.order = order
+        self.n_start = n_start
+        cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, dtype=np.int64)  # noqa: E731
+        self.edges = (cat(e_src), cat(e_dst), cat(e_fail), cat(e_moved), cat(e_choice))
+        result = Result(self.case, len(order), int(self.edges[0].size), complete=complete)
+        if complete:
+            result.livelocks = self.livelocks()
+        return result
+
+    def livelocks(self) -> list[Livelock]:
+        """One witness per robot and per component of its failing subgraph."""
+        src, dst, fail, moved, choice = self.edges
+        n = len(self.order)
+        found = []
+        for i in range(self.case.k):
+            sel = (fail >> i) & 1 == 1
+            comp = strong_components(n, src[sel], dst[sel])
+            s_i, d_i = src[sel], dst[sel]
+            inside = comp[s_i] == comp[d_i]
+            if not inside.any():
+                continue
+            for c in np.unique(comp[s_i[inside]]):
+                e = np.flatnonzero(sel)[inside & (comp[s_i] == c)]
+                found.append(self._witness(i, int(c), comp, e))
+        found.sort(key=lambda w: (len(w.cycle), len(w.prefix)))
+        return found
+
+    def _witness(self, robot: int, c: int, comp: np.ndarray, e: np.ndarray) -> Livelock:
+        src, dst, fail, moved, choice = self.edges
+        # one cycle in the component: breadth-first from a state back to itself
+        nodes_out: dict[int, list[int]] = {}
+        for j in e.tolist():
+            nodes_out.setdefault(int(src[j]), []).append(j)
+        first = min(nodes_out)
+        parent: dict[int, int] = {}
+        queue = deque([first])
+        cycle_edges: list[int] = []
+        while queue and not cycle_edges:
+            v = queue.popleft()
+            for j in nodes_out.get(v, []):
+                w = int(dst[j])
+                if w == first:
+                    cycle_edges = [j]
+                    while v != first:
+                        cycle_edges.append(parent[v])
+                        v = int(src[parent[v]])
+                    cycle_edges.reverse()
+                    break
+                if w not in parent:
+                    parent[w] = j
+                    queue.append(w)
+        prefix_edges = self._path_to(first)
+        decode = lambda j: (  # noqa: E731
+            self.order[int(src[j])],
+            tuple(int(x) - 1 for x in _digits(int(choice[j]), self.case.k)),
+        )
+        pushed = any((int(moved[j]) >> robot) & 1 for j in cycle_edges)
+        return Livelock(
+            robot=robot,
+            component=int((comp == c).sum()),
+            prefix=[decode(j) for j in prefix_edges],
+            cycle=[decode(j) for j in cycle_edges],
+            pushed=pushed,
+        )
+
+    def _path_to(self, target: int) -> list[int]:
+        """Edges of a shortest path from a start state to ``target``."""
+        src, dst = self.edges[0], self.edges[1]
+        if target < self.n_start:
+            return []
+        # states are numbered in breadth-first order: the first edge into a state found
+        # in the layer before is on a shortest path
+        first_in = np.full(len(self.order), -1, dtype=np.int64)
+        seen, at = np.unique(dst, return_index=True)
+        first_in[seen] = at
+        path = []
+        v = target
+        while v >= self.n_start:
+            j = int(first_in[v])
+            path.append(j)
+            v = int(src[j])
+        return path[::-1]
+
+    def describe(self, key: bytes) -> str:
+        """One abstract state in words."""
+        row = np.frombuffer(key, dtype=np.int8).astype(np.int64)
+        parts = [f"t%K={row[0]}"]
+        i = 1
+        for n in self.fields:
+            size = int(np.prod(self.shapes[n]))
+            v = row[i : i + size].tolist()
+            i += size
+            if n in ("charge", "rest", "goal", "depart_left", "queued_since", "mode"):
+                if not self.case.battery:
+                    continue
+            if n == "mode":
+                v = [world.battery.MODE_NAMES[x] for x in v]
+            parts.append(f"{n}={v if len(v) != 1 else v[0]}")
+        return " ".join(parts)
+
+    def grid(self, key: bytes) -> str:
+        """The map with robot digits on their cells (H: a station nobody stands on)."""
+        row = np.frombuffer(key, dtype=np.int8).astype(np.int64)
+        i = 1
+        pos = None
+        for n in self.fields:
+            size = int(np.prod(self.shapes[n]))
+            if n == "pos":
+                pos = row[i : i + size].tolist()
+            i += size
+        lines = [list(r) for r in self.m_rows()]
+        cell = 0
+        where = {}
+        for r, line in enumerate(lines):
+            for c, ch in enumerate(line):
+                if ch != "#":
+                    where[cell] = (r, c)
+                    cell += 1
+                    if ch not in "H":
+                        line[c] = "."
+        for k, cpos in enumerate(pos or []):
+            r, c = where[cpos]
+            lines[r][c] = str(k)
+        return "\n".join("".join(x) for x in lines)
+
+    def m_rows(self) -> list[str]:
+        return [r for r in self.case.text.splitlines() if r and not r.startswith(";")]
+
+    def report(self, w: Livelock) -> str:
+        """A livelock in words: the map, the path to the cycle and the cycle."""
+        out = [f"{self.case.label()}", f"robot {w.robot} fails at every step of this cycle "]
+        out[-1] += f"({len(w.cycle)} steps, component of {w.component} states, "
+        out[-1] += "pushed around on it)" if w.pushed else "never leaves its cell)"
+        dirs = "NESW"
+        for title, seq in (("from a start", w.prefix), ("cycle", w.cycle)):
+            out.append(f"-- {title}:")
+            for key, ch in seq:
+                out.append(self.grid(key))
+                out.append(
+                    "   "
+                    + self.describe(key)
+                    + "  choice="
+                    + "".join(dirs[c] if c >= 0 else "-" for c in ch)
+                )
+        return "\n".join(out)
+
+
+def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
+    """Run the witness with R = 1 from its start through ``loops`` turns of its cycle,
+    with concrete, growing waits; returns the robot's wait after each turn (int
+    ``[loops]``), and asserts every state met is the one the graph predicts."""
+    seq = w.prefix + w.cycle * loops
+    s = ck.decode(np.frombuffer(seq[0][0], dtype=np.int8)[None].copy(), t=0)
+    K = ck.case.k
+    waits = []
+    for n, (key, ch) in enumerate(seq):
+        assert ck.encode(s, s.t % K).tobytes() == key, f"state {n} differs from the graph"
+        obs = world.begin_step(s, ck.p)
+        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64))
+        if n >= len(w.prefix) and (n - len(w.prefix)) % len(w.cycle) == len(w.cycle) - 1:
+            waits.append(int(s.wait[0, w.robot]))
+    assert ck.encode(s, s.t % K).tobytes() == w.cycle[0][0]
+    return np.array(waits)
+
+
+def strong_components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """int ``[n]``: the strongly connected component of each node (iterative Tarjan) of
+    the graph with edges ``src[j] -> dst[j]``."""
+    order = np.argsort(src, kind="stable")
+    heads = np.searchsorted(src[order], np.arange(n + 1))
+    succ = dst[order].tolist()
+    heads = heads.tolist()
+    index = [-1] * n
+    low = [0] * n
+    on_stack = [False] * n
+    comp = [-1] * n
+    stack: list[int] = []
+    counter = 0
+    n_comp = 0
+    for root in range(n):
+        if index[root] >= 0 or heads[root] == heads[root + 1]:
+            continue
+        work = [(root, heads[root])]
+        index[root] = low[root] = counter
+        counter += 1
+        stack.append(root)
+        on_stack[root] = True
+        while work:
+            v, j = work[-1]
+            if j < heads[v + 1]:
+                work[-1] = (v, j + 1)
+                w = succ[j]
+                if index[w] < 0:
+                    index[w] = low[w] = counter
+                    counter += 1
+                    stack.append(w)
+                    on_stack[w] = True
+                    work.append((w, heads[w]))
+                elif on_stack[w] and index[w] < low[v]:
+                    low[v] = index[w]
+                continue
+            work.pop()
+            if work:
+                u = work[-1][0]
+                if low[v] < low[u]:
+                    low[u] = low[v]
+            if low[v] == index[v]:
+                while True:
+                    w = stack.pop()
+                    on_stack[w] = False
+                    comp[w] = n_comp
+                    if w == v:
+                        break
+                n_comp += 1
+    # nodes without out-edges are their own components
+    out = np.array(comp, dtype=np.int64)
+    lone = out < 0
+    out[lone] = n_comp + np.arange(int(lone.sum()))
+    return out
+
+
+def dense_rank(v: np.ndarray, mask: np.ndarray, with_zero: bool) -> np.ndarray:
+    """int ``[R, K]``: each masked value's rank among the distinct masked values of its
+    row (and 0, if ``with_zero``), 0 for the smallest; unmasked entries 0."""
+    R, K = v.shape
+    big = np.where(mask, v, np.iinfo(np.int64).max)
+    less = big[:, None, :] < big[:, :, None]  # [R, i, j]: v_j < v_i
+    same_before = np.triu(np.ones((K, K), dtype=bool), 1).T[None] & (
+        big[:, :, None] == big[:, None, :]
+    )  # [R, j, j']: j' < j with v_j' == v_j
+    first = mask & ~same_before.any(axis=2)
+    rank = (less & first[:, None, :]).sum(axis=2)
+    if with_zero:
+        zero_present = (mask & (v == 0)).any(axis=1, keepdims=True)
+        rank = rank + ((v > 0) & ~zero_present)
+    return np.where(mask, rank, 0)
+
+
+def _rows_of(obj, src: np.ndarray):
+    """A copy of a world dataclass (State, Observation) whose arrays keep the runs
+    ``src`` (int ``[M]``) of their leading runs axis; other fields as they are."""
+    values = {}
+    for f in fields(obj):
+        v = getattr(obj, f.name)
+        values[f.name] = v[src].copy() if isinstance(v, np.ndarray) and v.ndim else v
+    return type(obj)(**values)
+
+
+def _keys(rows: np.ndarray) -> list[bytes]:
+    a = np.ascontiguousarray(rows, dtype=np.int8)
+    return a.view(np.dtype((np.void, a.shape[1]))).ravel().tolist()
+
+
+def _rows(store: list[np.ndarray], ids: np.ndarray, width: int) -> np.ndarray:
+    offsets = np.cumsum([0] + [b.shape[0] for b in store])
+    out = np.empty((ids.size, width), dtype=np.int8)
+    for b, (lo, hi) in enumerate(zip(offsets[:-1], offsets[1:], strict=True)):
+        sel = (ids >= lo) & (ids < hi)
+        if sel.any():
+            out[sel] = store[b][ids[sel] - lo]
+    return out
+
+
+def _digits(x: int, k: int) -> list[int]:
+    return [(x // 5**i) % 5 for i in range(k)]
+
+
+# --- the family of small maps --------------------------------------------------------
+
+
+def shapes(n: int, max_cycles: int = 1) -> list[frozenset[tuple[int, int]]]:
+    """Every connected set of ``n`` grid cells whose cell graph (4-neighbourhood) has at
+    most ``max_cycles`` independent cycles (0: trees), up to translation (the rules
+    break ties in N, E, S, W order, so rotations and mirror images are different maps)."""
+    step = ((-1, 0), (0, 1), (1, 0), (0, -1))
+
+    def norm(cells):
+        r0 = min(r for r, _ in cells)
+        c0 = min(c for _, c in cells)
+        return frozenset((r - r0, c - c0) for r, c in cells)
+
+    def cycles(cells):
+        edges = sum((r + 1, c) in cells for r, c in cells) + sum(
+            (r, c + 1) in cells for r, c in cells
+        )
+        return edges - len(cells) + 1
+
+    level = {frozenset({(0, 0)})}
+    for _ in range(n - 1):
+        nxt = set()
+        for sh in level:
+            for r, c in sh:
+                for dr, dc in step:
+                    x = (r + dr, c + dc)
+                    if x not in sh:
+                        new = sh | {x}
+                        if cycles(new) <= max_cycles:
+                            nxt.add(norm(new))
+        level = nxt
+    return sorted(level, key=lambda s: sorted(s))
+
+
+def map_text(cells: frozenset[tuple[int, int]], stations: tuple[tuple[int, int], ...] = ()) -> str:
+    """Map text of a cell set (walls around it), with ``H`` on ``stations``."""
+    h = max(r for r, _ in cells) + 1
+    w = max(c for _, c in cells) + 1
+    lines = []
+    for r in range(h):
+        line = ""
+        for c in range(w):
+            line += "H" if (r, c) in stations else "." if (r, c) in cells else "#"
+        lines.append(line)
+    return "\n".join(lines) + "\n"
+
+
+def degree(cells: frozenset[tuple[int, int]], x: tuple[int, int]) -> int:
+    r, c = x
+    return sum((r + dr, c + dc) in cells for dr, dc in ((-1, 0), (0, 1), (1, 0), (0, -1)))
+
+
+def station_choices(
+    cells: frozenset[tuple[int, int]], two: bool = False
+) -> list[tuple[tuple[int, int], ...]]:
+    """One station at the first dead end (row-major), one on the first junction, and
+    with ``two`` both at once."""
+    ordered = sorted(cells)
+    out = []
+    dead = [x for x in ordered if degree(cells, x) == 1]
+    junction = [x for x in ordered if degree(cells, x) >= 3]
+    if dead:
+        out.append((dead[0],))
+    if junction:
+        out.append((junction[0],))
+    if two and dead and junction:
+        out.append((dead[0], junction[0]))
+    elif two and len(dead) >= 2:
+        out.append((dead[0], dead[-1]))
+    return out
+
+
+def family(
+    sizes: range,
+    ks: range | None = None,
+    battery: bool = False,
+    every: int = 1,
+    two_stations: bool = False,
+    **kw,
+) -> list[Case]:
+    """Cases on every tree and one-loop shape of each size (``every``: one shape in that
+    many, in a fixed order), K from 2 up to the density limit (or ``ks``); with the
+    battery, a station at a dead end, on a junction, and with ``two_stations`` two at
+    once (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
+    refuses (:func:`qpatrol.world.make_params`: too many robots for the map, a capacity
+    too small, ...) are left out: the density limit is whatever the world accepts."""
+    out = []
+    for n in sizes:
+        for sh in shapes(n)[::every]:
+            for k in ks or range(2, n + 1):
+                if battery:
+                    for st in station_choices(sh, two_stations):
+                        out.append(Case(map_text(sh, st), k, battery=True, **kw))
+                else:
+                    out.append(Case(map_text(sh), k, **kw))
+    return [c for c in out if accepted(c)]
+
+
+def accepted(case: Case) -> bool:
+    """The config and the world accept the case (:func:`qpatrol.world.make_params`)."""
+    try:
+        Checker(case)
+    except ConfigError:
+        return False
+    return True
+
+
+def check_all(cases: list[Case], max_states: int = 2_000_000, verbose: bool = False):
+    """Explore every case; returns (results, total states, total edges)."""
+    results = []
+    for case in cases:
+        ck = Checker(case)
+        res = ck.explore(max_states=max_states)
+        res.checker = ck
+        if not res.livelocks:
+            ck.edges, ck.order = (), []  # nothing to report: let the graph go
+        results.append(res)
+        if verbose and res.livelocks:
+            print(ck.report(res.livelocks[0]))
+    return results
+
+
+def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
+    """Check a family from the command line; prints counts and the smallest livelock."""
+    import argparse
+    import time
+
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--sizes", default="4-6", help="cells per map, e.g. 4-6")
+    ap.add_argument("--k", default="", help="team sizes, e.g. 2-3 (default 2 to C/2)")
+    ap.add_argument("--battery", action="store_true")
+    ap.add_argument("--charge-steps", type=int, default=1)
+    ap.add_argument("--extra-capacity", type=int, default=0, help="above the smallest")
+    ap.add_argument("--initial-charge", default="staggered")
+    ap.add_argument("--adversary", default="open", choices=("open", "legal"))
+    ap.add_argument("--two-stations", action="store_true", help="also two stations at once")
+    ap.add_argument("--show", type=int, default=1, help="livelocks to draw")
+    a = ap.parse_args(argv)
+
+    def span(text: str) -> range:
+        lo, _, hi = text.partition("-")
+        return range(int(lo), int(hi or lo) + 1)
+
+    t0 = time.perf_counter()
+    kw = {"adversary": a.adversary}
+    if a.battery:
+        kw.update(
+            charge_steps=a.charge_steps,
+            initial_charge=a.initial_charge,
+            extra_capacity=a.extra_capacity,
+        )
+    ks = span(a.k) if a.k else None
+    cases = family(span(a.sizes), ks, battery=a.battery, two_stations=a.two_stations, **kw)
+    res = check_all(cases)
+    bad = [r for r in res if r.livelocks]
+    print(
+        f"{len({c.text for c in cases})} maps, {len(cases)} cases, "
+        f"{sum(r.states for r in res)} states, {sum(r.edges for r in res)} transitions, "
+        f"{len(bad)} cases with a livelock, {time.perf_counter() - t0:.1f} s"
+    )
+    bad.sort(key=lambda r: (r.checker.p.n_cells, r.case.k, len(r.livelocks[0].cycle)))
+    for r in bad[: a.show]:
+        print(r.checker.report(r.livelocks[0]))
+        print("replayed with R=1, the robot's wait after each turn of the cycle:")
+        print(replay(r.checker, r.livelocks[0]).tolist())
+    return 1 if bad else 0
+
+
+if __name__ == "__main__":  # pragma: no cover
+    raise SystemExit(main())
