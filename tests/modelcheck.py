@@ -146,9 +146,11 @@ class Result:
 
 
 def smallest_capacity(m: Map, margin: int = 0) -> int:
-    """The smallest ``battery.capacity`` :func:`qpatrol.world.make_params` accepts."""
+    """The smallest ``battery.capacity`` :func:`qpatrol.world.make_params` accepts: above
+    the farthest cell's distance to a station, the margin, 1 and the moves of leaving a
+    station (``2 x depart_len``)."""
     nearest = int(m.distances()[m.homes].min(axis=0).max())
-    return nearest + margin + 2
+    return nearest + margin + 2 + 2 * departure_length(m)
 
 
 def departure_length(m: Map) -> int:

@@ -427,15 +427,23 @@ LINE_H = "H.....0\n"  # H is cell 0, the agent starts on cell 6 (6 moves from H)
 
 
 def test_battery_config_checked_against_map():
-    """Changed on purpose: the capacity must exceed the farthest distance + margin + 1
-    (the ``+ 1`` of the new switching rule); 6 moves from H and margin 0 need 8."""
+    """The capacity must exceed the farthest distance + margin + 1 (the ``+ 1`` of the
+    switching rule) + the moves of leaving a station, 2 x depart_len (its charge is not
+    checked while it leaves): 6 moves from H, margin 0, and depart_len 1 (no junction)
+    need 6 + 0 + 1 + 2 = 9, so 10."""
     m = parse_map(LINE_H)
     on = {"agents": 1, "battery.enabled": True, "battery.margin": 0}
-    with pytest.raises(ConfigError, match="battery.capacity: 7 is too small"):
-        world.make_params(from_flat({**on, "battery.capacity": 7}), m)
-    world.make_params(from_flat({**on, "battery.capacity": 8}), m)
+    with pytest.raises(ConfigError, match="battery.capacity: 9 is too small"):
+        world.make_params(from_flat({**on, "battery.capacity": 9}), m)
+    world.make_params(from_flat({**on, "battery.capacity": 10}), m)
+    # H... over ##.#: the farthest cells 3 moves from H, the junction 2 (depart_len 2):
+    # 3 + 0 + 1 + 2 x 2 = 8, so 9
+    t = parse_map("H...\n##.#\n")
+    with pytest.raises(ConfigError, match="battery.capacity: 8 is too small"):
+        world.make_params(from_flat({**on, "battery.capacity": 8}), t)
+    world.make_params(from_flat({**on, "battery.capacity": 9}), t)
     with pytest.raises(ConfigError, match="no charging station"):
-        world.make_params(from_flat({**on, "battery.capacity": 8}), parse_map("......0\n"))
+        world.make_params(from_flat({**on, "battery.capacity": 10}), parse_map("......0\n"))
 
 
 @pytest.mark.parametrize("capacity", [10, 11])

@@ -139,12 +139,15 @@ def make_params(cfg: Config, m: Map) -> Params:
                 f"battery.enabled: map {m.name} has no charging station 'H'; "
                 "set battery.enabled=false or add one"
             )
-        need = int(nearest.max()) + cfg["battery.margin"] + 1
+        # a robot leaving a station walks up to 2 x depart_len moves before its charge
+        # is checked again: it must still be above the threshold then (docs/model.md)
+        leave = 2 * int(depart_len.max())
+        need = int(nearest.max()) + cfg["battery.margin"] + 1 + leave
         if cfg["battery.capacity"] <= need:
             raise ConfigError(
                 f"battery.capacity: {cfg['battery.capacity']} is too small for map {m.name}; "
                 f"allowed: > {need} (farthest cell {int(nearest.max())} moves from H, plus "
-                "battery.margin, plus 1)"
+                f"battery.margin, plus 1, plus {leave} moves leaving a station)"
             )
     dist = m.distances()
     return Params(
