@@ -527,7 +527,8 @@ def policies(fig: pd.DataFrame) -> Section:
             f"learn, {lwarm} (see docs/model.md and the learning-over-time section for "
             "why). L/K: K robots evenly spaced on the closed walk of length L through every "
             "cell.",
-            f"Runs that went wrong: {frozen} frozen (a wait longer than a crossing of the map), "
+            f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`, "
+            "(K - 1)(D + 1) + 1 without battery), "
             f"{missing} without an idleness value.{uncovered}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
             "(not learning) on that map and team size. Full table with 95% t-intervals: "
