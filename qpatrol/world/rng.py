@@ -202,8 +202,8 @@ class Streams:
         (:mod:`qpatrol.engines.compiled.pcg`). Uniforms drawn into the current block
         and not yet taken (:meth:`pending`) are given back first: the words stand where
         the taken ones left the stream. The same array at every call; the generators
-        catch up when next used (:attr:`generators`, :meth:`next`, :meth:`take`,
-        :meth:`draw`, a pickle)."""
+        catch up when next used (:attr:`generators`, :meth:`next`, :meth:`take`, a
+        pickle)."""
         if not self._words_valid:
             back = self.pending() * self.agents * 2
             self._buf = self._buf[:, :0]
@@ -290,14 +290,3 @@ class Streams:
     def pending(self) -> int:
         """Steps of uniforms drawn into the current block and not yet taken."""
         return self._buf.shape[1] - self._i
-
-    def draw(self, n: int, lo: int, hi: int, out: np.ndarray) -> np.ndarray:
-        """float ``[hi - lo, n, K, 2]``: the next ``n`` steps' uniforms of runs
-        ``lo..hi-1`` only, drawn into ``out``. Only when nothing is pending
-        (:meth:`pending`); after every run has drawn its ``n`` steps (each run once),
-        the streams stand where :meth:`take` of ``n`` would have left them."""
-        if self.pending():
-            raise RuntimeError("Streams.draw: uniforms of the current block are pending")
-        for r in range(lo, hi):
-            self.generators[r].random(out=out[r - lo])
-        return out
