@@ -308,7 +308,9 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         # learns and measures it in one pass, in robot order; any other step takes the
         # traffic rules' passes (every robot patrols: priority by wait, then turn)
         push_failed = False
-        if moves.clear(want, occ_r, avoid):
+        # a step with no conflict after one in which no robot waited changes no wait
+        unchanged = waiting == 0 and moves.clear(want, occ_r, avoid)
+        if unchanged or (waiting > 0 and moves.clear(want, occ_r, avoid)):
             for k in range(n_agents):
                 c1 = want[k]
                 moved[k] = as_asked[k] = c1 >= 0
@@ -336,9 +338,11 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                     head_r[k], sums = _team_enters(
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
                     )
-        waiting, longest = moves.waits(r, False, s, w)
+        waiting, longest = moves.waits(r, False, s, w, unchanged)
         if avoid:
-            tok, held = moves.pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w)
+            tok, held = moves.pass_token(
+                r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w
+            )
         # --- episodes: all dots eaten, or too long -------------------------------------
         if episodes.due(t, deadline, s.dots_left[r]):
             n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
@@ -460,7 +464,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             waiting, longest = moves.waits(r, battery, s, w)
             if avoid and n_agents > 1:
                 s.token[r], s.token_held[r] = moves.pass_token(
-                    r, tok, s.token_held[r], push_failed, t_next_mod, p.diameter, s, w
+                    r, tok, s.token_held[r], push_failed, t_next_mod, p.diameter, waiting, s, w
                 )
             s.steps_done[r] = t
             n_ep, when = episodes.step(r, t, p, s, o.ep_buf, n_ep, w.ended, when, never)

@@ -265,13 +265,16 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def waits(r, battery, s, w):
+def waits(r, battery, s, w, unchanged=False):
     """After the moves: each robot that asked and did not move as asked waits one step
     more (``s.wait``), and ``w.blocked_by`` names the robot in its way; a queued or
-    held-back robot waits too (battery). Returns ``(robots waiting, longest wait)``."""
+    held-back robot waits too (battery). ``unchanged``: a caller's promise that no wait
+    changes (battery off, no robot waited before a step in which every robot that asked
+    moved as asked, :func:`clear`): nothing to write, and ``w.blocked_by`` is left as it
+    was, as no robot was blocked. Returns ``(robots waiting, longest wait)``."""
     waiting = 0
     longest = 0
-    for k in range(s.pos.shape[1]):
+    for k in range(0 if unchanged else s.pos.shape[1]):
         failed = w.ask[k] >= 0 and not w.as_asked[k]
         w.blocked_by[k] = s.occ[r, w.want[k]] if failed else -1
         if battery and (s.mode[r, k] == QUEUED or w.held_back[k]):
@@ -285,14 +288,16 @@ def waits(r, battery, s, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def pass_token(r, tok, held, push_failed, t_next_mod, diameter, s, w):
+def pass_token(r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w):
     """:func:`qpatrol.world.traffic.pass_token` of run ``r`` after its moves: the holder keeps
     the right of way while it moves as asked (at most ``diameter`` steps); a holder whose
     push failed hands it to the robot that blocked it, if that one waits; else it goes
-    to the waiting robot of highest priority at the next step (none: -1). Returns
-    ``(holder, steps it has held it)``."""
+    to the waiting robot of highest priority at the next step (none: -1). ``waiting``:
+    the robots waiting after the moves (:func:`waits`); a robot that asked and did not
+    move as asked is one of them, so with none no robot is scanned. Returns ``(holder,
+    steps it has held it)``."""
     want, as_asked = w.want, w.as_asked
-    n_agents = want.shape[0]
+    n_agents = want.shape[0] if waiting > 0 else 0
     best_k = -1
     best_key = -1
     for k in range(n_agents):
