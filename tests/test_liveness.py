@@ -22,6 +22,7 @@ from qpatrol import measures, strategies, world
 from qpatrol.config import from_flat
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import get_map, parse_map
+from qpatrol.run import simulate
 from qpatrol.world.rng import Streams, run_seeds
 
 DATA = Path(__file__).parent / "data"
@@ -42,8 +43,15 @@ def load(name: str):
     return get_map(name)
 
 
-def drive(m, policy: str, k: int, seed: int, steps: int, runs: int = 2, **extra):
-    """Run and check safety at every step; returns (max_wait [R], bound, params)."""
+def drive(m, policy: str, k: int, seed: int, steps: int, runs: int = 2, engine="numpy", **extra):
+    """Run and check safety at every step; returns (max_wait [R], bound, params).
+
+    ``engine="numpy"`` steps the reference engine here, checking the state after each
+    step; ``"numba"`` runs the compiled loop through :func:`qpatrol.run.simulate` and
+    checks the same rules on the trajectory of every step (``record.trajectory``), and
+    the charges on their minimum (``min_charge``): the engines agree to the bit
+    (``tests/test_engines.py``), and the compiled one runs the table below in a fraction
+    of the time."""
     dist = m.distances()
     nearest = int(dist[m.homes].min(axis=0).max())
     cfg = from_flat(
@@ -55,29 +63,48 @@ def drive(m, policy: str, k: int, seed: int, steps: int, runs: int = 2, **extra)
             "steps": steps,
             "battery.capacity": max(3 * int(dist.max()), nearest + 10) + 20,
             "battery.charge_steps": 20,
+            "engine": engine,
+            "record.trajectory": steps if engine != "numpy" else 0,
             **extra,
         }
     )
     p = world.make_params(cfg, m)
+    if engine != "numpy":
+        result = simulate(cfg, prepared=(m, p))
+        for _, run in result.trajectory.groupby("run"):
+            check_steps(run["cell"].to_numpy().reshape(-1, k), p)
+        assert min(s["min_charge"] for s in result.summary) >= 0, "a charge went below 0"
+        return np.array([s["max_wait"] for s in result.summary]), measures.wait_bound(p), p
     streams = Streams(run_seeds(seed, range(runs)), k)
     starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
     s = world.init_state(p, starts)
     strat = strategies.make(policy, cfg, m, p, starts)
     watch = measures.Measures(runs, k, m.n_cells, 0)
-    other = ~np.eye(k, dtype=bool)[None]
     for _ in range(steps):
         before = s.pos.copy()
         out = advance(s, p, strat, streams.next())
         watch.observe(out, s.wait, s.charge)
-        cells = np.sort(s.pos, axis=1)
-        assert not (cells[:, 1:] == cells[:, :-1]).any(), "two robots in one cell"
-        swap = (s.pos[:, :, None] == before[:, None, :]) & (before[:, :, None] == s.pos[:, None, :])
-        assert not (swap & other).any(), "two robots swapped cells"
-        step = s.pos != before
-        adjacent = (p.neighbors[before] == s.pos[..., None]).any(axis=-1)
-        assert adjacent[step].all(), "a robot jumped or went through a wall"
+        check_steps(np.stack([before, s.pos], axis=1), p)
         assert (s.charge >= 0).all(), "a charge went below 0"
     return watch.max_wait, measures.wait_bound(p), p
+
+
+def check_steps(cells: np.ndarray, p) -> None:
+    """The safety rules over consecutive team steps: ``cells`` int ``[..., T, K]``, the
+    robots' cells at T consecutive steps (of each run on the leading axes). No two
+    robots share a cell, none swaps with another, each stays or moves to a neighbour."""
+    k = cells.shape[-1]
+    other = ~np.eye(k, dtype=bool)
+    ordered = np.sort(cells, axis=-1)
+    assert not (ordered[..., 1:] == ordered[..., :-1]).any(), "two robots in one cell"
+    before, after = cells[..., :-1, :], cells[..., 1:, :]
+    swap = (after[..., :, None] == before[..., None, :]) & (
+        before[..., :, None] == after[..., None, :]
+    )
+    assert not (swap & other).any(), "two robots swapped cells"
+    step = after != before
+    adjacent = (p.neighbors[before] == after[..., None]).any(axis=-1)
+    assert adjacent[step].all(), "a robot jumped or went through a wall"
 
 
 #: Maps run with one team size, and maps run with 4 and 8 robots: on those, each
@@ -105,7 +132,7 @@ def test_every_strategy_meets_every_map_and_both_team_sizes():
 def test_no_robot_waits_longer_than_a_fair_station_queue(name, k, policy):
     m = load(name)
     seed = sum(map(ord, name + policy)) + k
-    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200)
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine="numba")
     assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
 
 
@@ -124,7 +151,7 @@ DENSE = [("comb", 8, policy) for policy in strategies.NAMES] + [
 def test_dense_teams_on_dead_ends(name, k, policy):
     m = load(name)
     seed = sum(map(ord, name + policy)) + k
-    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200)
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine="numba")
     assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
 
 
@@ -153,7 +180,14 @@ def test_regression_station_104_of_map_a_with_eight_robots():
     m = get_map("map_a")
     assert 104 in m.homes.tolist()
     max_wait, bound, p = drive(
-        m, "qlearning", 8, 2012, steps=3000, runs=4, **{"battery.initial_charge": "full"}
+        m,
+        "qlearning",
+        8,
+        2012,
+        steps=3000,
+        runs=4,
+        engine="numba",
+        **{"battery.initial_charge": "full"},
     )
     assert max_wait.max() <= bound
     assert max_wait.max() < 1000  # the frozen runs waited 48,637 to 74,923 robot-steps
@@ -168,7 +202,28 @@ def test_regression_dead_end_station():
     assert p_max_wait.max() <= bound
 
 
-def test_the_safety_check_sees_shared_cells_without_collision_avoidance():
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_the_safety_check_sees_shared_cells_without_collision_avoidance(engine):
     """The checks above are not vacuous: with avoidance off robots do share cells."""
     with pytest.raises(AssertionError, match="two robots in one cell"):
-        drive(load("map_a"), "random", 8, 1, steps=400, **{"team.avoid_collisions": False})
+        drive(
+            load("map_a"),
+            "random",
+            8,
+            1,
+            steps=400,
+            engine=engine,
+            **{"team.avoid_collisions": False},
+        )
+
+
+def test_the_step_check_sees_swaps_and_jumps():
+    """Two robots that trade cells, and a robot that jumps, fail the step check."""
+    p = world.make_params(from_flat({"agents": 2, "battery.enabled": False}), load("map_a"))
+    a, b = 0, int(p.neighbors[0][p.neighbors[0] >= 0][0])
+    check_steps(np.array([[a, b], [a, b]]), p)  # standing still is safe
+    with pytest.raises(AssertionError, match="swapped"):
+        check_steps(np.array([[a, b], [b, a]]), p)
+    far = int(np.argmax(get_map("map_a").distances()[a]))
+    with pytest.raises(AssertionError, match="jumped"):
+        check_steps(np.array([[a, b], [far, b]]), p)
