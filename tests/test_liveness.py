@@ -11,6 +11,7 @@ longer than a fair station queue (:func:`qpatrol.measures.wait_bound`).
 
 from __future__ import annotations
 
+import importlib.util
 import itertools
 from pathlib import Path
 
@@ -25,6 +26,8 @@ from qpatrol.maps import get_map, parse_map
 from qpatrol.run import simulate
 from qpatrol.world.rng import Streams, run_seeds
 
+#: the compiled engine where numba is installed (``qpatrol[fast]``)
+FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 DATA = Path(__file__).parent / "data"
 
 GENERATED = {
@@ -132,7 +135,7 @@ def test_every_strategy_meets_every_map_and_both_team_sizes():
 def test_no_robot_waits_longer_than_a_fair_station_queue(name, k, policy):
     m = load(name)
     seed = sum(map(ord, name + policy)) + k
-    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine="numba")
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine=FAST)
     assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
 
 
@@ -151,7 +154,7 @@ DENSE = [("comb", 8, policy) for policy in strategies.NAMES] + [
 def test_dense_teams_on_dead_ends(name, k, policy):
     m = load(name)
     seed = sum(map(ord, name + policy)) + k
-    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine="numba")
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1200, engine=FAST)
     assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
 
 
@@ -186,7 +189,7 @@ def test_regression_station_104_of_map_a_with_eight_robots():
         2012,
         steps=3000,
         runs=4,
-        engine="numba",
+        engine=FAST,
         **{"battery.initial_charge": "full"},
     )
     assert max_wait.max() <= bound
@@ -202,7 +205,7 @@ def test_regression_dead_end_station():
     assert p_max_wait.max() <= bound
 
 
-@pytest.mark.parametrize("engine", ["numpy", "numba"])
+@pytest.mark.parametrize("engine", sorted({"numpy", FAST}))
 def test_the_safety_check_sees_shared_cells_without_collision_avoidance(engine):
     """The checks above are not vacuous: with avoidance off robots do share cells."""
     with pytest.raises(AssertionError, match="two robots in one cell"):

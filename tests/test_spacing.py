@@ -12,6 +12,7 @@ that lost steps is waited for, one robot after the other, and the spacing comes 
 
 from __future__ import annotations
 
+import importlib.util
 from pathlib import Path
 
 import mazes
@@ -25,6 +26,8 @@ from qpatrol.maps import Map, get_map, parse_map, walks
 from qpatrol.run import simulate
 from qpatrol.strategies import follow
 
+#: the compiled engine where numba is installed (``qpatrol[fast]``)
+FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 STEPS, WARMUP = 2500, 1000
 
 
@@ -89,7 +92,7 @@ def load(name: str, tmp_path: Path) -> tuple[str, Map]:
 
 
 def worst_interval(
-    name: str, k: int, tmp_path: Path, policy: str = "cyclic", engine: str = "numba"
+    name: str, k: int, tmp_path: Path, policy: str = "cyclic", engine: str = FAST
 ) -> tuple:
     """(L, depth, worst max_interval over 2 runs) of K robots, battery off. On the
     compiled engine by default (the engines agree to the bit: ``tests/test_engines.py``
