@@ -19,9 +19,10 @@ import numpy as np
 import pytest
 
 from qpatrol import measures, strategies, world
-from qpatrol.config import from_flat
+from qpatrol.config import from_flat, load_config
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import get_map, parse_map
+from qpatrol.run import simulate
 from qpatrol.world.rng import Streams, run_seeds
 
 DATA = Path(__file__).parent / "data"
@@ -166,6 +167,24 @@ def test_regression_dead_end_station():
     p_max_wait, bound, p = drive(m, "random", 2, 3, steps=800, runs=4)
     assert p.pocket_entry.tolist() == [2]
     assert p_max_wait.max() <= bound
+
+
+def test_regression_two_holders_trapped_behind_robots_in_a_dead_end(tmp_path):
+    """The freeze of the earlier rules on the tree floor ``random_maze(5, 6, 3)`` (59
+    cells; one junction joins the pocket of each station and a dead end of 8 cells), 8
+    learners, the paper's config, run 0: both stations were held by robots deep in the
+    dead end while their pockets, closed since the stations were taken, left the dead
+    end and the junction, 9 cells, to all 8 robots. On a line robots never pass, so the
+    holders waited for ever (from step 1,790 on; 13,210 steps by step 15,000). A pocket
+    is now closed only once its holder is at its door, and one robot at a time goes
+    home."""
+    path = tmp_path / "floor3.txt"
+    path.write_text(mazes.random_maze(5, 6, 3))
+    cfg = load_config("paper", [f"map={path}", "agents=8", "runs=1", "steps=3500"])
+    result = simulate(cfg.replace(engine="numpy"))
+    run = result.summary[0]
+    assert run["wait_bound"] == 1490
+    assert run["live"] and run["max_wait"] <= run["wait_bound"]
 
 
 def test_the_safety_check_sees_shared_cells_without_collision_avoidance():
