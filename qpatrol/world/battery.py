@@ -94,13 +94,11 @@ def _assign_stations(s: State, p: Params) -> None:
     """Give free stations to queued robots, first come first served (ties: lower index)."""
     R, K = s.pos.shape
     queued = s.active[:, None] & (s.mode == QUEUED)
-    # one robot at a time on its way to a station
-    lane_free = ~(s.active[:, None] & (s.mode == HOMING)).any(axis=1)
     rank = np.where(queued, s.queued_since, 1 << 50) * K + np.arange(K)
     order = np.argsort(rank, axis=1, kind="stable")
     for i in range(K):
         k = order[:, i]
-        rows = np.flatnonzero(queued[np.arange(R), k] & lane_free)
+        rows = np.flatnonzero(queued[np.arange(R), k])
         if rows.size == 0:
             break  # queued robots come first in every run
         kk = k[rows]
@@ -114,7 +112,6 @@ def _assign_stations(s: State, p: Params) -> None:
         s.reserved[rows, h] = kk
         s.goal[rows, kk] = h
         s.mode[rows, kk] = HOMING
-        lane_free[rows] = False
 
 
 def homing_ask(s: State, p: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -178,34 +175,18 @@ def queued_ask(s: State, p: Params) -> np.ndarray:
     R, K = s.pos.shape
     me = np.arange(K)[None, :]
     h = p.pocket_of[s.pos]
-    closed_by = closers(s, p)  # [R, H]
-    holder = closed_by[np.arange(R)[:, None], np.maximum(h, 0)]
+    holder = s.reserved[np.arange(R)[:, None], np.maximum(h, 0)]
     station = np.where((h >= 0) & (holder >= 0) & (holder != me), h, -1)
-    on = (s.pos[:, :, None] == p.pocket_entry[None, None, :]) & (closed_by[:, None, :] >= 0)
-    on &= closed_by[:, None, :] != me[..., None]
+    on = (s.pos[:, :, None] == p.pocket_entry[None, None, :]) & (s.reserved[:, None, :] >= 0)
+    on &= s.reserved[:, None, :] != me[..., None]
     station = np.where(on.any(axis=-1), on.argmax(axis=-1), station)
     return way_out(s, p, station)
 
 
-def closers(s: State, p: Params) -> np.ndarray:
-    """int ``[R, H]``: the holder of each station whose pocket is *closed*, -1 if none: a
-    pocket is closed while its holder stands at its door (on the pocket's junction or a
-    cell next to it) or inside it."""
-    holder = s.reserved
-    if p.homes.size == 0:
-        return holder.copy()
-    at = s.pos[np.arange(s.n_runs)[:, None], np.maximum(holder, 0)]  # [R, H]
-    h = np.arange(p.homes.size)
-    door = p.home_dist[h, np.maximum(p.pocket_entry, 0)] + 1  # [H]
-    near = (p.pocket_entry >= 0)[None, :] & (p.home_dist[h[None, :], at] <= door[None, :])
-    return np.where((holder >= 0) & near, holder, -1)
-
-
 def held_pockets(s: State, p: Params, r: int) -> np.ndarray:
-    """bool ``[C]``: cells of run ``r`` in a closed pocket (:func:`closers`): no push may
-    move a robot into them (the holder enters on its own, once the pocket is empty)."""
-    closed = closers(s, p)[r] >= 0
-    return (p.pocket_of >= 0) & closed[np.maximum(p.pocket_of, 0)]
+    """bool ``[C]``: cells of run ``r`` in the pocket of a held station: no push may move
+    a robot into them (the holder enters on its own, once the pocket is empty)."""
+    return (p.pocket_of >= 0) & (s.reserved[r, np.maximum(p.pocket_of, 0)] >= 0)
 
 
 def closed_cells(s: State, p: Params, targets: np.ndarray) -> np.ndarray:
@@ -218,7 +199,7 @@ def closed_cells(s: State, p: Params, targets: np.ndarray) -> np.ndarray:
     t = np.maximum(targets, 0)
     h = p.pocket_of[t]  # [R, K, 4]
     rows = np.arange(s.n_runs)[:, None, None]
-    holder = closers(s, p)[rows, np.maximum(h, 0)]
+    holder = s.reserved[rows, np.maximum(h, 0)]
     here = s.pos[..., None]
     deeper = (p.pocket_of[here] != h) | (p.pocket_depth[t] > p.pocket_depth[here])
     others = holder != np.arange(s.pos.shape[1])[None, :, None]

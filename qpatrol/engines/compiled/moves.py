@@ -11,7 +11,7 @@ from __future__ import annotations
 
 from numba import njit
 
-from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, closer, kept_out
+from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, kept_out
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -35,10 +35,9 @@ def priority(wait, mode, depart_left, k, n_agents, t_mod):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def push_path(nbrs, occ_r, own, start, w, battery, mode_r, p, pos_r, reserved_r):
+def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r):
     """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
-    charging robots, nor (battery on) cells of closed pockets (``pos_r``, ``reserved_r``:
-    the run's rows, read before any robot of the step moves).
+    charging robots, nor (battery on) cells of held pockets.
 
     Fills ``w.path[:m]`` with ``[start, ..., empty]`` and returns m (0: none).
     ``w.parent`` (-2 everywhere) and ``w.seen`` are scratch arrays ``[C]`` left clean.
@@ -63,7 +62,7 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, p, pos_r, reserved_r)
             if nb < 0 or nb == own or parent[nb] != -2:
                 continue
             if battery:
-                if kept_out(nb, p, pos_r, reserved_r):
+                if kept_out(nb, pocket_of, reserved_r):
                     continue
                 j = occ_r[nb]
                 if j >= 0 and mode_r[j] == CHARGING:
@@ -91,7 +90,7 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, p, pos_r, reserved_r)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, p, reserved_r):
+def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
     """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
     (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
     else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
@@ -108,13 +107,13 @@ def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, p, reserved_r):
             cell = nbrs[own, ci - 1]
             if cell < 0 or cell == want[tok]:
                 continue
-            if battery and kept_out(cell, p, pos_r, reserved_r):
+            if battery and kept_out(cell, pocket_of, reserved_r):
                 continue
         if occ_r[cell] < 0:
             dest = cell
             m = 0
             break
-        m = push_path(nbrs, occ_r, own, cell, w, battery, mode_r, p, pos_r, reserved_r)
+        m = push_path(nbrs, occ_r, own, cell, w, battery, mode_r, pocket_of, reserved_r)
         if m > 0:
             dest = cell
             break
@@ -178,14 +177,13 @@ def pushable(r, c, nb, battery, p, s, w):
     """Whether the holder of the right of way on cell ``c`` of run ``r`` can enter its
     occupied neighbour ``nb``: a push path empties it (:func:`push_path`;
     traffic.feasible_moves)."""
-    occ_r, mode_r, pos_r, res_r = s.occ[r], s.mode[r], s.pos[r], s.reserved[r]
-    return push_path(p.nbrs, occ_r, c, nb, w, battery, mode_r, p, pos_r, res_r) > 0
+    return push_path(p.nbrs, s.occ[r], c, nb, w, battery, s.mode[r], p.pocket_of, s.reserved[r]) > 0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def open_moves(r, tok, battery, avoid, p, s, w):
     """world.begin_step of run ``r``: who chooses (patrolling robots), and each robot's
-    open moves ``w.open_mask`` (legal, not deeper into another robot's closed station
+    open moves ``w.open_mask`` (legal, not deeper into another robot's held station
     pocket (battery.closed_cells), not into a robot's cell but for the holder of the
     right of way ``tok``, who may move where a push makes room
     (traffic.feasible_moves); every legal move where none is open, base.prefer_open); the
@@ -203,7 +201,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
             if ok and battery:
                 hp = pocket_of[nb]
                 if hp >= 0:
-                    holder = closer(hp, p, s.pos[r], s.reserved[r])
+                    holder = s.reserved[r, hp]
                     if holder >= 0 and holder != k:
                         if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
                             ok = False
@@ -241,7 +239,9 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
                 as_asked[k] = True
         return push_failed
     if tok >= 0 and want[tok] >= 0:
-        push_failed = holder_moves(tok, p.nbrs, occ_r, pos_r, w, battery, mode_r, p, s.reserved[r])
+        push_failed = holder_moves(
+            tok, p.nbrs, occ_r, pos_r, w, battery, mode_r, p.pocket_of, s.reserved[r]
+        )
     if n_agents == 1:  # alone: the priority order is trivial
         wk = want[0]
         if wk >= 0 and not moved[0] and occ_r[wk] < 0:

@@ -17,22 +17,10 @@ PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def closer(h, p, pos_r, reserved_r):
-    """:func:`qpatrol.world.battery.closers` of station h: its holder if the pocket is
-    closed (the holder at the pocket's door or inside it), else -1 (``pos_r``,
-    ``reserved_r``: the run's rows)."""
-    holder = reserved_r[h]
-    entry = p.pocket_entry[h]
-    if holder >= 0 and entry >= 0 and p.home_dist[h, pos_r[holder]] <= p.home_dist[h, entry] + 1:
-        return holder
-    return -1
-
-
-@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def kept_out(c, p, pos_r, reserved_r):
-    """:func:`qpatrol.world.battery.held_pockets`: cell c lies in a closed pocket."""
-    h = p.pocket_of[c]
-    return h >= 0 and closer(h, p, pos_r, reserved_r) >= 0
+def kept_out(c, pocket_of, reserved_r):
+    """:func:`qpatrol.world.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    h = pocket_of[c]
+    return h >= 0 and reserved_r[h] >= 0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -101,13 +89,9 @@ def begin(r, t, p, s, w):
             order[b + 1] = order[b]
             b -= 1
         order[b + 1] = x
-    lane_free = True  # one robot at a time on its way to a station
-    for k in range(n_agents):
-        if mode[r, k] == HOMING:
-            lane_free = False
     for a in range(n_agents):
         k = order[a]
-        if mode[r, k] != QUEUED or not lane_free:
+        if mode[r, k] != QUEUED:
             break
         best_h = -1
         best_d = np.iinfo(np.int64).max
@@ -120,7 +104,6 @@ def begin(r, t, p, s, w):
             s.reserved[r, best_h] = k
             s.goal[r, k] = best_h
             mode[r, k] = HOMING
-            lane_free = False
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -167,13 +150,12 @@ def ask(r, p, s, w):
             station = -1
             hp = pocket_of[c]
             if hp >= 0:
-                holder = closer(hp, p, pos[r], reserved[r])
+                holder = reserved[r, hp]
                 if holder >= 0 and holder != k:
                     station = hp
             for hh in range(p.homes.shape[0]):
-                holder = closer(hh, p, pos[r], reserved[r])
-                if c == pocket_entry[hh] and holder >= 0:
-                    if holder != k:
+                if c == pocket_entry[hh] and reserved[r, hh] >= 0:
+                    if reserved[r, hh] != k:
                         station = hh
                         break
             w.ask[k] = way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station)
