@@ -169,17 +169,15 @@ def test_regression_dead_end_station():
     assert p_max_wait.max() <= bound
 
 
-#: Known freeze of the present rules (docs/model.md, "Not proven: the trip home"). Strict:
-#: when a rule change removes it the test passes and this mark must go.
-@pytest.mark.xfail(reason="two holders trapped behind robots in a dead end", strict=True)
-def test_two_holders_trapped_behind_robots_in_a_dead_end(tmp_path):
-    """The tree floor ``random_maze(5, 6, 3)`` (59 cells; one junction joins the pockets
-    of the two stations, 10 and 40 cells, and a dead end of 8 cells), 8 learners, the
-    paper's config, run 0: from step 1,790 on both stations are held by robots deep in
-    the dead end while both pockets are closed (since the stations were taken), which
-    leaves the dead end and the junction, 9 cells, to all 8 robots. Robots in a one-wide
-    dead end never pass each other: the holders wait for ever (13,210 steps by step
-    15,000, against a bound of 1,490)."""
+def test_regression_two_holders_trapped_behind_robots_in_a_dead_end(tmp_path):
+    """The freeze of the earlier rules on the tree floor ``random_maze(5, 6, 3)`` (59
+    cells; one junction joins the pockets of the two stations, 10 and 40 cells, and a
+    dead end of 8 cells), 8 learners, the paper's config, run 0: from step 1,790 on both
+    stations were held by robots deep in the dead end while both pockets were closed,
+    which left the dead end and the junction, 9 cells, to all 8 robots; robots in a
+    one-wide dead end never pass each other, and the holders waited for ever (13,210
+    steps by step 15,000, against a bound of 1,490). Now a station whose pocket shares
+    its junction with that of a station a robot is on its way to is not taken."""
     path = tmp_path / "floor3.txt"
     path.write_text(mazes.random_maze(5, 6, 3))
     cfg = load_config("paper", [f"map={path}", "agents=8", "runs=1", "steps=3500"])
