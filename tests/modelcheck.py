@@ -665,13 +665,16 @@ def degree(cells: frozenset[tuple[int, int]], x: tuple[int, int]) -> int:
 
 
 def station_choices(
-    cells: frozenset[tuple[int, int]], two: bool = False
+    cells: frozenset[tuple[int, int]], two: bool = False, dead_pair: bool = False
 ) -> list[tuple[tuple[int, int], ...]]:
-    """One station at the first dead end (row-major), one on the first junction, and
-    with ``two`` both at once."""
+    """One station at the first dead end (row-major), one on the first junction, with
+    ``two`` both at once, and with ``dead_pair`` (only) one at the first and one at the
+    last dead end."""
     ordered = sorted(cells)
-    out = []
     dead = [x for x in ordered if degree(cells, x) == 1]
+    if dead_pair:
+        return [(dead[0], dead[-1])] if len(dead) >= 2 else []
+    out = []
     junction = [x for x in ordered if degree(cells, x) >= 3]
     if dead:
         out.append((dead[0],))
@@ -690,6 +693,7 @@ def family(
     battery: bool = False,
     every: int = 1,
     two_stations: bool = False,
+    dead_pair: bool = False,
     **kw,
 ) -> list[Case]:
     """Cases on every tree and one-loop shape of each size (``every``: one shape in that
@@ -703,7 +707,7 @@ def family(
         for sh in shapes(n)[::every]:
             for k in ks or range(2, n + 1):
                 if battery:
-                    for st in station_choices(sh, two_stations):
+                    for st in station_choices(sh, two_stations, dead_pair):
                         out.append(Case(map_text(sh, st), k, battery=True, **kw))
                 else:
                     out.append(Case(map_text(sh), k, **kw))

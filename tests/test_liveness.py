@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from qpatrol import measures, strategies, world
-from qpatrol.config import from_flat
+from qpatrol.config import from_flat, load_config
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import get_map, parse_map
 from qpatrol.run import simulate
@@ -203,6 +203,24 @@ def test_regression_dead_end_station():
     p_max_wait, bound, p = drive(m, "random", 2, 3, steps=800, runs=4)
     assert p.pocket_entry.tolist() == [2]
     assert p_max_wait.max() <= bound
+
+
+def test_regression_two_holders_trapped_behind_robots_in_a_dead_end(tmp_path):
+    """The freeze of the earlier rules on the tree floor ``random_maze(5, 6, 3)`` (59
+    cells; one junction joins the pockets of the two stations, 10 and 40 cells, and a
+    dead end of 8 cells), 8 learners, the paper's config, run 0: from step 1,790 on both
+    stations were held by robots deep in the dead end while both pockets were closed,
+    which left the dead end and the junction, 9 cells, to all 8 robots; robots in a
+    one-wide dead end never pass each other, and the holders waited for ever (13,210
+    steps by step 15,000, against a bound of 1,490). Now a station whose pocket shares
+    its junction with that of a station a robot is on its way to is not taken."""
+    path = tmp_path / "floor3.txt"
+    path.write_text(mazes.random_maze(5, 6, 3))
+    cfg = load_config("paper", [f"map={path}", "agents=8", "runs=1", "steps=3500"])
+    result = simulate(cfg.replace(engine="numpy"))
+    run = result.summary[0]
+    assert run["wait_bound"] == 1490
+    assert run["live"] and run["max_wait"] <= run["wait_bound"]
 
 
 @pytest.mark.parametrize("engine", sorted({"numpy", FAST}))

@@ -38,6 +38,8 @@ def _cases(full: bool) -> list[mc.Case]:
             + mc.family(range(4, 6), battery=True, charge_steps=0)
             + mc.family(range(4, 6), battery=True, charge_steps=1)
             + mc.family(range(4, 7), ks=range(2, 3), battery=True, departure=True)
+            # two stations at two dead ends (on a T, pockets of one junction)
+            + mc.family(range(4, 7), ks=range(2, 3), battery=True, dead_pair=True)
         )
     return (
         mc.family(range(4, 8))
@@ -46,6 +48,7 @@ def _cases(full: bool) -> list[mc.Case]:
         + mc.family(range(4, 7), ks=range(2, 3), battery=True, charge_steps=1)
         + mc.family(range(4, 7), ks=range(2, 3), battery=True, departure=True)
         + mc.family(range(4, 7), battery=True, two_stations=True, extra_capacity=4)
+        + mc.family(range(6, 8), ks=range(3, 4), battery=True, dead_pair=True)
         + mc.family(range(6, 7), ks=range(3, 4), battery=True, every=3)
         + mc.family(range(4, 6), battery=True, charge_steps=2, initial_charge="full")
     )

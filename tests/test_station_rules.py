@@ -264,6 +264,30 @@ def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, 
 TWO_DEAD_ENDS = "H.-..\n##.##\n##.##\n##H##\n"
 
 
+def test_pockets_of_one_junction_are_not_taken_at_once(engine):
+    """Robots 0 and 1 need a station in the same step and each could reach a free one,
+    but the pockets of the two stations of this T share their junction (cell 2): robot
+    0 (lower index) takes station 0 and goes home; robot 1 waits (QUEUED, no move) until
+    robot 0 stands on its station, and only then takes station 1."""
+    team = Team(engine, TWO_DEAD_ENDS, [4, 3], **{"battery.charge_steps": 9})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [0, 7] and p.pocket_entry.tolist() == [2, 2]
+    # robot 0: 4 moves from station 0, 5 from station 1; robot 1: 3 and 4. Both at the
+    # threshold (charge <= distance + 1) in step 1.
+    s.charge[0] = [5, 4]
+    modes = []
+    for _ in range(12):
+        team.step([FIRST, FIRST])
+        modes.append(tuple(int(x) for x in s.mode[0]))
+        assert not (s.mode[0] == HOMING).all()
+    assert modes[0] == (Hm, Q)
+    first_charge = next(i for i, m in enumerate(modes) if m[0] == C)
+    first_home = next(i for i, m in enumerate(modes) if m[1] != Q)
+    assert all(m[1] == Q for m in modes[:first_charge])
+    assert first_home == first_charge + 1 and modes[first_home][1] == Hm
+    assert s.goal[0].tolist() == [0, 1]
+
+
 def test_wait_bound_exact_value():
     """``measures.wait_bound``, the fair-queue bound of docs/model.md, on a map whose
     quantities are counted by hand: ``K x (charge_steps + 2 x max depart_len +

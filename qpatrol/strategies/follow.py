@@ -173,18 +173,23 @@ class WalkFollower(base.Strategy):
         return swapped
 
     def _skip_held_pockets(self, obs: Observation) -> None:
-        """Move targets that lie in another robot's held station pocket past it."""
+        """Move targets that lie in another robot's held station pocket past it; at most
+        one lap of the robot's walk, so a walk wholly in such a pocket keeps its target
+        (and a second call changes nothing)."""
         p, s = self.params, obs.state
         if not p.battery or (p.pocket_of < 0).all():
             return
         me = np.arange(self.n_agents)[None, :]
+        lap = self.length[self.wid]
+        done = np.zeros_like(self.target)
         for _ in range(int(self.length.max())):
             h = p.pocket_of[self.goal_cells()]
             holder = s.reserved[np.arange(self.n_runs)[:, None], np.maximum(h, 0)]
-            skip = obs.choosing & (h >= 0) & (holder >= 0) & (holder != me)
+            skip = obs.choosing & (h >= 0) & (holder >= 0) & (holder != me) & (done < lap)
             if not skip.any():
                 return
-            self.target = np.where(skip, (self.target + 1) % self.length[self.wid], self.target)
+            self.target = np.where(skip, (self.target + 1) % lap, self.target)
+            done += skip
 
     def step_towards(self, pos: np.ndarray, goal: np.ndarray) -> np.ndarray:
         """int ``[R, K]``: the first move of a shortest path (N, E, S, W first); -1 there."""

@@ -10,7 +10,10 @@ Each move costs one unit of charge. The rules, applied to every robot of every r
    the order in which they began to need it (first come, first served): the nearest
    free station their charge can reach. The robot then is HOMING: it follows a shortest
    path to its station. A robot that finds no free station within reach stays where it
-   is (QUEUED; waiting costs no charge) until one is released.
+   is (QUEUED; waiting costs no charge) until one is released. A station whose pocket
+   (rule 4) has the junction of the pocket of a station another robot is on its way to
+   is not free for now: the pockets of one junction are never closed by two holders
+   outside them at once.
 3. On its station the robot charges for ``charge_steps`` team steps (CHARGING; it cannot
    be moved), then resumes patrol with a full charge. It keeps holding the station, with
    right of way over every other robot, for ``2 x depart_len`` team steps or until it
@@ -91,9 +94,12 @@ def begin(s: State, p: Params, t: int) -> None:
 
 
 def _assign_stations(s: State, p: Params) -> None:
-    """Give free stations to queued robots, first come first served (ties: lower index)."""
+    """Give free stations to queued robots, first come first served (ties: lower index);
+    not a station whose pocket's junction is that of the station a robot is on its way
+    to (:func:`shut_junctions`)."""
     R, K = s.pos.shape
     queued = s.active[:, None] & (s.mode == QUEUED)
+    shut = shut_junctions(s, p)
     rank = np.where(queued, s.queued_since, 1 << 50) * K + np.arange(K)
     order = np.argsort(rank, axis=1, kind="stable")
     for i in range(K):
@@ -103,7 +109,7 @@ def _assign_stations(s: State, p: Params) -> None:
             break  # queued robots come first in every run
         kk = k[rows]
         dist = p.home_dist[:, s.pos[rows, kk]].T  # [n, H]
-        ok = (s.reserved[rows] < 0) & (dist <= s.charge[rows, kk][:, None])
+        ok = (s.reserved[rows] < 0) & (dist <= s.charge[rows, kk][:, None]) & ~shut[rows]
         has = ok.any(axis=1)
         if not has.any():
             continue
@@ -112,6 +118,19 @@ def _assign_stations(s: State, p: Params) -> None:
         s.reserved[rows, h] = kk
         s.goal[rows, kk] = h
         s.mode[rows, kk] = HOMING
+        entry = p.pocket_entry
+        shut[rows] |= (entry[None, :] >= 0) & (entry[None, :] == entry[h][:, None])
+
+
+def shut_junctions(s: State, p: Params) -> np.ndarray:
+    """bool ``[R, H]``: stations a queued robot may not take now: their pocket's junction
+    is the junction of the pocket of a station a robot is on its way to (HOMING). So the
+    pockets of one junction are never closed by two holders outside them at once."""
+    entry = p.pocket_entry  # [H]
+    homing = s.active[:, None] & (s.mode == HOMING)
+    on_way = np.where(homing, entry[np.maximum(s.goal, 0)], -1)  # [R, K]
+    same = (on_way[:, :, None] == entry[None, None, :]) & (entry >= 0)[None, None, :]
+    return same.any(axis=1)
 
 
 def homing_ask(s: State, p: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]:

@@ -142,7 +142,7 @@ def _skip_and_ask(
         for k in range(n_agents):
             if not choosing[k]:
                 continue
-            for _ in range(ipar[2]):
+            for _ in range(length[ri[k, WID]]):  # at most one lap (follow.py)
                 h = pocket_of[walk[ri[k, WID], ri[k, TARGET]]]
                 if h < 0 or reserved[r, h] < 0 or reserved[r, h] == k:
                     break

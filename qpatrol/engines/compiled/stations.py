@@ -24,6 +24,19 @@ def kept_out(c, pocket_of, reserved_r):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def shut_junction(r, h, p, s):
+    """:func:`qpatrol.world.battery.shut_junctions` of station h: the junction of its
+    pocket is that of the pocket of a station a robot of run r is on its way to."""
+    entry = p.pocket_entry[h]
+    if entry < 0:
+        return False
+    for k in range(s.pos.shape[1]):
+        if s.mode[r, k] == HOMING and p.pocket_entry[max(s.goal[r, k], 0)] == entry:
+            return True
+    return False
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
     """:func:`qpatrol.world.battery.way_out` of a robot on cell c (-1: none)."""
     if station < 0:
@@ -97,7 +110,12 @@ def begin(r, t, p, s, w):
         best_d = np.iinfo(np.int64).max
         for h in range(p.homes.shape[0]):
             dist = p.home_dist[h, s.pos[r, k]]
-            if s.reserved[r, h] < 0 and dist <= charge[r, k] and dist < best_d:
+            if (
+                s.reserved[r, h] < 0
+                and dist <= charge[r, k]
+                and dist < best_d
+                and not shut_junction(r, h, p, s)
+            ):
                 best_d = dist
                 best_h = h
         if best_h >= 0:
