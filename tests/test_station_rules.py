@@ -208,9 +208,12 @@ def test_two_robots_queued_at_once_are_served_first_come_first_served(engine):
 
 # --- 2. the nearest free station -----------------------------------------------------------
 
-# A line of 11 cells, stations on cells 0 (station 0) and 8 (station 1); cell c is c
-# moves from station 0 and |8 - c| from station 1.
-LINE_2H = "H.......H..\n"
+# A row of 11 cells, stations on cells 0 (station 0) and 8 (station 1), and a one-cell
+# spur (cell 11) under station 1, so the map is not a line (a battery team on a line
+# with a station at an end is refused): cell c of the row is c moves from station 0 and
+# |8 - c| from station 1. Station 1 is a junction (no pocket); station 0 ends a pocket
+# (cells 0..7), never held here.
+ROW_2H = "H.......H..\n########.##\n"
 
 
 @pytest.mark.parametrize(
@@ -243,9 +246,11 @@ LINE_2H = "H.......H..\n"
 )
 def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, other, expect):
     starts = [5] if other is None else [5, 10]
-    team = Team(engine, LINE_2H, starts, **{"battery.margin": margin, "battery.charge_steps": 9})
+    flat = {"battery.margin": margin, "battery.charge_steps": 9, "battery.capacity": 30}
+    team = Team(engine, ROW_2H, starts, **flat)
     s, p = team.s, team.p
     assert p.homes.tolist() == [0, 8]
+    assert p.home_dist[:, 5].tolist() == [5, 3] and p.pocket_of[8] == -1
     if other is not None:
         s.occ[0, 10], s.pos[0, 1], s.occ[0, 8] = -1, 8, 1
         team.holds(1, 1, mode=CHARGING, rest=9)  # on station 1 for the whole test
@@ -510,7 +515,9 @@ def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
 
 # --- 6. pushes: free, and credited to a robot that needs a station ------------------------
 
-LINE_9 = "H........\n"  # station on cell 0, cell c is c moves from it
+# A row of 9 cells, the station on cell 0 (cell c of the row is c moves from it), and a
+# one-cell spur (cell 9) under cell 1, so the map is not a line.
+ROW_9 = "H........\n#.#######\n"
 
 
 @pytest.mark.parametrize("mode", [HOMING, QUEUED])
@@ -519,7 +526,7 @@ def test_a_robot_needing_a_station_pushed_away_is_credited_the_detour(engine, mo
     on to 4, one move farther from H. Robot 1 needs H (homing to it, or queued while
     robot 2 charges on it): the push costs it nothing and it is credited that move.
     Robot 0 pays its own move."""
-    team = Team(engine, LINE_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
+    team = Team(engine, ROW_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
     s = team.s
     s.token[0] = 0
     s.charge[0] = [20, 4, 20]

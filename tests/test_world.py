@@ -523,7 +523,9 @@ def test_initial_charge_full_and_staggered():
     """New: ``battery.initial_charge``. ``full``: capacity for all; ``staggered``: robot k
     of K starts with ``capacity - floor(k capacity / K)``, but never below ``distance to
     the nearest station + margin + 1`` from its start cell."""
-    line = "H..........\n"  # H = cell 0, cell c is c moves from H
+    # H = cell 0, cell c of the row is c moves from H; a spur (cell 11) under cell 1 (a
+    # battery team on a line with a station at an end is refused)
+    line = "H..........\n#.#########\n"
     starts = [2, 4, 10, 9]
     flat = {"agents": 4, "battery.enabled": True, "battery.capacity": 22, "battery.margin": 1}
     w = build(line, starts, **flat, **{"battery.initial_charge": "full"})
@@ -680,7 +682,9 @@ def test_pushes_are_free_yields():
     """New rule (battery + traffic): a robot pushed aside by the token holder pays no
     charge; one on its way to a station is credited the distance the push added; the
     holder pays for its own move as usual."""
-    line = "H........\n"  # H = cell 0
+    # H = cell 0, cell c of the row is c moves from H; a spur (cell 9) under cell 1 (a
+    # battery team on a line with a station at an end is refused)
+    line = "H........\n#.#######\n"
     on = {
         "battery.enabled": True,
         "battery.capacity": 20,
