@@ -208,12 +208,12 @@ def test_two_robots_queued_at_once_are_served_first_come_first_served(engine):
 
 # --- 2. the nearest free station -----------------------------------------------------------
 
-# A row of 11 cells, stations on cells 0 (station 0) and 8 (station 1), and a one-cell
-# spur (cell 11) under station 1, so the map is not a line (a battery team on a line
-# with a station at an end is refused): cell c of the row is c moves from station 0 and
-# |8 - c| from station 1. Station 1 is a junction (no pocket); station 0 ends a pocket
-# (cells 0..7), never held here.
-ROW_2H = "H.......H..\n########.##\n"
+# A row of 11 cells, stations on cells 0 (station 0) and 8 (station 1), and one-cell
+# spurs under cells 1 (cell 11) and 8 (cell 12), so the map is not a line and has room
+# for two robots (a battery team on a line with a station at an end is refused): cell c
+# of the row is c moves from station 0 and |8 - c| from station 1. Station 0 is alone
+# in its pocket, station 1 on a junction.
+ROW_2H = "H.......H..\n#.######.##\n"
 
 
 @pytest.mark.parametrize(
@@ -246,11 +246,10 @@ ROW_2H = "H.......H..\n########.##\n"
 )
 def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, other, expect):
     starts = [5] if other is None else [5, 10]
-    flat = {"battery.margin": margin, "battery.charge_steps": 9, "battery.capacity": 30}
-    team = Team(engine, ROW_2H, starts, **flat)
+    team = Team(engine, ROW_2H, starts, **{"battery.margin": margin, "battery.charge_steps": 9})
     s, p = team.s, team.p
     assert p.homes.tolist() == [0, 8]
-    assert p.home_dist[:, 5].tolist() == [5, 3] and p.pocket_of[8] == -1
+    assert p.home_dist[:, 5].tolist() == [5, 3] and p.pocket_of.tolist() == [0] + [-1] * 12
     if other is not None:
         s.occ[0, 10], s.pos[0, 1], s.occ[0, 8] = -1, 8, 1
         team.holds(1, 1, mode=CHARGING, rest=9)  # on station 1 for the whole test
@@ -483,28 +482,35 @@ def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
     assert got == expect
 
 
+# DEEP_END with one more cell on the left (room for three robots): the top row 0..5,
+# the junction 3, the stem 6, 7 and the station H on cell 8 (the pocket 6, 7, 8).
+DEEP_END_3 = "...-..\n###.##\n###.##\n###H##\n"
+
+
 def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
     """The robot with right of way (robot 0, homing to H) pushes the robots in its way
     along the nearest empty cells, but not into the pocket of a held station: robot 1 on
     the junction goes East (shifting robot 2 on), not South into the empty pocket."""
-    team = deep_end(engine, [1, 2, 3])
-    s = team.s
+    team = Team(engine, DEEP_END_3, [2, 3, 4], **{"battery.charge_steps": 2})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [8] and p.pocket_entry.tolist() == [3]
+    assert p.pocket_of.tolist() == [-1] * 6 + [0, 0, 0]
     team.holds(0, 0, mode=HOMING)
     s.token[0] = 0
     s.charge[0, 0] = 10
-    # step 1: robot 0 asks for 2 (East, towards H), taken by robot 1. The push search
-    #   from 2 (N E S W, not through robot 0's cell 1, not into the held pocket 5, 6, 7)
-    #   finds 3 (robot 2) then the empty cell 4: robot 2 shifts 3 -> 4, robot 1 2 -> 3,
-    #   robot 0 takes 2 (charge 9). Robot 2 asked for East (its only open move): as
+    # step 1: robot 0 asks for 3 (East, towards H), taken by robot 1. The push search
+    #   from 3 (N E S W, not through robot 0's cell 2, not into the held pocket 6, 7, 8)
+    #   finds 4 (robot 2) then the empty cell 5: robot 2 shifts 4 -> 5, robot 1 3 -> 4,
+    #   robot 0 takes 3 (charge 9). Robot 2 asked for East (its only open move): as
     #   asked, it pays (19); robot 1 asked for West (LAST of its legal moves, none being
     #   open): pushed, free (20).
-    # step 2: robot 0 goes on, 5 (8); robot 1 at 3 and robot 2 at 4 have no open move
+    # step 2: robot 0 goes on, 6 (8); robot 1 at 4 and robot 2 at 5 have no open move
     #   (their neighbours are taken at the start of the step): robot 1 asks for its
     #   last legal move, West, robot 2 for its only one, West: each follows the robot
-    #   ahead, 1 to 2 (19), 2 to 3 (18).
+    #   ahead, 1 to 3 (19), 2 to 4 (18).
     expect = [
-        ((0,), (2, Hm, 9), (3, P, 20), (4, P, 19)),
-        ((0,), (5, Hm, 8), (2, P, 19), (3, P, 18)),
+        ((0,), (3, Hm, 9), (4, P, 20), (5, P, 19)),
+        ((0,), (6, Hm, 8), (3, P, 19), (4, P, 18)),
     ]
     got = []
     for _ in expect:
