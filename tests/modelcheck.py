@@ -690,7 +690,9 @@ def family(
     battery, a station at a dead end, on a junction, and with ``two_stations`` two at
     once (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
     refuses (:func:`qpatrol.world.make_params`: too many robots for the map, a capacity
-    too small, ...) are left out: the density limit is whatever the world accepts."""
+    too small, a battery team without room to reach a station,
+    :func:`qpatrol.world.check_battery_room`) are left out: the density limit is whatever
+    the world accepts."""
     out = []
     for n in sizes:
         for sh in shapes(n)[::every]:

@@ -263,9 +263,11 @@ def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, 
 
 # --- 3. the bound on a wait ------------------------------------------------------------------
 
-# A T with two dead ends holding stations: the top row 0..4 (station 0 on cell 0), the
-# junction 2, the stem 5, 6, 7 under it (station 1 on cell 7).
-TWO_DEAD_ENDS = "H.-..\n##.##\n##.##\n##H##\n"
+# Two dead ends holding stations: the row 3..7 (station 0 on cell 3), the junction 5,
+# the stem 8, 9, 10 under it (station 1 on cell 10), and above the junction cells 0, 1,
+# 2 (1 over 5, 0 over 1, 2 over 6 and beside 1): room for three robots outside the
+# stations' pockets (3, 4 and 8, 9, 10) under the room rule.
+TWO_DEAD_ENDS = "##.##\n##..#\nH.-..\n##.##\n##.##\n##H##\n"
 
 
 def test_wait_bound_exact_value():
@@ -275,11 +277,12 @@ def test_wait_bound_exact_value():
     K, charge_steps = 3, 4
     cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
     p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
-    # by hand: station 0 (cell 0) is 2 moves from the junction (0 -> 1 -> 2), station 1
-    # (cell 7) 3 moves (7 -> 6 -> 5 -> 2); the longest shortest path joins the two
-    # stations, 0 -> 1 -> 2 -> 5 -> 6 -> 7 (5 moves; 4 -> 7 is 5 moves too).
+    # by hand: station 0 (cell 3) is 2 moves from the nearest junction (3 -> 4 -> 5),
+    # station 1 (cell 10) 3 moves (10 -> 9 -> 8 -> 5); the longest shortest path joins
+    # the two stations, 3 -> 4 -> 5 -> 8 -> 9 -> 10 (5 moves; 7 -> 10 and 0 -> 10 are 5
+    # moves too: every cell above the junction is within 2 of it).
     depart_len, diameter = [2, 3], 5
-    assert p.homes.tolist() == [0, 7]
+    assert p.homes.tolist() == [3, 10]
     assert p.depart_len.tolist() == depart_len and p.diameter == diameter
     # the formula's terms, spelled out (a new formula: rewrite these two lines from the
     # hand-counted quantities above, not from what wait_bound returns)
