@@ -105,7 +105,7 @@ def test_no_robot_is_starved_without_battery():
 
 #: With the battery on the config refuses what no rule of today serves
 #: (:func:`qpatrol.world.check_battery_room`), and the family keeps only the cases it
-#: accepts (:func:`modelcheck.accepted`). The refused kinds, each with its smallest
+#: accepts (:func:`modelcheck.accepted`). The refused kinds, each with a small
 #: livelock (``test_refused_teams_would_starve`` explores them with the check off):
 #: A. a one-wide line without a station K - 1 cells or more from both ends (``H....``,
 #:    K = 2; ``.H.....``, K = 3): robots never change order on a line, so the one behind
