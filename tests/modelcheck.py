@@ -162,13 +162,6 @@ def departure_length(m: Map) -> int:
     return max(max(1, int(dist[h][junction].min())) for h in m.homes.tolist())
 
 
-def is_line(case: Case) -> bool:
-    """The map is a one-wide line (no junction, no loop): robots there never change
-    their order, so a station can serve only the robots nearest it (docs/model.md)."""
-    m = parse_map(case.text)
-    return bool((m.degree <= 2).all() and (m.degree == 1).sum() == 2) or m.n_cells == 1
-
-
 class Checker:
     """The state graph of one :class:`Case`, explored breadth-first from every placement."""
 
@@ -701,7 +694,9 @@ def family(
     battery, a station at a dead end, on a junction, and with ``two_stations`` two at
     once (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
     refuses (:func:`qpatrol.world.make_params`: too many robots for the map, a capacity
-    too small, ...) are left out: the density limit is whatever the world accepts."""
+    too small, a battery team without room to reach a station,
+    :func:`qpatrol.world.check_battery_room`) are left out: the density limit is whatever
+    the world accepts."""
     out = []
     for n in sizes:
         for sh in shapes(n)[::every]:

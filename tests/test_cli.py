@@ -150,6 +150,14 @@ def test_same_config_and_seed_give_byte_identical_files(tmp_path: Path):
             "agents: 60 robots on map",
         ),
         (lambda d: ["--set", "map=nowhere/x.txt"], "no such map file"),
+        (
+            lambda d: [
+                *("--set", "agents=2", "--set", "record.watch=[]"),
+                *("--set", "map=" + _line_map(d, "H......")),
+            ],
+            "agents: 2 robots with battery.enabled on map line, a one-wide line without a "
+            "station 1 cell or more from both ends",
+        ),
     ],
 )
 def test_bad_input_exits_2_with_one_line_and_writes_nothing(tmp_path: Path, make, words):
@@ -219,6 +227,26 @@ def _broken_map(d: Path) -> str:
     p = d / "broken.txt"
     p.write_text("#####\n#0.x#\n#####\n")
     return str(p)
+
+
+def _line_map(d: Path, row: str) -> str:
+    p = d / "line.txt"
+    p.write_text(row + "\n")
+    return str(p)
+
+
+@pytest.mark.parametrize("row, agents", [("...H...", 2), ("H......", 1)])
+def test_a_battery_team_on_a_line_with_room_to_reach_a_station_is_accepted(
+    tmp_path: Path, row, agents
+):
+    """The line rule refuses only what it must: a station in the middle serves two robots,
+    one at an end serves one."""
+    cfg = tiny_config(tmp_path, steps=50, record={})
+    res = invoke(
+        "train", cfg, "--out", tmp_path / "o", "-q", "--set", f"agents={agents}",
+        "--set", "map=" + _line_map(tmp_path, row),
+    )  # fmt: skip
+    assert res.exit_code == 0, res.output
 
 
 def _small_map(d: Path) -> str:

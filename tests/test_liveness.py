@@ -20,7 +20,7 @@ import numpy as np
 import pytest
 
 from qpatrol import measures, strategies, world
-from qpatrol.config import from_flat, load_config
+from qpatrol.config import ConfigError, from_flat, load_config
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import get_map, parse_map
 from qpatrol.run import simulate
@@ -158,16 +158,20 @@ def test_dense_teams_on_dead_ends(name, k, policy):
     assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
 
 
-def test_no_rule_can_serve_a_station_behind_another_robot_on_a_line():
+def test_a_station_behind_another_robot_on_a_line_is_refused(monkeypatch):
     """Why no rule set is live on every map at half density: on a one-wide line robots
     never pass each other (no swaps), so the robot farther from the station at the end
-    of the line never reaches it, whatever the rules (``docs/model.md``)."""
-    m = parse_map("; name: line4\n######\n#H.01#\n######\n")
-    assert m.n_cells == 4  # 2 robots: half the free cells
-    max_wait, bound, p = drive(
-        m, "random", 2, 1, steps=400, runs=2, **{"battery.capacity": 20, "battery.charge_steps": 5}
-    )
-    assert (max_wait > 300).all()  # robot 1 queues for good once it needs a station
+    of the line never reaches it, whatever the rules (``docs/model.md``). The config is
+    refused (:func:`qpatrol.world.check_battery_room`); with that check switched off,
+    robot 1 queues for good once it needs the station."""
+    m = parse_map("; name: line5\n#######\n#H.01.#\n#######\n")
+    assert m.n_cells == 5  # 2 robots: within half the free cells outside the station
+    extra = {"battery.capacity": 20, "battery.charge_steps": 5}
+    with pytest.raises(ConfigError, match="agents: 2 robots .* a one-wide line without"):
+        drive(m, "random", 2, 1, steps=400, runs=2, **extra)
+    monkeypatch.setattr(world, "check_battery_room", lambda *a: None)
+    max_wait, bound, p = drive(m, "random", 2, 1, steps=400, runs=2, **extra)
+    assert (max_wait > 300).all()
 
 
 def test_sixteen_robots_on_a_maze_with_dead_end_stations():

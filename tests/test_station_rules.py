@@ -208,9 +208,12 @@ def test_two_robots_queued_at_once_are_served_first_come_first_served(engine):
 
 # --- 2. the nearest free station -----------------------------------------------------------
 
-# A line of 11 cells, stations on cells 0 (station 0) and 8 (station 1); cell c is c
-# moves from station 0 and |8 - c| from station 1.
-LINE_2H = "H.......H..\n"
+# A row of 11 cells, stations on cells 0 (station 0) and 8 (station 1), and one-cell
+# spurs under cells 1 (cell 11) and 8 (cell 12), so the map is not a line and has room
+# for two robots (a battery team on a line with a station at an end is refused): cell c
+# of the row is c moves from station 0 and |8 - c| from station 1. Station 0 is alone
+# in its pocket, station 1 on a junction.
+ROW_2H = "H.......H..\n#.######.##\n"
 
 
 @pytest.mark.parametrize(
@@ -243,9 +246,10 @@ LINE_2H = "H.......H..\n"
 )
 def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, other, expect):
     starts = [5] if other is None else [5, 10]
-    team = Team(engine, LINE_2H, starts, **{"battery.margin": margin, "battery.charge_steps": 9})
+    team = Team(engine, ROW_2H, starts, **{"battery.margin": margin, "battery.charge_steps": 9})
     s, p = team.s, team.p
     assert p.homes.tolist() == [0, 8]
+    assert p.home_dist[:, 5].tolist() == [5, 3] and p.pocket_of.tolist() == [0] + [-1] * 12
     if other is not None:
         s.occ[0, 10], s.pos[0, 1], s.occ[0, 8] = -1, 8, 1
         team.holds(1, 1, mode=CHARGING, rest=9)  # on station 1 for the whole test
@@ -259,9 +263,11 @@ def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, 
 
 # --- 3. the bound on a wait ------------------------------------------------------------------
 
-# A T with two dead ends holding stations: the top row 0..4 (station 0 on cell 0), the
-# junction 2, the stem 5, 6, 7 under it (station 1 on cell 7).
-TWO_DEAD_ENDS = "H.-..\n##.##\n##.##\n##H##\n"
+# Two dead ends holding stations: the row 3..7 (station 0 on cell 3), the junction 5,
+# the stem 8, 9, 10 under it (station 1 on cell 10), and above the junction cells 0, 1,
+# 2 (1 over 5, 0 over 1, 2 over 6 and beside 1): room for three robots outside the
+# stations' pockets (3, 4 and 8, 9, 10) under the room rule.
+TWO_DEAD_ENDS = "##.##\n##..#\nH.-..\n##.##\n##.##\n##H##\n"
 
 
 def test_pockets_of_one_junction_are_not_taken_at_once(engine):
@@ -295,11 +301,12 @@ def test_wait_bound_exact_value():
     K, charge_steps = 3, 4
     cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
     p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
-    # by hand: station 0 (cell 0) is 2 moves from the junction (0 -> 1 -> 2), station 1
-    # (cell 7) 3 moves (7 -> 6 -> 5 -> 2); the longest shortest path joins the two
-    # stations, 0 -> 1 -> 2 -> 5 -> 6 -> 7 (5 moves; 4 -> 7 is 5 moves too).
+    # by hand: station 0 (cell 3) is 2 moves from the nearest junction (3 -> 4 -> 5),
+    # station 1 (cell 10) 3 moves (10 -> 9 -> 8 -> 5); the longest shortest path joins
+    # the two stations, 3 -> 4 -> 5 -> 8 -> 9 -> 10 (5 moves; 7 -> 10 and 0 -> 10 are 5
+    # moves too: every cell above the junction is within 2 of it).
     depart_len, diameter = [2, 3], 5
-    assert p.homes.tolist() == [0, 7]
+    assert p.homes.tolist() == [3, 10]
     assert p.depart_len.tolist() == depart_len and p.diameter == diameter
     # the formula's terms, spelled out (a new formula: rewrite these two lines from the
     # hand-counted quantities above, not from what wait_bound returns)
@@ -502,28 +509,35 @@ def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
     assert got == expect
 
 
+# DEEP_END with one more cell on the left (room for three robots): the top row 0..5,
+# the junction 3, the stem 6, 7 and the station H on cell 8 (the pocket 6, 7, 8).
+DEEP_END_3 = "...-..\n###.##\n###.##\n###H##\n"
+
+
 def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
     """The robot with right of way (robot 0, homing to H) pushes the robots in its way
     along the nearest empty cells, but not into the pocket of a held station: robot 1 on
     the junction goes East (shifting robot 2 on), not South into the empty pocket."""
-    team = deep_end(engine, [1, 2, 3])
-    s = team.s
+    team = Team(engine, DEEP_END_3, [2, 3, 4], **{"battery.charge_steps": 2})
+    s, p = team.s, team.p
+    assert p.homes.tolist() == [8] and p.pocket_entry.tolist() == [3]
+    assert p.pocket_of.tolist() == [-1] * 6 + [0, 0, 0]
     team.holds(0, 0, mode=HOMING)
     s.token[0] = 0
     s.charge[0, 0] = 10
-    # step 1: robot 0 asks for 2 (East, towards H), taken by robot 1. The push search
-    #   from 2 (N E S W, not through robot 0's cell 1, not into the held pocket 5, 6, 7)
-    #   finds 3 (robot 2) then the empty cell 4: robot 2 shifts 3 -> 4, robot 1 2 -> 3,
-    #   robot 0 takes 2 (charge 9). Robot 2 asked for East (its only open move): as
+    # step 1: robot 0 asks for 3 (East, towards H), taken by robot 1. The push search
+    #   from 3 (N E S W, not through robot 0's cell 2, not into the held pocket 6, 7, 8)
+    #   finds 4 (robot 2) then the empty cell 5: robot 2 shifts 4 -> 5, robot 1 3 -> 4,
+    #   robot 0 takes 3 (charge 9). Robot 2 asked for East (its only open move): as
     #   asked, it pays (19); robot 1 asked for West (LAST of its legal moves, none being
     #   open): pushed, free (20).
-    # step 2: robot 0 goes on, 5 (8); robot 1 at 3 and robot 2 at 4 have no open move
+    # step 2: robot 0 goes on, 6 (8); robot 1 at 4 and robot 2 at 5 have no open move
     #   (their neighbours are taken at the start of the step): robot 1 asks for its
     #   last legal move, West, robot 2 for its only one, West: each follows the robot
-    #   ahead, 1 to 2 (19), 2 to 3 (18).
+    #   ahead, 1 to 3 (19), 2 to 4 (18).
     expect = [
-        ((0,), (2, Hm, 9), (3, P, 20), (4, P, 19)),
-        ((0,), (5, Hm, 8), (2, P, 19), (3, P, 18)),
+        ((0,), (3, Hm, 9), (4, P, 20), (5, P, 19)),
+        ((0,), (6, Hm, 8), (3, P, 19), (4, P, 18)),
     ]
     got = []
     for _ in expect:
@@ -534,7 +548,9 @@ def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
 
 # --- 6. pushes: free, and credited to a robot that needs a station ------------------------
 
-LINE_9 = "H........\n"  # station on cell 0, cell c is c moves from it
+# A row of 9 cells, the station on cell 0 (cell c of the row is c moves from it), and a
+# one-cell spur (cell 9) under cell 1, so the map is not a line.
+ROW_9 = "H........\n#.#######\n"
 
 
 @pytest.mark.parametrize("mode", [HOMING, QUEUED])
@@ -543,7 +559,7 @@ def test_a_robot_needing_a_station_pushed_away_is_credited_the_detour(engine, mo
     on to 4, one move farther from H. Robot 1 needs H (homing to it, or queued while
     robot 2 charges on it): the push costs it nothing and it is credited that move.
     Robot 0 pays its own move."""
-    team = Team(engine, LINE_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
+    team = Team(engine, ROW_9, [2, 3, 8] if mode == HOMING else [2, 3, 0])
     s = team.s
     s.token[0] = 0
     s.charge[0] = [20, 4, 20]

@@ -423,6 +423,42 @@ def test_agents_never_share_a_cell_never_swap_never_enter_walls(avoid):
 
 # --- batteries --------------------------------------------------------------------------
 
+
+def test_battery_teams_need_room_to_reach_a_station():
+    """Rule (docs/model.md, "What is proven"): with batteries a team of K >= 2 is refused
+    on a one-wide line without a station K - 1 cells or more from both ends (robots keep
+    their order on a line), and beyond half the free cells that are neither a station nor
+    in a station's pocket."""
+    on = {"battery.enabled": True, "battery.capacity": 30}
+
+    def make(text: str, k: int, **flat):
+        return world.make_params(from_flat({**on, "agents": k, **flat}), parse_map(text))
+
+    line = r"agents: .* a one-wide line without a station"
+    with pytest.raises(ConfigError, match=line + r" 1 cell or more .* allowed: at most 1 "):
+        make("H....\n", 2)  # the station at an end
+    with pytest.raises(ConfigError, match=line):
+        make("H...H\n", 2)  # both stations at an end
+    with pytest.raises(ConfigError, match=line + r" 2 cells or more .* allowed: at most 2 "):
+        make(".H.....\n", 3)  # 1 cell on one side, 2 needed
+    make("H....\n", 1)  # one robot
+    make(".H...\n", 2)  # a station in the middle: 1 cell on each side
+    make("..H....\n", 3)  # 2 cells on each side
+    make("H....\n#.###\n", 2)  # a spur under cell 1: not a line
+    make("H....\n", 2, **{"battery.enabled": False})  # no battery
+    make("H....\n", 2, **{"team.avoid_collisions": False})  # robots may share cells
+    # the T #H#/#.#/.../##.: 6 cells, the station and its pocket cell 1 closed: 4 left
+    t = "#H#\n#.#\n...\n##.\n"
+    with pytest.raises(ConfigError, match=r"agents: 3 robots .* 2 of them stations .* most 2 "):
+        make(t, 3)
+    make(t, 2)
+    make(t, 3, **{"battery.enabled": False})  # 2 x 3 <= 6
+    # a station on the junction of the T ..H./.##. is in no pocket: 6 - 1 = 5 cells left
+    with pytest.raises(ConfigError, match=r"1 of them stations or in their pockets"):
+        make("..H.\n.##.\n", 3)
+    make("..H.\n.##.\n", 2)
+
+
 LINE_H = "H.....0\n"  # H is cell 0, the agent starts on cell 6 (6 moves from H)
 
 
@@ -523,7 +559,9 @@ def test_initial_charge_full_and_staggered():
     """New: ``battery.initial_charge``. ``full``: capacity for all; ``staggered``: robot k
     of K starts with ``capacity - floor(k capacity / K)``, but never below ``distance to
     the nearest station + margin + 1`` from its start cell."""
-    line = "H..........\n"  # H = cell 0, cell c is c moves from H
+    # H = cell 0, cell c of the row is c moves from H; a spur (cell 11) under cell 1 (a
+    # battery team on a line with a station at an end is refused)
+    line = "H..........\n#.#########\n"
     starts = [2, 4, 10, 9]
     flat = {"agents": 4, "battery.enabled": True, "battery.capacity": 22, "battery.margin": 1}
     w = build(line, starts, **flat, **{"battery.initial_charge": "full"})
@@ -680,7 +718,9 @@ def test_pushes_are_free_yields():
     """New rule (battery + traffic): a robot pushed aside by the token holder pays no
     charge; one on its way to a station is credited the distance the push added; the
     holder pays for its own move as usual."""
-    line = "H........\n"  # H = cell 0
+    # H = cell 0, cell c of the row is c moves from H; a spur (cell 9) under cell 1 (a
+    # battery team on a line with a station at an end is refused)
+    line = "H........\n#.#######\n"
     on = {
         "battery.enabled": True,
         "battery.capacity": 20,
@@ -710,7 +750,8 @@ def test_the_token_holder_is_offered_only_moves_a_push_can_make_room_for():
     """Rule (battery on): the holder of the right of way sees as open the moves into an
     empty cell or into one a push empties, not a move into a full dead end, so a holder
     that chooses among open moves always makes the move it chose."""
-    text = "H......\n###.###\n###.###\n"  # cells 0-6, dead end 7 (under 3), 8
+    # cells 0-6, the station H on the junction 3 (in no pocket), dead end 7 (under 3), 8
+    text = "...H...\n###.###\n###.###\n"
     on = {"battery.enabled": True, "battery.capacity": 50, "policy": "random"}
     w = build(text, [3, 7, 8, 4], **on)
     w.s.token[0] = 0

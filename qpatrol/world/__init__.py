@@ -149,6 +149,8 @@ def make_params(cfg: Config, m: Map) -> Params:
                 f"allowed: > {need} (farthest cell {int(nearest.max())} moves from H, plus "
                 f"battery.margin, plus 1, plus {leave} moves leaving a station)"
             )
+    if battery_on and cfg["team.avoid_collisions"]:
+        check_battery_room(k, m, pocket_of, station_of)
     dist = m.distances()
     return Params(
         n_cells=c,
@@ -182,6 +184,38 @@ def make_params(cfg: Config, m: Map) -> Params:
         max_episode_steps=int(cfg["max_episode_steps"] or 0),
         episodes=int(cfg["episodes"] or 0),
     )
+
+
+def check_battery_room(k: int, m: Map, pocket_of: np.ndarray, station_of: np.ndarray) -> None:
+    """Raise :class:`ConfigError` if a team of ``k`` robots with batteries (collisions
+    avoided) has no room on map ``m`` to let every robot reach a station: on a one-wide
+    line (a path), no station with ``k - 1`` cells on each side; on any map, more than half
+    the free cells that are neither a station nor in a station's pocket (docs/model.md,
+    "What is proven, and what is not"). ``pocket_of``, ``station_of``: int ``[C]``, as
+    in :class:`Params`."""
+    if k < 2:
+        return
+    if (m.degree <= 2).all() and (m.degree == 1).sum() == 2:
+        # a one-wide line: robots keep their order, so the i-th from one end reaches only
+        # cells with at least i cells before them and K - 1 - i after them
+        along = bfs(m.neighbors, int(np.flatnonzero(m.degree == 1)[0]))[station_of >= 0]
+        most = int(np.minimum(along, m.n_cells - 1 - along).max()) + 1
+        if k > most:
+            cells = "cell" if k == 2 else "cells"
+            raise ConfigError(
+                f"agents: {k} robots with battery.enabled on map {m.name}, a one-wide line "
+                f"without a station {k - 1} {cells} or more from both ends: a robot never "
+                f"gets past the others to a station; allowed: at most {most} (a station with "
+                "K - 1 cells on each side), or a map that is not a line"
+            )
+    closed = int(((pocket_of >= 0) | (station_of >= 0)).sum())
+    if 2 * k > m.n_cells - closed:
+        raise ConfigError(
+            f"agents: {k} robots with battery.enabled on map {m.name} ({m.n_cells} free "
+            f"cells, {closed} of them stations or in their pockets) leave no room to yield; "
+            f"allowed: at most {(m.n_cells - closed) // 2} (half the free cells outside "
+            "stations and their pockets)"
+        )
 
 
 #: Config key of each reward weight of :class:`Params` that may differ between the rows
