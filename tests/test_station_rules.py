@@ -272,12 +272,12 @@ TWO_DEAD_ENDS = "##.##\n##..#\nH.-..\n##.##\n##.##\n##H##\n"
 
 def test_pockets_of_one_junction_are_not_taken_at_once(engine):
     """Robots 0 and 1 need a station in the same step and each could reach a free one,
-    but the pockets of the two stations of this T share their junction (cell 2): robot
+    but the pockets of the two stations of this T share their junction (cell 5): robot
     0 (lower index) takes station 0 and goes home; robot 1 waits (QUEUED, no move) until
     robot 0 stands on its station, and only then takes station 1."""
-    team = Team(engine, TWO_DEAD_ENDS, [4, 3], **{"battery.charge_steps": 9})
+    team = Team(engine, TWO_DEAD_ENDS, [7, 6], **{"battery.charge_steps": 9})
     s, p = team.s, team.p
-    assert p.homes.tolist() == [0, 7] and p.pocket_entry.tolist() == [2, 2]
+    assert p.homes.tolist() == [3, 10] and p.pocket_entry.tolist() == [5, 5]
     # robot 0: 4 moves from station 0, 5 from station 1; robot 1: 3 and 4. Both at the
     # threshold (charge <= distance + 1) in step 1.
     s.charge[0] = [5, 4]
