@@ -117,3 +117,25 @@ def test_figure_2_names_its_runs_that_went_wrong():
     assert "Runs that went wrong: 1 frozen, 1 without an idleness value." in text
     assert "cut at max_episode_steps" in text and "1x 5.5 per run." in text
     assert "100x" not in text.split("cut at max_episode_steps")[1].split("\n")[0]
+
+
+def test_runs_without_an_ended_episode_are_named():
+    """Runs whose mean_steps_per_episode is empty (no dot episode ended in the window)
+    are counted by hand, per strategy, map and team size; none: no sentence."""
+    res = pd.DataFrame(
+        {
+            "map": ["m", "m", "m", "n"],
+            "policy": ["random", "random", "cyclic", "random"],
+            "agents": [1, 1, 1, 2],
+            "mean_steps_per_episode": [float("nan"), float("nan"), 12.0, float("nan")],
+        }
+    )
+    text = report._no_episode(res)
+    assert "): 3 of 4: random 2 at m K = 1, 1 at n K = 2." in text
+    assert report._no_episode(res.assign(mean_steps_per_episode=1.0)) == ""
+    assert "3 of 4: random" in "\n".join(
+        report.policies(
+            study_table([("m", 1, "qlearning", True, 3.0, 9), ("m", 1, "cyclic", False, 2.0, 4)]),
+            res,
+        ).findings
+    )

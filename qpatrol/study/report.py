@@ -315,7 +315,36 @@ def team_size(fig: pd.DataFrame) -> Section:
     )
 
 
-def strategies(fig: pd.DataFrame) -> Section:
+def _no_episode(res: pd.DataFrame | None) -> str:
+    """A sentence naming the runs (``res``: a study's per-run ``results.csv``) in which
+    no dot episode ended inside the measured window, so that their
+    ``mean_steps_per_episode`` is empty; "" when there are none."""
+    if res is None or "mean_steps_per_episode" not in res:
+        return ""
+    none = res[res["mean_steps_per_episode"].isna()]
+    if not len(none):
+        return ""
+    keys = [c for c in ("map", "agents") if c in res]  # the studies' point columns
+    parts = []
+    for name, g in none.groupby("policy", sort=False):
+        where = ", ".join(
+            f"{len(gk)} at "
+            + " ".join(
+                f"K = {int(v)}" if c == "agents" else str(v) for c, v in zip(keys, key, strict=True)
+            )
+            for key, gk in g.groupby(keys)  # (a list of keys: each key a tuple)
+        )
+        parts.append(f"{name} {where}")
+    return (
+        f" Runs in which no dot episode ended in the measured window (their "
+        f"`mean_steps_per_episode` is empty; no idleness measure uses it): {len(none)} of "
+        f"{len(res)}: " + "; ".join(parts) + "."
+    )
+
+
+def strategies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+    """The strategies study's section; ``res``: its per-run results (to name the runs in
+    which no dot episode ended)."""
     rows = []
     order = {n: i for i, n in enumerate(STRATEGY_NAMES)}
     fig = fig.assign(_o=fig["policy"].map(order)).sort_values(["agents", "_o"])
@@ -350,7 +379,7 @@ def strategies(fig: pd.DataFrame) -> Section:
         "measured",
         [
             f"map A, {runs} runs per point, battery and collision rules as in training, "
-            "measures after the warm-up.",
+            f"measures after the warm-up.{_no_episode(res)}",
             (
                 f"The cyclic strategy's closed walk through all 185 cells has L = "
                 f"{int(walk.iloc[0])} moves; no closed walk through every cell is shorter than "
@@ -382,7 +411,9 @@ def _times(a: float, b: float) -> str:
     return f"{_fmt(a / b)}x" if b else "n/a"
 
 
-def policies(fig: pd.DataFrame) -> Section:
+def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+    """The policies study's section; ``res``: its per-run results (to name the runs in
+    which no dot episode ended)."""
     """Every map x team size: the learners against the best classic strategy."""
     fig = fig.copy()
     learners = [n for n in STRATEGY_NAMES if n in set(fig.loc[fig["learns"], "policy"])]
@@ -529,7 +560,7 @@ def policies(fig: pd.DataFrame) -> Section:
             "cell.",
             f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`, "
             "(K - 1)(D + 1) + 1 without battery), "
-            f"{missing} without an idleness value.{uncovered}",
+            f"{missing} without an idleness value.{uncovered}{_no_episode(res)}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
             "(not learning) on that map and team size. Full table with 95% t-intervals: "
             "`figures/policies.csv`.",
@@ -643,8 +674,8 @@ def build(
         lambda: figure_34(f("figure-3"), f("figure-4")),
         lambda: figure_56(f("figure-6"), d("team")),
         lambda: team_size(f("team-size")),
-        lambda: strategies(f("strategies")),
-        lambda: policies(f("policies")),
+        lambda: strategies(f("strategies"), d("strategies")),
+        lambda: policies(f("policies"), d("policies")),
         lambda: learning(f("learning")),
     ]
     sections = [m() for m in makers]
