@@ -135,6 +135,14 @@ class Team:
         w.ask[:] = np.where(asked, 0, -1)
         stations.end(0, bp, bs, w)
 
+    def rows(self, n: int, picks: list[float], *ks: int) -> list[tuple]:
+        """:meth:`row` of robots ``ks`` after each of ``n`` steps taken with ``picks``."""
+        out = []
+        for _ in range(n):
+            self.step(picks)
+            out.append(self.row(*ks))
+        return out
+
     def row(self, *ks: int) -> tuple:
         """``(holders of the stations, (cell, mode, charge) of robots ks)`` now."""
         s = self.s
@@ -254,11 +262,7 @@ def test_the_nearest_free_station_within_reach_is_taken(engine, charge, margin, 
         s.occ[0, 10], s.pos[0, 1], s.occ[0, 8] = -1, 8, 1
         team.holds(1, 1, mode=CHARGING, rest=9)  # on station 1 for the whole test
     s.charge[0, 0] = charge
-    got = []
-    for _ in expect:
-        team.step([FIRST] * len(starts))
-        got.append(team.row(0))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST] * len(starts), 0) == expect
 
 
 # --- 3. the bound on a wait ------------------------------------------------------------------
@@ -343,11 +347,7 @@ def test_charging_lasts_charge_steps_steps_and_the_station_is_kept_2_depart_len(
         + [((0,), (0, C, 1))] * charge_steps
         + [((0,), (1, P, 19)), ((-1,), (2, P, 18))]
     )
-    got = []
-    for _ in expect:
-        team.step([FIRST])
-        got.append(team.row(0))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST], 0) == expect
 
 
 # The T of a dead end: the top row 0..4, the junction 2, the station H on cell 6 at the
@@ -381,11 +381,7 @@ def test_a_charged_robot_keeps_its_station_for_2_depart_len_moves(engine):
         ((1,), (3, P, 13), (5, Hm, 2)),
         ((1,), (4, P, 12), (6, C, 1)),
     ]
-    got = []
-    for _ in expect:
-        team.step([FIRST, FIRST])
-        got.append(team.row(0, 1))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST, FIRST], 0, 1) == expect
 
 
 def test_a_leaving_robot_that_stops_asking_releases_its_station_at_once(engine):
@@ -480,11 +476,7 @@ def test_a_homing_robot_on_the_junction_steps_aside_free_for_one_leaving_the_poc
         ((0,), (6, Hm, 3), (1, P, 16)),
         ((0,), (7, C, 2), (2, P, 15)),
     ]
-    got = []
-    for _ in expect:
-        team.step([FIRST, FIRST])
-        got.append(team.row(0, 1))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST, FIRST], 0, 1) == expect
 
 
 def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
@@ -502,11 +494,7 @@ def test_patrolling_robots_do_not_enter_a_held_pocket(engine):
         ((0,), (2, Hm, 18), (0, P, 18)),
         ((0,), (5, Hm, 17), (1, P, 17)),
     ]
-    got = []
-    for _ in expect:
-        team.step([FIRST, MID])
-        got.append(team.row(0, 1))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST, MID], 0, 1) == expect
 
 
 # DEEP_END with one more cell on the left (room for three robots): the top row 0..5,
@@ -539,11 +527,7 @@ def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
         ((0,), (3, Hm, 9), (4, P, 20), (5, P, 19)),
         ((0,), (6, Hm, 8), (3, P, 19), (4, P, 18)),
     ]
-    got = []
-    for _ in expect:
-        team.step([FIRST, LAST, FIRST])
-        got.append(team.row(0, 1, 2))
-    assert got == expect
+    assert team.rows(len(expect), [FIRST, LAST, FIRST], 0, 1, 2) == expect
 
 
 # --- 6. pushes: free, and credited to a robot that needs a station ------------------------
