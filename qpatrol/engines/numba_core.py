@@ -308,9 +308,10 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         # learns and measures it in one pass, in robot order; any other step takes the
         # traffic rules' passes (every robot patrols: priority by wait, then turn)
         push_failed = False
+        clear = moves.clear(want, occ_r, avoid)
         # a step with no conflict after one in which no robot waited changes no wait
-        unchanged = waiting == 0 and moves.clear(want, occ_r, avoid)
-        if unchanged or (waiting > 0 and moves.clear(want, occ_r, avoid)):
+        unchanged = clear and waiting == 0
+        if clear:
             for k in range(n_agents):
                 c1 = want[k]
                 moved[k] = as_asked[k] = c1 >= 0
