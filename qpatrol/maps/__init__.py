@@ -16,6 +16,12 @@ row has the same length; off the grid counts as wall.
 
 Free cells are numbered row-major from 0: that number is the *state* (cell) used
 everywhere else. Directions are ordered North, East, South, West (0..3).
+
+A map file whose comments say ``; kind: graph`` is a patrol graph instead
+(:mod:`qpatrol.maps.graph`): vertices and edges, each edge a chain of unit moves.
+Both kinds give a :class:`Map`: cells with up to ``D`` ports (a grid has the four ports
+N, E, S, W), the port back through which each move arrives, and the cells that count
+as patrol targets.
 """
 
 from __future__ import annotations
@@ -62,6 +68,20 @@ class Map:
         dot_kind: int ``[cells]``, 0 no dot, 1 dot, 2 big dot.
         homes: int ``[n_homes]``, states of the charging stations ``H``.
         starts: int ``[n_starts]``, the start state of agent k for k = 0..n_starts-1.
+        back: int ``[cells, D]``, for the move out of cell c by port p, the port of
+            ``neighbors[c, p]`` that leads back to c (-1 where there is no move); a grid's
+            is the opposite direction.
+        entry: int ``[cells, D]``, the heading a robot has after the move out of cell c by
+            port p: on a grid the direction moved (p), on a graph the port it arrived
+            through (``back``). Either names the arrival side of the new cell uniquely.
+        target: bool ``[cells]``, the cells every measure counts: all cells of a grid, the
+            vertices of a graph (not the waypoints inside its edges).
+        xy: float ``[cells, 2]``, where to draw each cell: (col, row) on a grid, the
+            vertex position (waypoints evenly spaced along their edge) on a graph.
+        kind: ``"grid"`` or ``"graph"``.
+        edges: int ``[E, 3]``, a graph's edges as (vertex a, vertex b, moves); empty for
+            a grid.
+        labels: a graph's vertex ids as the source file named them; () for a grid.
         source: the file it came from, if any.
         text: the text it was parsed from (copied into run folders as ``map.txt``).
     """
@@ -76,6 +96,13 @@ class Map:
     dot_kind: np.ndarray
     homes: np.ndarray
     starts: np.ndarray
+    back: np.ndarray
+    entry: np.ndarray
+    target: np.ndarray
+    xy: np.ndarray
+    kind: str = "grid"
+    edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
+    labels: tuple[str, ...] = ()
     source: str = ""
     text: str = field(default="", repr=False, compare=False)
     _dist: list = field(default_factory=list, repr=False, compare=False)
@@ -89,6 +116,21 @@ class Map:
     def shape(self) -> tuple[int, int]:
         """(rows, cols) of the grid."""
         return self.free.shape  # type: ignore[return-value]
+
+    @property
+    def n_ports(self) -> int:
+        """D, the most moves out of one cell (4 on a grid)."""
+        return int(self.neighbors.shape[1])
+
+    @property
+    def is_graph(self) -> bool:
+        """True for a patrol graph, False for a grid maze."""
+        return self.kind == "graph"
+
+    @property
+    def n_targets(self) -> int:
+        """Number of target cells (every cell of a grid, a graph's vertices)."""
+        return int(self.target.sum())
 
     @property
     def degree(self) -> np.ndarray:
@@ -139,8 +181,8 @@ def all_pairs_distances(neighbors: np.ndarray) -> np.ndarray:
     d = 0
     while frontier_src.size:
         d += 1
-        nb = neighbors[frontier_cell]  # [F, 4]
-        s = np.repeat(frontier_src, 4)
+        nb = neighbors[frontier_cell]  # [F, D]
+        s = np.repeat(frontier_src, neighbors.shape[1])
         c = nb.ravel()
         ok = c >= 0
         s, c = s[ok], c[ok]
@@ -155,7 +197,16 @@ def all_pairs_distances(neighbors: np.ndarray) -> np.ndarray:
 
 
 def parse_map(text: str, source: str = "<string>") -> Map:
-    """Parse map text into a :class:`Map`; raise :class:`MapError` naming file:line:col."""
+    """Parse map text into a :class:`Map`; raise :class:`MapError` naming file:line:col.
+
+    A text whose comments say ``; kind: graph`` is a patrol graph
+    (:func:`qpatrol.maps.graph.parse_graph_map`)."""
+    for raw in text.splitlines():
+        line = raw.strip()
+        if line.startswith(";") and line[1:].strip().lower().replace(" ", "") == "kind:graph":
+            from qpatrol.maps.graph import parse_graph_map
+
+            return parse_graph_map(text, source)
     name = Path(source).stem if source != "<string>" else "map"
     description = ""
     rows: list[str] = []
@@ -252,6 +303,10 @@ def parse_map(text: str, source: str = "<string>") -> Map:
         dot_kind=dot_kind,
         homes=homes.astype(np.int64),
         starts=starts,
+        back=np.where(neighbors >= 0, OPPOSITE[None, :], -1),
+        entry=np.where(neighbors >= 0, np.arange(4)[None, :], -1),
+        target=np.ones(coords.shape[0], dtype=bool),
+        xy=coords[:, ::-1].astype(np.float64),
         source=source,
         text=text,
     )
@@ -310,22 +365,22 @@ def get_map(name_or_path: str) -> Map:
 def corridor_length(m: Map, state: int, direction: int) -> int:
     """States passed walking from ``state`` in ``direction`` to the next junction or dead end.
 
-    The walk leaves ``state`` by ``direction`` and then follows the corridor (cells with
-    exactly two free neighbours, turning at L-turns, never reversing); the count includes
-    the cell where it stops, a junction (3 or 4 free neighbours) or a dead end (1).
+    The walk leaves ``state`` by ``direction`` (a port) and then follows the corridor
+    (cells with exactly two neighbours, turning at L-turns, never reversing); the count
+    includes the cell where it stops, a junction (3 or more neighbours) or a dead end (1).
     Returns 0 if ``direction`` leads into a wall.
     """
     deg = m.degree
     nxt = int(m.neighbors[state, direction])
     if nxt < 0:
         return 0
-    came = int(OPPOSITE[direction])
+    came = int(m.back[state, direction])
     count = 1
     cur = nxt
     while deg[cur] == 2:
-        d = next(d for d in range(4) if d != came and m.neighbors[cur, d] >= 0)
+        d = next(d for d in range(m.n_ports) if d != came and m.neighbors[cur, d] >= 0)
+        came = int(m.back[cur, d])
         cur = int(m.neighbors[cur, d])
-        came = int(OPPOSITE[d])
         count += 1
         if cur == state:  # a closed loop without junctions
             break
