@@ -27,6 +27,7 @@ from qpatrol import __version__
 from qpatrol import config as config_mod
 from qpatrol.config import ConfigError
 from qpatrol.maps import MapError, available_maps, load_map, parse_map, render_states, resolve_map
+from qpatrol.maps.graph import graph_summary
 from qpatrol.run import outputs
 from qpatrol.util import provenance
 from qpatrol.util.progress import Bar
@@ -711,8 +712,9 @@ def maps_list() -> None:
     for name, path in available_maps().items():
         try:
             m = load_map(path)
+            size = "graph  " if m.is_graph else f"{m.shape[1]:3d}x{m.shape[0]:<3d}"
             typer.echo(
-                f"{name:12s} {m.shape[1]:3d}x{m.shape[0]:<3d} {m.n_cells:5d} cells  "
+                f"{name:12s} {size} {m.n_cells:5d} cells  "
                 f"{len(m.starts)} starts  {len(m.homes)} H   {m.description[:60]}"
             )
         except MapError as e:
@@ -738,7 +740,8 @@ def maps_show(
         ),
     ] = None,
 ) -> None:
-    """Print the grid with each free cell's state number, or draw it to an image."""
+    """Print the grid with each free cell's state number (a graph: a summary), or draw
+    it to an image."""
     try:
         if png is not None:
             from qpatrol.study.plots import check_image_path
@@ -755,6 +758,9 @@ def maps_show(
         typer.echo(f"wrote {png}")
         return
     typer.echo(f"{m.name}: {m.description}")
+    if m.is_graph:
+        typer.echo(graph_summary(m))
+        return
     typer.echo(
         f"{m.shape[1]} x {m.shape[0]} grid, {m.n_cells} free cells, starts "
         f"{m.starts.tolist()}, charging stations {m.homes.tolist()}"
@@ -771,6 +777,13 @@ def maps_check(
     for f in files:
         try:
             m = load_map(f)
+            if m.is_graph:
+                typer.echo(
+                    f"{f}: ok (graph: {m.n_targets} vertices, {len(m.edges)} edges, "
+                    f"{m.n_cells} cells, D = {m.n_ports}, {len(m.starts)} starts, "
+                    f"{len(m.homes)} H)"
+                )
+                continue
             typer.echo(
                 f"{f}: ok ({m.n_cells} free cells, {len(m.starts)} starts, {len(m.homes)} H)"
             )
@@ -788,49 +801,117 @@ def maps_check(
             "qpatrol maps import floor.yaml --cell 1.2",
             "qpatrol maps import floor.yaml --cell 0.6 --agents 6 --stations 4 --out maps/f6.txt",
             "qpatrol maps import floor.yaml --cell 1.2 --out -",
+            "qpatrol maps import cumberland.graph                (patrolling_sim graph)",
+            "qpatrol maps import grid.graph --unit-edges --agents 2",
+            "qpatrol maps import map_a.xml --edge-step 4         (SimPatrol graph)",
         ),
     )
 )
 def maps_import(
-    yaml_file: Annotated[
-        Path, typer.Argument(metavar="FILE.yaml", help="ROS map_server map YAML (and its image).")
+    source: Annotated[
+        Path,
+        typer.Argument(
+            metavar="FILE",
+            help="ROS map_server map YAML (and its image), patrolling_sim .graph or "
+            "SimPatrol .xml graph.",
+        ),
     ],
     cell: Annotated[
         float | None,
-        typer.Option(help="Cell side in metres (required), at least one pixel."),
+        typer.Option(help="ROS maps: cell side in metres (required), at least one pixel."),
     ] = None,
+    edge_step: Annotated[
+        float | None,
+        typer.Option(
+            "--edge-step",
+            metavar="LENGTH",
+            help="Graphs: the length of one move; an edge of length l becomes "
+            "max(1, round(l / LENGTH)) moves (default: the shortest edge).",
+        ),
+    ] = None,
+    unit_edges: Annotated[
+        bool, typer.Option("--unit-edges", metavar="", help="Graphs: every edge one move.")
+    ] = False,
     out: Annotated[
         str | None,
         typer.Option(
-            "--out", "-o", help="Map file to write (default: maps/<YAML stem>.txt; '-': stdout)."
+            "--out", "-o", help="Map file to write (default: maps/<FILE stem>.txt; '-': stdout)."
         ),
     ] = None,
-    agents: Annotated[int, typer.Option(help="Start digits 0..N-1 to place (0 to 10).")] = 4,
+    agents: Annotated[
+        int, typer.Option(help="Start cells (vertices) 0..N-1 to place (ROS maps: 0 to 10).")
+    ] = 4,
     stations: Annotated[
         int | None,
-        typer.Option(help="Charging stations H (default: one per 150 free cells, rounded up)."),
+        typer.Option(
+            help="Charging stations (default: one per 150 free cells or vertices, rounded "
+            "up; a SimPatrol graph's fuel nodes if it has any)."
+        ),
     ] = None,
     force: Annotated[
         bool, typer.Option("--force", metavar="", help="Replace an existing map file.")
     ] = False,
 ) -> None:
-    """Import a ROS occupancy map (map_server YAML + PGM/PNG) as a qpatrol map.
+    """Import a ROS occupancy map or a patrol graph as a qpatrol map.
 
-    Cells are free only if all their pixels are free; the largest 4-connected free
-    region is kept and cropped; starts and stations are spread by farthest-point
-    sampling. Details: docs/maps.md and qpatrol/maps/importer.py.
+    The kind follows the suffix. .yaml: a ROS map_server map (YAML + PGM/PNG); cells are
+    free only if all their pixels are free, the largest 4-connected free region is kept
+    and cropped. .graph (patrolling_sim) or .xml (SimPatrol): a patrol graph, each edge
+    cut into whole moves. Starts and stations are spread by farthest-point sampling.
+    Details: docs/maps.md.
     """
-    from qpatrol.maps.importer import RosMapError, import_map
     from qpatrol.util import atomic
 
-    if cell is None:
+    suffix = source.suffix.lower()
+    graph = suffix in (".graph", ".xml")
+    if not graph and suffix not in (".yaml", ".yml"):
+        fail(
+            f"{source}: unknown map file kind {suffix or '(no suffix)'!r}; expected .yaml "
+            "(ROS map_server), .graph (patrolling_sim) or .xml (SimPatrol)"
+        )
+    if graph and cell is not None:
+        fail(
+            f"maps import: --cell is for ROS maps (.yaml); {source.name} is a patrol graph "
+            "(its edges become moves: --edge-step or --unit-edges)"
+        )
+    if not graph and (edge_step is not None or unit_edges):
+        fail("maps import: --edge-step and --unit-edges are for patrol graphs (.graph, .xml)")
+    if graph and edge_step is not None and unit_edges:
+        fail("maps import: --edge-step and --unit-edges exclude each other; give one")
+    if not graph and cell is None:
         fail("maps import: --cell METRES is required (the side of a grid cell)")
-    target = None if out == "-" else Path(out or Path("maps") / f"{yaml_file.stem}.txt")
+    target = None if out == "-" else Path(out or Path("maps") / f"{source.stem}.txt")
     if target is not None and target.exists() and not force:
         fail(f"{target} already exists; pass --force to replace it or --out to choose another")
     if target is not None:
         outputs.check_writable_file(target)
     name = target.stem if target is not None else None
+    if graph:
+        text, report = _import_graph(source, name, agents, stations, edge_step, unit_edges)
+    else:
+        text, report = _import_ros(source, target, name, cell, agents, stations)
+    if target is None:
+        typer.echo(text, nl=False)
+        typer.echo(report, err=True)
+        return
+    try:
+        atomic.write_text(target, text)
+    except OSError as e:
+        fail(f"{target}: cannot write ({e.strerror or e})")
+    typer.echo(f"wrote {target}: {report}")
+
+
+def _import_ros(
+    yaml_file: Path,
+    target: Path | None,
+    name: str | None,
+    cell: float,
+    agents: int,
+    stations: int | None,
+) -> tuple[str, str]:
+    """The map text of a ROS map and the one-line report of ``maps import``."""
+    from qpatrol.maps.importer import RosMapError, import_map
+
     try:
         result = import_map(yaml_file, cell, agents=agents, stations=stations, name=name)
         m = parse_map(result.text, source=str(target or "<stdout>"))
@@ -851,15 +932,40 @@ def maps_import(
             f"; kept the largest of {result.regions} free regions "
             f"({m.n_cells} of {result.free_cells} free cells)"
         )
-    if target is None:
-        typer.echo(result.text, nl=False)
-        typer.echo(report, err=True)
-        return
+    return result.text, report
+
+
+def _import_graph(
+    source: Path,
+    name: str | None,
+    agents: int,
+    stations: int | None,
+    edge_step: float | None,
+    unit_edges: bool,
+) -> tuple[str, str]:
+    """The graph map text of a patrolling_sim or SimPatrol file and the one-line report."""
+    from qpatrol.maps.graphimport import import_graph_file
+
     try:
-        atomic.write_text(target, result.text)
-    except OSError as e:
-        fail(f"{target}: cannot write ({e.strerror or e})")
-    typer.echo(f"wrote {target}: {report}")
+        r = import_graph_file(source, name, agents, stations, edge_step, unit_edges)
+    except MapError as e:
+        fail(str(e))
+    m = r.map
+    unit = f" {r.source.unit}" if r.source.unit else ""
+    step = "every edge one move" if r.step is None else f"edge step {r.step:g}{unit}"
+    reach = (
+        f"farthest vertex {r.farthest_station} moves from a station"
+        if len(m.homes)
+        else "no station: train it with battery.enabled=false"
+    )
+    report = (
+        f"graph of {m.n_targets} vertices, {len(m.edges)} edges of "
+        f"{int(m.edges[:, 2].sum()) if len(m.edges) else 0} moves ({m.n_cells} cells, "
+        f"D = {m.n_ports}), {step}, {len(m.starts)} starts, {len(m.homes)} stations; {reach}"
+    )
+    for note in r.source.notes:
+        report += f"; {note}"
+    return r.text, report
 
 
 # --------------------------------------------------------------------------- config

@@ -38,7 +38,13 @@ import numpy as np
 
 from qpatrol.maps import BIG, NO_DOT, SMALL_DOT, Map, MapError, bfs
 
-__all__ = ["GraphSpec", "build_graph_map", "parse_graph_map", "render_graph_map"]
+__all__ = [
+    "GraphSpec",
+    "build_graph_map",
+    "graph_summary",
+    "parse_graph_map",
+    "render_graph_map",
+]
 
 
 class GraphSpec:
@@ -285,3 +291,29 @@ def render_graph_map(spec: GraphSpec) -> str:
     lines.append("; e A B MOVES")
     lines += [f"e {a} {b} {m}" for a, b, m in spec.edges.tolist()]
     return "\n".join(lines) + "\n"
+
+
+def graph_summary(m: Map) -> str:
+    """A few lines about a graph map: vertices, edges, moves, D, stations, starts."""
+    n = m.n_targets
+    moves = m.edges[:, 2] if len(m.edges) else np.zeros(0, dtype=np.int64)
+    deg = m.degree[:n]
+    values, counts = np.unique(deg, return_counts=True)
+    degrees = ", ".join(f"{c} of degree {d}" for d, c in zip(values, counts, strict=True))
+    span = f"{moves.min()}-{moves.max()} moves each" if moves.size else "no edge"
+    lines = [
+        f"graph: {n} vertices, {len(moves)} edges ({span}, {int(moves.sum())} in all), "
+        f"{m.n_cells} cells with the waypoints, D = {m.n_ports} ({degrees})",
+    ]
+    if m.n_cells <= 4000:
+        d = m.distances()[np.ix_(m.target, m.target)]
+        lines.append(f"diameter {int(d.max())} moves between vertices")
+
+    def named(v: int) -> str:
+        lab = m.labels[v] if m.labels and m.labels[v] else ""
+        return f"{v} ({lab})" if lab else str(v)
+
+    lines.append(f"charging stations: {', '.join(named(int(v)) for v in m.homes) or 'none'}")
+    starts = ", ".join(f"{k}: {named(int(v))}" for k, v in enumerate(m.starts))
+    lines.append(f"starts (agent: vertex): {starts or 'none'}")
+    return "\n".join(lines)

@@ -109,6 +109,10 @@ def draw_map(ax, m: Map, numbers: bool = True, dots: bool = True, starts: bool =
 
 def plot_map(m: Map, path: str | Path) -> Path:
     """Draw a map with its state numbers to an image (format from the extension)."""
+    if m.is_graph:
+        from qpatrol.study.graphplot import plot_graph_map
+
+        return plot_graph_map(m, path)
     rows, cols = m.shape
     scale = 0.38 if m.n_cells < 400 else 0.28
     fig, ax = plt.subplots(figsize=(max(4.0, cols * scale), max(3.5, rows * scale + 0.8)))

@@ -1,0 +1,412 @@
+"""Patrol graphs from other simulators -> qpatrol graph maps: the steps both importers share.
+
+A reader (:mod:`qpatrol.maps.patrolling_sim`, :mod:`qpatrol.maps.simpatrol`) turns its file
+into a :class:`SourceGraph`: vertices (with positions, or none), undirected edges with a
+length each, and the charging stations the file names, if any. :func:`to_graph_map` then
+
+- **lays the graph out** when the file gives no positions (:func:`layout`: classical MDS
+  of the shortest-path length matrix, then stress majorisation), so that it can be drawn;
+- **cuts each edge into moves**: an edge of length ``l`` becomes
+  ``max(1, floor(l / step + 1/2))`` unit moves (``--edge-step``, default the shortest
+  edge, so that it is one move), or one move each (``--unit-edges``);
+- **places starts and stations** on vertices as the ROS importer places them on cells
+  (:func:`qpatrol.maps.importer.place`): farthest-point sampling on the shortest-path
+  distance in moves, the first near the graph's middle; stations never on a start and on
+  vertices of degree 2 or more while there are any. Waypoints inside edges get neither.
+
+and writes the map text (:func:`qpatrol.maps.graph.render_graph_map`).
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+
+from qpatrol.maps import NO_DOT, SMALL_DOT, Map, MapError, parse_map
+from qpatrol.maps.graph import GraphSpec, build_graph_map, render_graph_map
+from qpatrol.maps.importer import _bfs, _farthest, default_stations
+
+__all__ = [
+    "MAX_CELLS",
+    "GraphImportError",
+    "ImportedGraph",
+    "SourceGraph",
+    "edge_moves",
+    "import_graph_file",
+    "layout",
+    "shortest_lengths",
+    "to_graph_map",
+]
+
+#: Most cells (vertices + waypoints) an import may make; a smaller --edge-step beyond it
+#: is refused rather than building a huge map.
+MAX_CELLS = 200_000
+
+
+class GraphImportError(MapError):
+    """A graph file that cannot be imported; one line naming the file and the place."""
+
+
+@dataclass
+class SourceGraph:
+    """A patrol graph as read from another simulator's file.
+
+    Attributes:
+        kind: what the file is ("patrolling_sim graph", "SimPatrol graph").
+        path: the file.
+        labels: the file's vertex ids, one per vertex (vertex i of the map is labels[i]).
+        xy: float ``[V, 2]`` vertex positions, or None when the file gives none.
+        edges: float ``[E, 3]``: (a, b, length) per undirected edge, a < b, sorted.
+        stations: bool ``[V]``, vertices the file marks as charging stations (all False
+            when it marks none).
+        unit: the unit of the lengths ("px", "" for none).
+        facts: what the description should say about the source (one clause).
+        notes: what the reader changed (merged parallel edges), for the description.
+    """
+
+    kind: str
+    path: Path
+    labels: tuple[str, ...]
+    xy: np.ndarray | None
+    edges: np.ndarray
+    stations: np.ndarray
+    unit: str = ""
+    facts: str = ""
+    notes: list[str] = field(default_factory=list)
+
+    @property
+    def n(self) -> int:
+        """Number of vertices."""
+        return len(self.labels)
+
+
+@dataclass(frozen=True)
+class ImportedGraph:
+    """The result of a graph import.
+
+    Attributes:
+        text: the qpatrol graph map file's content.
+        map: the parsed :class:`Map` of ``text``.
+        step: the edge step used (None for ``--unit-edges``).
+        source: what was read.
+        farthest_station: most moves from any vertex to its nearest station (-1: none).
+    """
+
+    text: str
+    map: Map
+    step: float | None
+    source: SourceGraph
+    farthest_station: int
+
+
+def check_connected(n: int, edges: np.ndarray, labels: tuple[str, ...], where: str) -> None:
+    """Raise :class:`GraphImportError` unless every vertex can be reached from vertex 0."""
+    adj: list[list[int]] = [[] for _ in range(n)]
+    for a, b in edges[:, :2].astype(np.int64).tolist():
+        adj[a].append(b)
+        adj[b].append(a)
+    seen = np.zeros(n, dtype=bool)
+    seen[0] = True
+    stack = [0]
+    while stack:
+        for w in adj[stack.pop()]:
+            if not seen[w]:
+                seen[w] = True
+                stack.append(w)
+    if not seen.all():
+        bad = int(np.flatnonzero(~seen)[0])
+        raise GraphImportError(
+            f"{where}: vertex {labels[bad]} cannot be reached from vertex {labels[0]} "
+            f"({int((~seen).sum())} of {n} vertices cut off; the graph must be connected)"
+        )
+
+
+def merge_parallel(
+    pairs: dict[tuple[int, int], list[float]], labels: tuple[str, ...]
+) -> tuple[np.ndarray, list[str]]:
+    """One edge per vertex pair, the shortest of those the file gives.
+
+    Args:
+        pairs: (a, b) with a < b -> the lengths of every edge the file gives between them.
+
+    Returns float ``[E, 3]`` (a, b, length) sorted by (a, b), and a note per merged pair.
+    """
+    rows = []
+    merged = []
+    for (a, b), lengths in sorted(pairs.items()):
+        rows.append((a, b, min(lengths)))
+        if len(lengths) > 1:
+            merged.append(f"{labels[a]}-{labels[b]}")
+    notes = []
+    if merged:
+        notes.append(
+            f"{len(merged)} vertex pair(s) joined by parallel edges kept only the shortest "
+            f"({', '.join(merged[:5])}{', ...' if len(merged) > 5 else ''})"
+        )
+    return np.array(rows, dtype=np.float64).reshape(-1, 3), notes
+
+
+def edge_moves(lengths: np.ndarray, step: float | None) -> np.ndarray:
+    """int ``[E]``: the moves of each edge, ``max(1, floor(length / step + 1/2))``.
+
+    ``step`` None: one move per edge (``--unit-edges``).
+    """
+    lengths = np.asarray(lengths, dtype=np.float64)
+    if step is None:
+        return np.ones(lengths.shape, dtype=np.int64)
+    return np.maximum(1, np.floor(lengths / step + 0.5)).astype(np.int64)
+
+
+def shortest_lengths(n: int, edges: np.ndarray) -> np.ndarray:
+    """float ``[V, V]``: shortest-path length between vertices (inf if unreachable).
+
+    Floyd-Warshall, one numpy pass per intermediate vertex (V^3 / numpy speed).
+    """
+    d = np.full((n, n), np.inf)
+    np.fill_diagonal(d, 0.0)
+    a = edges[:, 0].astype(np.int64)
+    b = edges[:, 1].astype(np.int64)
+    d[a, b] = np.minimum(d[a, b], edges[:, 2])
+    d[b, a] = np.minimum(d[b, a], edges[:, 2])
+    for k in range(n):
+        np.minimum(d, d[:, k, None] + d[None, k, :], out=d)
+    return d
+
+
+def layout(n: int, edges: np.ndarray, iterations: int = 300) -> np.ndarray:
+    """float ``[V, 2]``: vertex positions whose distances follow the path lengths.
+
+    Classical MDS of the shortest-path length matrix (numpy ``eigh``), then stress
+    majorisation (SMACOF, weights ``1/d^2``) until the stress stops falling (at most
+    ``iterations`` rounds); finally centred, turned onto its principal axes and each axis
+    flipped so that its third moment is >= 0. Deterministic: no random start.
+
+    Args:
+        n: number of vertices (connected by ``edges``).
+        edges: float ``[E, 3]``: (a, b, length) per edge.
+    """
+    if n == 1:
+        return np.zeros((1, 2))
+    d = shortest_lengths(n, edges)
+    sq = d**2
+    j = np.eye(n) - 1.0 / n
+    b = -0.5 * j @ sq @ j
+    vals, vecs = np.linalg.eigh(b)
+    order = np.argsort(vals)[::-1][:2]
+    x = vecs[:, order] * np.sqrt(np.maximum(vals[order], 0.0))
+    if x.shape[1] < 2:
+        x = np.column_stack([x, np.zeros(n)])
+    x = _smacof(d, x, iterations)
+    x -= x.mean(axis=0)
+    cov = x.T @ x
+    _, axes = np.linalg.eigh(cov)
+    x = x @ axes[:, ::-1]
+    third = (x**3).sum(axis=0)
+    scale = np.abs(x).max() or 1.0
+    x[:, third < -1e-9 * scale**3 * n] *= -1.0
+    return x
+
+
+def stress(d: np.ndarray, x: np.ndarray) -> float:
+    """Weighted stress ``sum_{i<j} (|x_i - x_j| - d_ij)^2 / d_ij^2`` of a layout."""
+    iu = np.triu_indices(d.shape[0], 1)
+    dist = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)[iu]
+    target = d[iu]
+    ok = target > 0
+    return float((((dist[ok] - target[ok]) / target[ok]) ** 2).sum())
+
+
+def _smacof(d: np.ndarray, x: np.ndarray, iterations: int) -> np.ndarray:
+    n = d.shape[0]
+    w = np.zeros_like(d)
+    pos = d > 0
+    w[pos] = 1.0 / d[pos] ** 2
+    v = -w.copy()
+    np.fill_diagonal(v, w.sum(axis=1))
+    v_pinv = np.linalg.pinv(v)
+    last = stress(d, x)
+    for _ in range(iterations):
+        dist = np.linalg.norm(x[:, None, :] - x[None, :, :], axis=2)
+        ratio = np.zeros_like(d)
+        ok = dist > 1e-12
+        ratio[ok] = w[ok] * d[ok] / dist[ok]
+        bm = -ratio
+        np.fill_diagonal(bm, ratio.sum(axis=1))
+        x = v_pinv @ (bm @ x)
+        now = stress(d, x)
+        if last - now < 1e-9 * max(last, 1e-12) * n:
+            break
+        last = now
+    return x
+
+
+def _round6(a: np.ndarray) -> np.ndarray:
+    """Positions as the map text writes them (6 significant digits), so that a map built
+    here and one parsed back from its text hold the same numbers."""
+    return np.array([[float(f"{v:.6g}") for v in row] for row in a], dtype=np.float64).reshape(
+        -1, 2
+    )
+
+
+def to_graph_map(
+    g: SourceGraph,
+    name: str,
+    agents: int = 4,
+    stations: int | None = None,
+    edge_step: float | None = None,
+    unit_edges: bool = False,
+) -> ImportedGraph:
+    """The qpatrol graph map of ``g`` (module doc): moves, layout, starts and stations.
+
+    Args:
+        name: the map's name.
+        agents: start vertices to place (start=0..agents-1).
+        stations: charging stations to place by farthest-point sampling; None: the file's
+            own stations if it marks any, else one per 150 vertices rounded up.
+        edge_step: the length of one move (None: the shortest edge).
+        unit_edges: every edge one move (``edge_step`` must then be None).
+    """
+    where = str(g.path)
+    if unit_edges and edge_step is not None:
+        raise GraphImportError("--edge-step and --unit-edges exclude each other; give one")
+    if g.edges.shape[0] == 0 and g.n > 1:
+        raise GraphImportError(f"{where}: the graph has no edge")
+    lengths = g.edges[:, 2]
+    if unit_edges:
+        step = None
+    elif edge_step is None:
+        step = float(lengths.min()) if lengths.size else 1.0
+    else:
+        if not (math.isfinite(edge_step) and edge_step > 0):
+            raise GraphImportError(f"edge step: {edge_step} is not a length > 0")
+        step = float(edge_step)
+    moves = edge_moves(lengths, step)
+    n_cells = g.n + int((moves - 1).sum())
+    if n_cells > MAX_CELLS:
+        raise GraphImportError(
+            f"{where}: edge step {step:g} makes {n_cells} cells (more than {MAX_CELLS}); "
+            "use a larger --edge-step"
+        )
+    edges = np.column_stack([g.edges[:, :2].astype(np.int64), moves]).reshape(-1, 3)
+    xy = g.xy if g.xy is not None else layout(g.n, g.edges)
+    xy = _round6(xy)
+    n = g.n
+    labels = g.labels if any(lab != str(i) for i, lab in enumerate(g.labels)) else ("",) * n
+    bare = GraphSpec(
+        name,
+        "",
+        xy,
+        edges,
+        np.full(n, SMALL_DOT),
+        np.zeros(n, bool),
+        np.zeros(0, np.int64),
+        labels,
+    )
+    cells = build_graph_map(bare, where)
+    starts, homes, how = _place(cells, g, agents, stations)
+    station = np.zeros(n, dtype=bool)
+    station[homes] = True
+    dot = np.where(station, NO_DOT, SMALL_DOT)
+    description = _description(g, step, moves, len(starts), len(homes), how)
+    spec = GraphSpec(name, description, xy, edges, dot, station, starts, labels)
+    text = render_graph_map(spec)
+    m = parse_map(text, source=f"<{name}>")
+    far = int(_bfs(m.neighbors, list(map(int, homes)))[m.target].max()) if len(homes) else -1
+    return ImportedGraph(text=text, map=m, step=step, source=g, farthest_station=far)
+
+
+def _place(
+    cells: Map, g: SourceGraph, agents: int, stations: int | None
+) -> tuple[np.ndarray, np.ndarray, str]:
+    """Start and station vertices (module doc); and how the stations were chosen."""
+    n = g.n
+    if agents < 0:
+        raise GraphImportError(f"agents: {agents}; allowed: 0 or more")
+    if stations is not None and stations < 0:
+        raise GraphImportError(f"stations: {stations}; allowed: 0 or more")
+    vertex = np.zeros(cells.n_cells, dtype=bool)
+    vertex[:n] = True
+    given = np.flatnonzero(g.stations)
+    if stations is None and given.size:
+        n_st, how = int(given.size), "the file's"
+    else:
+        n_st = default_stations(n) if stations is None else stations
+        how = "farthest-point"
+    if agents + n_st > n or n_st >= n:
+        raise GraphImportError(
+            f"{g.path}: {n} vertices cannot hold {agents} starts, {n_st} charging stations "
+            "and a dot; lower --agents or --stations"
+        )
+    if how == "the file's":
+        free = vertex.copy()
+        free[given] = False
+        starts = _farthest(cells.neighbors, free, agents, [])
+        homes = given.tolist()
+    else:
+        starts = _farthest(cells.neighbors, vertex, agents, [])
+        not_start = vertex.copy()
+        not_start[starts] = False
+        homes = _farthest(cells.neighbors, not_start & (cells.degree >= 2), n_st, [])
+        homes = _farthest(cells.neighbors, not_start, n_st, homes)
+    return np.array(starts, dtype=np.int64), np.array(sorted(homes), dtype=np.int64), how
+
+
+def _description(
+    g: SourceGraph, step: float | None, moves: np.ndarray, agents: int, homes: int, how: str
+) -> str:
+    unit = f" {g.unit}" if g.unit else ""
+    if step is None:
+        cut = "every edge one move (--unit-edges)"
+    else:
+        cut = (
+            f"edge step {step:g}{unit} (moves = max(1, round(length / step)): "
+            f"{moves.min()}-{moves.max()})"
+        )
+    pos = "positions as in the file" if g.xy is not None else "positions laid out by MDS"
+    placed = (
+        f"{agents} starts by farthest-point sampling and the file's {homes} charging stations"
+        if how == "the file's"
+        else f"{agents} starts and {homes} charging stations placed by farthest-point sampling"
+    )
+    parts = [f"imported from {g.kind} {g.path.name} ({g.facts})", cut, pos, placed, *g.notes]
+    return "; ".join(parts)
+
+
+def import_graph_file(
+    path: str | Path,
+    name: str | None = None,
+    agents: int = 4,
+    stations: int | None = None,
+    edge_step: float | None = None,
+    unit_edges: bool = False,
+) -> ImportedGraph:
+    """Import a patrolling_sim ``.graph`` or a SimPatrol ``.xml`` file (by its suffix)."""
+    p = Path(path)
+    suffix = p.suffix.lower()
+    if suffix == ".graph":
+        from qpatrol.maps.patrolling_sim import read_patrolling_sim
+
+        g = read_patrolling_sim(p)
+    elif suffix == ".xml":
+        from qpatrol.maps.simpatrol import read_simpatrol
+
+        g = read_simpatrol(p)
+    else:
+        raise GraphImportError(
+            f"{p}: unknown graph file kind {suffix or '(no suffix)'!r}; "
+            "expected .graph (patrolling_sim) or .xml (SimPatrol)"
+        )
+    return to_graph_map(g, name or p.stem, agents, stations, edge_step, unit_edges)
+
+
+def read_text(path: Path) -> str:
+    """A source file's text; a missing or unreadable file is a one-line error."""
+    try:
+        return path.read_text(encoding="utf-8")
+    except FileNotFoundError:
+        raise GraphImportError(f"{path}: no such file") from None
+    except (OSError, UnicodeDecodeError) as e:
+        raise GraphImportError(f"{path}: cannot read ({e})") from None
