@@ -38,6 +38,7 @@ __all__ = [
     "import_graph_file",
     "layout",
     "shortest_lengths",
+    "stress",
     "to_graph_map",
 ]
 
@@ -89,6 +90,7 @@ class ImportedGraph:
 
     Attributes:
         text: the qpatrol graph map file's content.
+        spec: the graph ``text`` renders (:func:`qpatrol.maps.graph.render_graph_map`).
         map: the parsed :class:`Map` of ``text``.
         step: the edge step used (None for ``--unit-edges``).
         source: what was read.
@@ -96,6 +98,7 @@ class ImportedGraph:
     """
 
     text: str
+    spec: GraphSpec
     map: Map
     step: float | None
     source: SourceGraph
@@ -287,8 +290,8 @@ def to_graph_map(
     n_cells = g.n + int((moves - 1).sum())
     if n_cells > MAX_CELLS:
         raise GraphImportError(
-            f"{where}: edge step {step:g} makes {n_cells} cells (more than {MAX_CELLS}); "
-            "use a larger --edge-step"
+            f"{where}: edge step {step:g}{' ' + g.unit if g.unit else ''} makes {n_cells} "
+            f"cells (more than {MAX_CELLS}); use a larger --edge-step"
         )
     edges = np.column_stack([g.edges[:, :2].astype(np.int64), moves]).reshape(-1, 3)
     xy = g.xy if g.xy is not None else layout(g.n, g.edges)
@@ -315,7 +318,7 @@ def to_graph_map(
     text = render_graph_map(spec)
     m = parse_map(text, source=f"<{name}>")
     far = int(_bfs(m.neighbors, list(map(int, homes)))[m.target].max()) if len(homes) else -1
-    return ImportedGraph(text=text, map=m, step=step, source=g, farthest_station=far)
+    return ImportedGraph(text=text, spec=spec, map=m, step=step, source=g, farthest_station=far)
 
 
 def _place(

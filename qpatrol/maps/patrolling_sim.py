@@ -147,6 +147,11 @@ def read_patrolling_sim(path: str | Path) -> SourceGraph:
         if in_blocks:
             end = blocks[v + 1] if v + 1 < n else len(t.tok)
             found = end - t.i
+            if v == n - 1 and found < 3 * degree:
+                raise GraphImportError(
+                    f"{t.where(len(t.tok) - 1)}: file ends inside vertex {v}'s neighbours "
+                    f"({found} of the {3 * degree} values its degree {degree} needs)"
+                )
             if found != 3 * degree:
                 raise GraphImportError(
                     f"{t.where(deg_at)}: vertex {v} has degree {degree} but its block lists "
