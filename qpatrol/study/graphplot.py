@@ -128,7 +128,8 @@ def plot_graph_map(m: Map, path: str | Path) -> Path:
     p = Path(path)
     try:
         with atomic.staged_file(p) as tmp:
-            fig.savefig(tmp, dpi=150, format=p.suffix.lstrip(".").lower() or "png")
+            fmt = p.suffix.lstrip(".").lower() or "png"
+            fig.savefig(tmp, dpi=150, format=fmt, bbox_inches="tight", pad_inches=0.1)
     finally:
         plt.close(fig)
     return p
