@@ -313,7 +313,7 @@ def graph_summary(m: Map) -> str:
         lab = m.labels[v] if m.labels and m.labels[v] else ""
         return f"{v} ({lab})" if lab else str(v)
 
-    lines.append(f"charging stations: {', '.join(named(int(v)) for v in m.homes) or 'none'}")
+    lines.append(f"charging stations (vertex): {', '.join(named(int(v)) for v in m.homes) or 'none'}")
     starts = ", ".join(f"{k}: {named(int(v))}" for k, v in enumerate(m.starts))
     lines.append(f"starts (agent: vertex): {starts or 'none'}")
     return "\n".join(lines)
