@@ -251,3 +251,21 @@ def test_partition_of_a_graph(k):
         assert max(len(w) for w in walks) <= 2.0 * whole / k
     else:
         assert [len(w) for w in walks] == [1] * 16  # one vertex each
+
+
+# --- the dot-eating walk (qpatrol.maps.tours) on a graph ---------------------------------
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_dot_walk_on_a_graph_eats_every_vertex_dot_optimally(seed):
+    """Dots sit on vertices only; the walk from vertex 0 eats them all along the edges,
+    as short as the exact search over (cell, dots eaten)."""
+    from test_tours import exact_optimum
+
+    from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour, walk_is_valid
+
+    m = parse_map(waypoint_grid(3, seed))
+    assert (m.dot_kind[~m.target] == 0).all() and (m.dot_kind[m.target] > 0).all()
+    moves, walk = dot_walk_tour(m, 0)
+    assert walk_is_valid(m, 0, walk)
+    assert dot_walk_lower_bound(m, 0) <= exact_optimum(m, 0) == moves
