@@ -245,6 +245,15 @@ def test_partition_of_a_graph(k):
         assert travels_edges(m, walk)
         covered += [int(c) for c in walk if m.target[c]]
     assert sorted(set(covered)) == list(range(m.n_targets))  # every vertex patrolled
+    # a region is its vertices plus waypoints: an edge inside it whole, an edge to another
+    # region split, each waypoint with the nearer end (waypoints numbered after the
+    # vertices, edge by edge in file order, from a's end)
+    first = m.n_targets
+    for a, b, moves in m.edges.tolist():
+        for j in range(1, moves):
+            near = a if labels[a] == labels[b] or 2 * j <= moves else b
+            assert labels[first + j - 1] == labels[near]
+        first += moves - 1
     whole = closed_walk_lower_bound(m)
     # measured: longest region walk / (whole-map bound / k) = 1.0, 1.1, 1.35, 1.61
     if k < 16:

@@ -700,13 +700,57 @@ def _farthest_seeds(dist: np.ndarray, k: int, rng: np.random.Generator) -> list[
     return seeds
 
 
-def _grow(m: Map, seeds: list[int], delays: list[float] | None = None) -> np.ndarray:
+#: A graph's edges as chains of cells: ``(a, b, waypoints from a's end to b's)``.
+Chains = list[tuple[int, int, list[int]]]
+
+
+def _edge_chains(m: Map) -> Chains:
+    """The edges between targets, each once (from its lower end), with their waypoints.
+
+    Empty when every cell is a target (a grid, a graph of one-move edges) or when some
+    non-target cell does not have exactly two neighbours (no chains to speak of): the
+    partition then works cell by cell."""
+    if m.target.all():
+        return []
+    deg = (m.neighbors >= 0).sum(axis=1)
+    if (deg[~m.target] != 2).any():
+        return []
+    chains: Chains = []
+    for a in np.flatnonzero(m.target).tolist():
+        for first in m.neighbors[a].tolist():
+            if first < 0:
+                continue
+            prev, cur, ways = a, first, []
+            while not m.target[cur]:
+                ways.append(cur)
+                prev, cur = cur, next(int(x) for x in m.neighbors[cur] if x >= 0 and x != prev)
+            if a < cur or (a == cur and ways and ways[0] < ways[-1]):
+                chains.append((a, int(cur), ways))
+    return chains
+
+
+def _attach_waypoints(labels: np.ndarray, chains: Chains, which: list[int] | None = None) -> None:
+    """Give the waypoints of each chain (``which``: their indices; default all) the region
+    of the nearer end vertex (of ``a`` at the middle; all of it if both ends share a
+    region). ``labels`` int ``[C]`` is changed in place."""
+    for i in range(len(chains)) if which is None else which:
+        a, b, ways = chains[i]
+        la, lb = labels[a], labels[b]
+        moves = len(ways) + 1
+        for j, c in enumerate(ways, start=1):
+            labels[c] = la if la == lb or 2 * j <= moves else lb
+
+
+def _grow(
+    m: Map, seeds: list[int], delays: list[float] | None = None, chains: Chains = ()
+) -> np.ndarray:
     """int ``[C]``: region of each cell, by breadth-first search from all seeds at once.
 
     Region r holds ``seeds[r]`` from the start and spreads from it one move per step,
     starting after ``delays[r]`` steps (default 0). A cell joins the first region to
     reach it (ties to the lower region), from a cell of that region, so every region is
-    connected and non-empty.
+    connected and non-empty. With ``chains`` (a graph's edges), the waypoints then
+    follow their edge's vertices (:func:`_attach_waypoints`).
     """
     labels = np.full(m.n_cells, -1, dtype=np.int64)
     labels[seeds] = np.arange(len(seeds))
@@ -722,6 +766,8 @@ def _grow(m: Map, seeds: list[int], delays: list[float] | None = None) -> np.nda
         for nb in m.neighbors[c]:
             if nb >= 0 and labels[nb] < 0:
                 heapq.heappush(heap, (t + 1, r, int(nb)))
+    if chains:
+        _attach_waypoints(labels, chains)
     return labels
 
 
@@ -756,7 +802,9 @@ def _spread(costs: list[int]) -> tuple[int, int]:
     return max(costs), sum(c * c for c in costs)
 
 
-def _delay_balance(m: Map, seeds: list[int], k: int, rounds: int = _DELAY_ROUNDS) -> np.ndarray:
+def _delay_balance(
+    m: Map, seeds: list[int], k: int, rounds: int = _DELAY_ROUNDS, chains: Chains = ()
+) -> np.ndarray:
     """Regions grown from ``seeds`` with start delays tuned to even out their costs.
 
     Each round grows the regions (:func:`_grow`) and delays every region in proportion
@@ -766,7 +814,7 @@ def _delay_balance(m: Map, seeds: list[int], k: int, rounds: int = _DELAY_ROUNDS
     delays = [0.0] * k
     best, best_key = None, None
     for _ in range(rounds):
-        labels = _grow(m, seeds, delays)
+        labels = _grow(m, seeds, delays, chains)
         costs = [_region_cost(m, np.flatnonzero(labels == r)) for r in range(k)]
         key = _spread(costs)
         if best_key is None or key < best_key:
@@ -777,28 +825,75 @@ def _delay_balance(m: Map, seeds: list[int], k: int, rounds: int = _DELAY_ROUNDS
     return best
 
 
-def _balance(m: Map, labels: np.ndarray, k: int) -> np.ndarray:
+def _balance(m: Map, labels: np.ndarray, k: int, chains: Chains = ()) -> np.ndarray:
     """Move boundary cells between regions while that lowers the sorted costs.
 
     Repeatedly take the costliest region that has an improving move: a cell of it next
     to a cheaper region goes there if both regions stay connected and both new costs
     are below the old cost of the first. The costs sorted in decreasing order drop
-    lexicographically at every move, so this ends.
+    lexicographically at every move, so this ends. With ``chains`` (a graph with
+    waypoints) the moves are of vertices instead (:func:`_best_vertex_move`).
     """
     labels = labels.copy()
     cost = [_region_cost(m, np.flatnonzero(labels == r)) for r in range(k)]
+    chains_of: dict[int, list[int]] = {}
+    for i, (a, b, _) in enumerate(chains):
+        chains_of.setdefault(a, []).append(i)
+        chains_of.setdefault(b, []).append(i)
     moved = True
     while moved:
         moved = False
         for r in sorted(range(k), key=lambda g: (-cost[g], g)):
-            move = _best_move(m, labels, cost, r)
+            if chains:
+                move = _best_vertex_move(m, labels, cost, r, chains, chains_of)
+            else:
+                move = _best_move(m, labels, cost, r)
             if move is not None:
                 cell, target, cost_r, cost_t = move
                 labels[cell] = target
+                if chains:
+                    _attach_waypoints(labels, chains, chains_of.get(cell, []))
                 cost[r], cost[target] = cost_r, cost_t
                 moved = True
                 break
     return labels
+
+
+def _best_vertex_move(
+    m: Map,
+    labels: np.ndarray,
+    cost: list[int],
+    r: int,
+    chains: Chains,
+    chains_of: dict[int, list[int]],
+) -> tuple[int, int, int, int] | None:
+    """:func:`_best_move` on a graph with waypoints: a vertex of region r that shares an
+    edge with a cheaper region moves there, the waypoints of its edges following
+    (:func:`_attach_waypoints`); (vertex, region, new cost of r, new cost there)."""
+    members = np.flatnonzero(labels == r)
+    vertices = members[m.target[members]]
+    if vertices.size < 2:
+        return None
+    best = None
+    for v in vertices.tolist():
+        ends = {b if a == v else a for a, b, _ in (chains[i] for i in chains_of.get(v, []))}
+        targets = sorted({int(labels[e]) for e in ends if cost[labels[e]] < cost[r]})
+        if not targets:
+            continue
+        trial = labels.copy()
+        cost_r = None
+        for t in targets:
+            trial[v] = t
+            _attach_waypoints(trial, chains, chains_of[v])
+            if cost_r is None:  # region r loses v and the same waypoints whatever t is
+                cost_r = _region_cost(m, np.flatnonzero(trial == r))
+                if cost_r is None or cost_r >= cost[r]:
+                    break
+            cost_t = _region_cost(m, np.flatnonzero(trial == t))
+            if cost_t is not None and cost_t < cost[r]:
+                if best is None or max(cost_r, cost_t) < max(best[2:]):
+                    best = (v, t, cost_r, cost_t)
+    return best
 
 
 def _best_move(
@@ -835,15 +930,16 @@ def _partition_cached(key: _MapKey, k: int, seed: int) -> np.ndarray:
     targets = np.flatnonzero(m.target)
     spread = dist if targets.size == m.n_cells else dist[np.ix_(targets, targets)]
     seeds = targets[_farthest_seeds(spread, k, np.random.default_rng(seed))].tolist()
-    labels = _grow(m, seeds)
+    chains = _edge_chains(m)
+    labels = _grow(m, seeds, chains=chains)
     for _ in range(10):  # Lloyd steps: regrow from the regions' medoids
         seeds = _medoids(dist, labels, k, m.target)
-        grown = _grow(m, seeds)
+        grown = _grow(m, seeds, chains=chains)
         if (grown == labels).all():
             break
         labels = grown
-    labels = _delay_balance(m, seeds, k)
-    return _balance(m, labels, k)
+    labels = _delay_balance(m, seeds, k, chains=chains)
+    return _balance(m, labels, k, chains)
 
 
 def partition_regions(m: Map, k: int, seed: int = 0) -> np.ndarray:
