@@ -169,6 +169,36 @@ def test_graph_walk_and_bound_against_brute_force(seed, n, extra):
     assert closed_walk_lower_bound(m) <= opt == len(walk)
 
 
+@settings(max_examples=25, deadline=None)
+@given(seed=st.integers(0, 2**32 - 1), v=st.integers(3, 8), extra=st.integers(0, 3))
+def test_sparse_graph_walk_and_bound_against_brute_force(seed, v, extra):
+    """Random trees of 3-8 vertices with edges of 1-3 moves, plus a few extra edges
+    (bridges, dead ends and cycles of waypoints): the bound is at most the exact
+    optimum, the walk reaches it."""
+    rng = np.random.default_rng(seed)
+    edges = {(int(rng.integers(0, b)), b): int(rng.integers(1, 4)) for b in range(1, v)}
+    for _ in range(extra):
+        a, b = sorted(int(x) for x in rng.choice(v, 2, replace=False))
+        edges.setdefault((a, b), int(rng.integers(1, 4)))
+    m = parse_map(graph(v, [(a, b, k) for (a, b), k in edges.items()]))
+    opt = shortest_closed_walk_through_targets(m)
+    walk = closed_walk(m)
+    assert walk_is_closed_cover(m, walk) and travels_edges(m, walk)
+    assert closed_walk_lower_bound(m) <= opt == len(walk)
+
+
+def test_bridges_of_long_edges_count_twice():
+    # two triangles of unit edges (0 1 2 and 3 4 5) joined by a 3-move edge 2 - 3: the
+    # bridge's 3 moves are walked both ways, each triangle once round: 3 + 3 + 2 x 3
+    m = parse_map(
+        graph(6, [(0, 1, 1), (1, 2, 1), (2, 0, 1), (2, 3, 3)] + [(3, 4, 1), (4, 5, 1), (5, 3, 1)])
+    )
+    assert len(closed_walk(m)) == 12 == closed_walk_lower_bound(m)
+    # a star of three 2-move edges and one 4-move edge: twice every move, 2 x 10
+    m = parse_map(graph(5, [(0, 1, 2), (0, 2, 2), (0, 3, 2), (0, 4, 4)]))
+    assert len(closed_walk(m)) == 20 == closed_walk_lower_bound(m)
+
+
 def test_an_edge_nobody_needs_is_never_walked():
     # a path 0 - 1 - 2 of unit edges, and a 6-move edge 0 - 2 (5 waypoints): the walk
     # goes 0 1 2 1 (4 moves), not round the 8-move cycle, and enters no waypoint

@@ -606,7 +606,7 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
     if tgt.size == arr.size and arr.size <= 2:
         return arr.size
     if tgt.size < arr.size:
-        return _steiner_bound(nb, tgt)
+        return _steiner_bound(m, arr)
     n_bridges, label = _two_edge_components(nb)
     total = 2 * n_bridges
     for comp in range(int(label.max()) + 1):
@@ -624,9 +624,9 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
     return total
 
 
-def _steiner_bound(nb: np.ndarray, tgt: np.ndarray) -> int:
-    """The bound of :func:`closed_walk_lower_bound` for a region with cells that are not
-    targets (waypoints): nodes ``tgt`` of the region graph ``nb`` must be visited."""
+def _required_bound(nb: np.ndarray, tgt: np.ndarray) -> int:
+    """A lower bound on a closed walk in the connected graph ``nb`` through the nodes
+    ``tgt`` (step 2 of the waypoint case of :func:`closed_walk_lower_bound`)."""
     if tgt.size == 1:
         return 1
     D = all_pairs_distances(nb)
@@ -643,6 +643,53 @@ def _steiner_bound(nb: np.ndarray, tgt: np.ndarray) -> int:
     held_karp = math.ceil(_held_karp_closed(DT, upper) - 1e-6) if upper > cheap else cheap
     best = max(cheap, held_karp)
     return best + best % 2 if bipartite.all() else best
+
+
+def _steiner_bound(m: Map, cells: np.ndarray) -> int:
+    """The bound of :func:`closed_walk_lower_bound` for a connected region ``cells`` with
+    cells that are not targets (waypoints)."""
+    cells = _prune_dead_ends(m, cells)
+    nb = _local_neighbors(m, cells)
+    is_target = m.target[cells]
+    whole = _required_bound(nb, np.flatnonzero(is_target))
+    if is_target.sum() <= 1:
+        return whole
+    bridges = _bridges(nb)
+    if not bridges:
+        return whole
+    n_bridges, label = _two_edge_components(nb)
+    # the bridges join the components into a tree: each must have targets on both sides
+    n_comp = int(label.max()) + 1
+    held = np.bincount(label, weights=is_target, minlength=n_comp).astype(np.int64)
+    tree: list[list[int]] = [[] for _ in range(n_comp)]
+    for u, v in bridges:
+        tree[label[u]].append(int(label[v]))
+        tree[label[v]].append(int(label[u]))
+    parent, order, stack = [-1] * n_comp, [], [0]
+    seen = {0}
+    while stack:
+        c = stack.pop()
+        order.append(c)
+        for d in tree[c]:
+            if d not in seen:
+                seen.add(d)
+                parent[d] = c
+                stack.append(d)
+    below = held.copy()
+    for c in reversed(order[1:]):
+        below[parent[c]] += below[c]
+    if any(below[c] == 0 or below[c] == below[0] for c in order[1:]):
+        return whole  # a side of a bridge without target: no decomposition
+    required = is_target.copy()
+    for u, v in bridges:
+        required[u] = required[v] = True
+    total = 2 * n_bridges
+    for comp in range(n_comp):
+        part = np.flatnonzero(label == comp)
+        need = np.flatnonzero(required[part])
+        if need.size >= 2:
+            total += _required_bound(_local_neighbors(m, cells[part]), need)
+    return max(whole, total)
 
 
 def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
@@ -676,12 +723,22 @@ def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
     carries 2 in it), so this is at least the Held-Karp bound of the whole region, up
     to the subgradient's accuracy. Conventions: 1 for one cell, 2 for two.
 
-    *Some cells not targets* (a graph's waypoints), ``t`` targets: 1 for one target,
-    ``2 d(a, b)`` for two; else the largest of ``t`` (each target takes a position of
-    the walk), ``2 * max(black, white)`` counted over the targets if the region is
-    bipartite (same argument), and the Held-Karp bound of the tour over the targets in
-    the region's shortest-path metric (the walk listed by first visits of targets is
-    such a tour), rounded up to even if the region is bipartite.
+    *Some cells not targets* (a graph's waypoints). First drop, again and again, the
+    non-target cells with at most one neighbour left: a walk that enters such a dead
+    end comes back the same way, and cutting the excursion out leaves a shorter walk
+    through all targets, so the shortest walk lives in what remains, G'. For a set R
+    of cells a closed walk in a connected graph H must visit (``r = |R|``), let
+    ``B(H, R)`` be: 1 for one cell, ``2 d(a, b)`` for two; else the largest of ``r``
+    (each takes a position of the walk), ``2 * max(black, white)`` counted over R if H
+    is bipartite (same argument as above), and the Held-Karp bound of the tour over R
+    in H's shortest-path metric (the walk listed by first visits of R is such a tour),
+    rounded up to even if H is bipartite. The bound is ``B(G', targets)``, or if
+    larger, the step-1 decomposition of G' when every bridge of G' has targets on both
+    sides: each bridge is crossed at least twice, and the walk ``W_i`` left in
+    component ``C_i`` visits its targets and the ends of its bridges (the walk crosses
+    every bridge), so ``L >= 2 * bridges + sum_i B(C_i, R_i)`` over the components with
+    ``|R_i| >= 2``. For a tree this is again exact: twice the edges of the smallest
+    subtree holding every target.
     """
     return _bound_cached(_MapKey(m), _cell_set(m, cells))
 
