@@ -199,6 +199,27 @@ def test_bridges_of_long_edges_count_twice():
     assert len(closed_walk(m)) == 20 == closed_walk_lower_bound(m)
 
 
+# a tree of 17 vertices and 29 moves on which the Held-Karp bound alone stays at 56
+TREE17 = [(0, 1, 3), (0, 2, 2), (0, 3, 2), (1, 4, 3), (0, 5, 1), (0, 6, 1), (4, 7, 2)]
+TREE17 += [(7, 8, 2), (3, 9, 1), (7, 10, 2), (2, 11, 1), (5, 12, 1), (12, 13, 2), (0, 14, 1)]
+TREE17 += [(4, 15, 2), (13, 16, 3)]
+
+
+def test_a_tree_of_long_edges_is_bounded_exactly():
+    """Every edge of a tree is a bridge between targets: the bound splits over them and
+    is exact, twice the moves (the Held-Karp bound of the tour over the vertices alone is
+    56). The same in a region whose cells include a dead-end part of an edge to a vertex
+    outside it: those waypoints are dropped before the bridges are counted."""
+    m = parse_map(graph(17, TREE17))
+    assert len(closed_walk(m)) == 58 == closed_walk_lower_bound(m) == 2 * 29
+    m = parse_map(graph(18, [*TREE17, (16, 17, 4)]))  # its waypoints: 31 32 33 from 16
+    assert m.n_cells == 34
+    cells = np.array([c for c in range(33) if c != 17])  # without 17 and 33: 31-32 dead end
+    walk = closed_walk(m, cells)
+    assert walk_is_closed_cover(m, walk, cells) and not set(walk.tolist()) & {31, 32}
+    assert len(walk) == 58 == closed_walk_lower_bound(m, cells)
+
+
 def test_an_edge_nobody_needs_is_never_walked():
     # a path 0 - 1 - 2 of unit edges, and a 6-move edge 0 - 2 (5 waypoints): the walk
     # goes 0 1 2 1 (4 moves), not round the 8-move cycle, and enters no waypoint
