@@ -178,7 +178,8 @@ def _colours(nb: np.ndarray, label: np.ndarray | None = None) -> tuple[np.ndarra
     if label is None:
         label = _components(nb)
     n = nb.shape[0]
-    colour = np.full(n, -1, dtype=np.int64)
+    adj, lab = nb.tolist(), label.tolist()
+    colour = [-1] * n
     bipartite = np.ones(int(label.max()) + 1 if n else 0, dtype=bool)
     for s in range(n):
         if colour[s] >= 0:
@@ -187,26 +188,26 @@ def _colours(nb: np.ndarray, label: np.ndarray | None = None) -> tuple[np.ndarra
         queue = deque([s])
         while queue:
             v = queue.popleft()
-            for w in nb[v]:
-                if w < 0 or label[w] != label[v]:
+            for w in adj[v]:
+                if w < 0 or lab[w] != lab[v]:
                     continue
                 if colour[w] < 0:
                     colour[w] = 1 - colour[v]
-                    queue.append(int(w))
+                    queue.append(w)
                 elif colour[w] == colour[v]:
-                    bipartite[label[v]] = False
-    return colour, bipartite
+                    bipartite[lab[v]] = False
+    return np.array(colour, dtype=np.int64), bipartite
 
 
 def _prune_dead_ends(m: Map, cells: np.ndarray) -> np.ndarray:
     """The cells of ``cells`` left after dropping, again and again, non-target cells with at
     most one neighbour in the set: no shortest closed walk through the targets enters them
     (the excursion could be cut out). On a grid, where every cell is a target, all cells."""
-    keep = np.ones(cells.size, dtype=bool)
-    nb = _local_neighbors(m, cells)
     is_target = m.target[cells]
     if is_target.all():
         return cells
+    keep = np.ones(cells.size, dtype=bool)
+    nb = _local_neighbors(m, cells)
     deg = (nb >= 0).sum(axis=1)
     stack = [int(v) for v in np.flatnonzero(~is_target & (deg <= 1))]
     while stack:
