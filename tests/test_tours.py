@@ -125,3 +125,14 @@ def test_bad_start():
     m = parse_map("######\n#0...#\n######")
     with pytest.raises(ValueError):
         dot_walk_tour(m, 99)
+
+
+def test_dot_walk_on_map_a_is_pinned():
+    """The dot-eating walk of map_a from agent 0's start, cell by cell, as computed at
+    commit c12d418 (before the walk modules became port-generic)."""
+    import hashlib
+
+    m = get_map("map_a")
+    moves, walk = dot_walk_tour(m, int(m.starts[0]))
+    digest = hashlib.sha256(np.asarray(walk, dtype=np.int64).tobytes()).hexdigest()[:16]
+    assert (moves, digest) == (214, "00e1fbca5f325831")

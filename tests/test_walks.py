@@ -270,3 +270,39 @@ def test_broken_walks_are_rejected():
     assert not walk_is_closed_cover(m, np.array([], dtype=np.int64))
     t = parse_map(T_SHAPE)
     assert not walk_is_closed_cover(t, np.array([0, 1, 2, 3, 4, 5, 6, 7]))  # 4 -> 5 jumps
+
+
+# --- grid walks pinned ---------------------------------------------------------------
+
+
+def _digest(a) -> str:
+    """First 16 hex digits of the sha256 of an int64 array's bytes."""
+    import hashlib
+
+    return hashlib.sha256(np.asarray(a, dtype=np.int64).tobytes()).hexdigest()[:16]
+
+
+def test_grid_walks_and_partitions_are_pinned():
+    """The walks and partitions of map_a and map_b cell by cell, as computed at commit
+    c12d418 (before walks became port-generic): making them work on patrol graphs must not
+    move a single cell on a grid."""
+    m = get_map("map_a")
+    walk = closed_walk(m)
+    assert (len(walk), _digest(walk)) == (216, "3e542d17cd606dd4")
+    walk = closed_walk(m, effort="fast")
+    assert (len(walk), _digest(walk)) == (222, "c23c17a4e196112f")
+    assert closed_walk_lower_bound(m) == 200
+    labels = partition_regions(m, 4)
+    region = region_walks(m, labels)
+    assert _digest(labels) == "416a3227e22886bc"
+    assert [len(w) for w in region] == [64, 60, 70, 64]
+    assert _digest(np.concatenate(region)) == "eb64bd54510d49e9"
+    b = get_map("map_b")
+    walk = closed_walk(b)
+    assert (len(walk), _digest(walk)) == (152, "905165cb45fac846")
+    assert closed_walk_lower_bound(b) == 134
+    labels = partition_regions(b, 8)
+    region = region_walks(b, labels)
+    assert _digest(labels) == "f815b419643bd76c"
+    assert [len(w) for w in region] == [28, 26, 28, 28, 28, 28, 28, 26]
+    assert _digest(np.concatenate(region)) == "95c83667d7a9b016"

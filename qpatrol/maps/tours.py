@@ -235,7 +235,8 @@ def _or_opt_move(De: np.ndarray, p: np.ndarray, max_len: int = 3) -> bool:
 
 
 def _expand(m: Map, cells: np.ndarray, order: np.ndarray) -> list[int]:
-    """The cell-by-cell walk through the nodes of ``order`` (shortest paths, N E S W first)."""
+    """The cell-by-cell walk through the nodes of ``order`` (shortest paths, lowest port
+    first: N E S W on a grid)."""
     dist = m.distances()
     walk = [int(cells[order[0]])]
     for node in order[1:]:

@@ -1,11 +1,12 @@
 """``cyclic`` (Chevaleyre 2004): the whole team on one short closed walk, evenly spaced.
 
-One closed walk through every free cell, as short as :func:`qpatrol.maps.walks.closed_walk`
-can make it, is computed once per map. Robot slots are spaced ``L / K`` apart along it
+One closed walk through every target (every free cell of a grid, every vertex of a patrol
+graph), as short as :func:`qpatrol.maps.walks.closed_walk` can make it, is computed once
+per map. Robot slots are spaced ``L / K`` apart along it
 (moved forward to the next distinct cell that is not a station, if needed), robots are
 matched to slots nearest first, walk to them and wait there until the whole team has
 gathered (or ``3 x diameter`` steps have passed); then every robot advances one cell
-per step. With K robots and no disturbance every cell is visited every ``L / K`` steps,
+per step. With K robots and no disturbance every target is visited every ``L / K`` steps,
 the bound reported beside the results. Battery trips and yielding shift robots; each
 rejoins the walk where it left it, and each robot keeps its slot's distance behind the
 next robot ahead by waiting, so that the spacing comes back (see

@@ -1,7 +1,8 @@
 """``partition``: the map cut into K connected regions, each robot cycling its own.
 
 :func:`qpatrol.maps.walks.partition_regions` cuts the map into K connected regions of
-balanced walk length, once per map; each region gets its own short closed walk. Robots
+balanced walk length, once per map; each region gets its own short closed walk through
+its targets (on a patrol graph a region is vertices plus the waypoints of its edges). Robots
 are matched to regions nearest first, walk to the nearest cell of their region's walk
 and cycle it. Battery trips take a robot out of its region; it comes back where it
 left. Two robots that meet head-on exchange regions (see
