@@ -255,7 +255,7 @@ def summarize(
     # each quotient is the float64 division it was when written per run
     with np.errstate(divide="ignore", invalid="ignore"):
         per_episode = (done_steps / n_done).tolist()
-        avg = (m.idle_total / (m.n_cells * m.measured)).tolist()
+        avg = (m.idle_total / (m.n_targets * m.measured)).tolist()
         interval = (m.gap_sum / m.gap_count).tolist()
     measured = m.measured.tolist()
     gaps = m.gap_count.tolist()
