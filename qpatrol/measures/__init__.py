@@ -1,7 +1,9 @@
 """Patrolling measures, watched from outside the world, one dict per run.
 
 The standard measures of the multi-agent patrolling literature (Machado et al. 2002;
-Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup``.
+Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup``,
+and over the *target* cells only (``Map.target``: every cell of a grid, the vertices of
+a graph; entering a waypoint of a graph's edge is no visit).
 
 * idleness of cell c after team step t: ``t - last visit of c by any robot`` (every
   cell counts as visited at step 0);
@@ -15,12 +17,17 @@ Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup
 * ``max_wait``: the longest stretch of consecutive team steps, reached in the window,
   in which a robot could not make the move its strategy or its battery asked for
   (waiting for a station included);
-* ``mean_steps_per_episode``: over complete episodes that started in the window.
+* ``mean_steps_per_episode``: over complete episodes that started in the window;
+* the patrolling field's measures (:data:`FIELD_MEASURES`, :func:`field_measures`):
+  the intervals' quadratic mean and spread, the spread of the targets' visit
+  frequencies, the worst, mean, median and spread of the targets' average intervals,
+  complete patrol cycles and interferences (``docs/model.md``).
 
 The work per step does not grow with the map: the sum of last-visit times is kept as
-visits happen (``sum_c idle = C t - sum_c last``), and the worst idleness is the
-largest visit gap (a cell visited at t after l peaked at ``t - 1 - l``, in the step
-before), plus the gaps still open at the end.
+visits happen (``sum_c idle = T t - sum_c last`` over the T targets), the worst
+idleness is the largest visit gap (a cell visited at t after l peaked at ``t - 1 - l``,
+in the step before), plus the gaps still open at the end, and each visit adds its
+interval to the run's and its target's sums and ticks the patrol cycle under way.
 """
 
 from __future__ import annotations
@@ -324,13 +331,19 @@ def field_measures(
     from the accumulators of ``m``, ``per_target`` int ``[R, T]`` (window visits of each
     target) and ``steps_done`` int ``[R]``; definitions in ``docs/model.md``,
     "Patrolling measures". Sums of integers are exact (Python integers), then one
-    float division or square root, so the same accumulators give the same bits."""
+    float division or square root; sums of floats are math.fsum's: the same
+    accumulators give the same bits, in any batch."""
     n_t = m.n_targets
-    avg = m.target_averages(steps_done)  # [R, T]
-    worst_avg = avg.max(axis=1).tolist()
-    mean_avg = avg.mean(axis=1).tolist()
-    median = np.median(avg, axis=1).tolist()
-    spread = avg.std(axis=1).tolist()
+    # each run's row alone (a reduction over the axis of a [R, T] array may add in an
+    # order that depends on R, and a run's numbers must not depend on its batch); sums
+    # by math.fsum, exactly rounded
+    worst_avg, mean_avg, median, spread = [], [], [], []
+    for a in m.target_averages(steps_done):  # float [T] per run
+        mean = math.fsum(a.tolist()) / n_t
+        worst_avg.append(float(a.max()))
+        mean_avg.append(mean)
+        median.append(float(np.median(a)))
+        spread.append(math.sqrt(math.fsum(((a - mean) ** 2).tolist()) / n_t))
     visits = per_target.sum(axis=1).tolist()
     visits_sq = (per_target * per_target).sum(axis=1).tolist()
     out: dict[str, list[Any]] = {key: [] for key in FIELD_MEASURES}

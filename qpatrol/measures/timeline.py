@@ -4,9 +4,11 @@ A recorder that watches from outside the world, like :mod:`qpatrol.measures`, bu
 instead of one number per run it keeps one row per window of ``record.timeline`` team
 steps, from step 1 on (no warm-up), so that learning shows as a curve:
 
-* ``avg_idleness`` of a window: mean over its steps t and over cells c of
+* ``avg_idleness`` of a window: mean over its steps t and over target cells c of
   ``t - last visit of c`` (every cell counts as visited at step 0);
-* ``worst_idleness``: the largest idleness any cell reached at a step of the window.
+* ``worst_idleness``: the largest idleness any target reached at a step of the window.
+
+Targets as in :mod:`qpatrol.measures`: every cell of a grid, a graph's vertices.
 
 The work per step does not grow with the map. The idleness sum is kept from the sum of
 last visits (``sum_c idle = C t - sum_c last``). A cell visited at t after l peaked at
