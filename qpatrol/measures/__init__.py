@@ -180,16 +180,20 @@ class Measures:
 
     def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
         """int ``[R]``: worst idleness in the window, open gaps at the end included."""
-        open_gaps = steps_done - self.last[:, self.target].min(axis=1)
+        open_gaps = steps_done - self.of_targets(self.last).min(axis=1)
         return np.where(steps_done > self.warmup, np.maximum(self.worst, open_gaps), self.worst)
+
+    def of_targets(self, a: np.ndarray) -> np.ndarray:
+        """``a[..., target]``: an array over cells (last axis) over the targets only
+        (``a`` itself when every cell is a target)."""
+        return a if self.n_targets == self.n_cells else a[..., self.target]
 
     def target_averages(self, steps_done: np.ndarray) -> np.ndarray:
         """float ``[R, T]``: each target's average interval over the intervals ending in
         the window; a target with none counts with its idleness at the end,
         ``steps_done - last`` (``steps_done`` if never visited)."""
-        tgt = self.target
-        total, count = self.target_gap_sum[:, tgt], self.target_gap_count[:, tgt]
-        open_gap = np.asarray(steps_done)[:, None] - self.last[:, tgt]
+        total, count = self.of_targets(self.target_gap_sum), self.of_targets(self.target_gap_count)
+        open_gap = np.asarray(steps_done)[:, None] - self.of_targets(self.last)
         avg = open_gap.astype(np.float64)
         np.divide(total, count, out=avg, where=count > 0)
         return avg
@@ -235,7 +239,7 @@ def summarize(
 ) -> list[dict[str, Any]]:
     """Per-run measures as plain dicts (JSON-ready), in batch order."""
     dol = division_of_labour(m.window_visits)
-    per_target = m.window_visits[:, :, m.target].sum(axis=1)  # [R, T] window visits
+    per_target = m.of_targets(m.window_visits).sum(axis=1)  # [R, T] window visits
     coverage = (per_target > 0).mean(axis=1)
     worst = m.worst_idleness(steps_done)
     field = field_measures(m, per_target, steps_done)
