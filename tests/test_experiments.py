@@ -10,6 +10,7 @@ from typer.testing import CliRunner
 
 from qpatrol import engines
 from qpatrol.cli import app
+from qpatrol.measures import FIELD_MEASURES
 from qpatrol.study import reproduce as rp
 
 runner = CliRunner()
@@ -155,4 +156,33 @@ def test_quick_reproduction_matches_the_committed_references(tmp_path: Path, mon
     fresh = {f"{p.parent.name}/{p.name}" for p in tmp_path.glob("*/*.csv")}
     committed = {f"{p.parent.name}/{p.name}" for p in REFERENCES.glob("*/*.csv")}
     assert fresh == committed
-    assert rp.compare_with_references(tmp_path, REFERENCES) == []
+    # the committed columns byte for byte (as text, cell by cell); the field's measures,
+    # added after the references were made, must be in every results.csv
+    assert rp.compare_with_references(tmp_path, REFERENCES, FIELD_MEASURES) == []
+    for path in tmp_path.glob("data/*-results.csv"):
+        assert set(FIELD_MEASURES) <= set(pd.read_csv(path, nrows=0).columns), path.name
+
+
+def test_reference_comparison_allows_only_the_named_new_columns(tmp_path: Path):
+    """compare_with_references: a CSV equal byte for byte, or with named new columns and
+    every old cell unchanged, passes; a changed cell, a missing column, a column not
+    named, or a row more fails."""
+    ref, out = tmp_path / "ref" / "data", tmp_path / "out" / "data"
+    ref.mkdir(parents=True)
+    out.mkdir(parents=True)
+    (ref / "a.csv").write_text("run,x,y\n0,1.5,a\n1,2,b\n")
+    cases = {
+        "run,x,y\n0,1.5,a\n1,2,b\n": True,
+        "run,x,y,qmi\n0,1.5,a,3.0\n1,2,b,\n": True,
+        "run,qmi,x,y\n0,3.0,1.5,a\n1,,2,b\n": True,
+        "run,x,y,qmi\n0,1.50,a,3.0\n1,2,b,\n": False,  # the text of a cell changed
+        "run,x,qmi\n0,1.5,3.0\n1,2,\n": False,  # y is missing
+        "run,x,y,other\n0,1.5,a,3.0\n1,2,b,\n": False,  # not a named column
+        "run,x,y,qmi\n0,1.5,a,3.0\n1,2,b,\n2,2,b,\n": False,  # a row more
+    }
+    for text, same in cases.items():
+        (out / "a.csv").write_text(text)
+        diffs = rp.compare_with_references(tmp_path / "out", tmp_path / "ref", ["qmi"])
+        assert (diffs == []) == same, text
+    (out / "a.csv").write_text("run,x,y,qmi\n0,1.5,a,3.0\n1,2,b,\n")
+    assert rp.compare_with_references(tmp_path / "out", tmp_path / "ref") == ["data/a.csv"]

@@ -147,7 +147,8 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     # the episode's counters, stored before an episode ends and at the end
     cnt = (s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0])
     start, going = s.ep_start[r, 0], s.active[r]
-    m_last_r, visits_r, window_visits_r = m.last[r], m.visits[r, 0], m.window_visits[r, 0]
+    visits_r, window_visits_r = m.visits[r, 0], m.window_visits[r, 0]
+    rows_r = observe.rows_of(m, r)
     sums = observe.sums_of(m, r)
     idle_sum, n_measured = m.idle_total[r], m.measured[r]
     t_end = t0
@@ -183,11 +184,11 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             at1 = (c1 * 4 + hb) * 4  # Q(c1, hb, .), flat
             best, _, _ = qlearning.update(q_f, n_f, at + aa, at1, cell_moves[c1], reward, gamma)
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
-            sums = observe.visit(c1, t, warmup, m_last_r, visits_r, window_visits_r, sums)
+            sums = observe.visit(c1, t, warmup, p, rows_r, visits_r, window_visits_r, sums)
             c = c1
             h = a
         if t > warmup:
-            idle_sum += nbrs.shape[0] * t - sums[0]
+            idle_sum += p.n_targets * t - sums[0]
             n_measured += 1
         if o.tail_n > 0:
             o.tail_pos[r, (t - 1) % o.tail_n, 0] = c
@@ -227,7 +228,8 @@ def _team_enters(r, k, c0, c1, t, learns, ha, aa, p, s, m, tables, sums):
         at0 = ((base + c0) * 4 + hs) * 4 + aa  # Q(c0, hs, aa), flat
         at1 = ((base + c1) * 4 + hb) * 4  # Q(c1, hb, .)
         qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma)
-    sums = observe.visit(c1, t, m.warmup, m.last[r], m.visits[r, k], m.window_visits[r, k], sums)
+    rows_r = observe.rows_of(m, r)
+    sums = observe.visit(c1, t, m.warmup, p, rows_r, m.visits[r, k], m.window_visits[r, k], sums)
     return a, sums
 
 
@@ -350,10 +352,12 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             going = s.active[r]
             deadline = episodes.deadline(s.ep_start[r], p.max_ep, never)
         if t > m.warmup:
-            idle_sum += n_cells * t - sums[0]
+            idle_sum += p.n_targets * t - sums[0]
             n_measured += 1
             top_wait = max(top_wait, longest)
             wait_sum += waiting
+            if not clear:  # (a clear step moves every robot that asked, as asked)
+                m.interferences[r] += observe.blocked(w)
         observe.trail(r, t, pos_r, o)
         t_end = t
     pcg.store(words[r], s_lo, s_hi, (n_steps - (t_end - t0)) * n_agents * 2)
@@ -431,6 +435,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
         if spec == SPEC_QLEARNING:  # (the tables flat: a reshape is a call)
             gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
         sums = observe.sums_of(m, r)  # the measures' sums, in registers for the block
+        rows_r = observe.rows_of(m, r)
         t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
         t_r = t0
         for i in range(n_steps):
@@ -477,12 +482,16 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             for k in range(n_agents):
                 if w.moved[k]:
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
-                    sums = observe.visit(c, t, m.warmup, m.last[r], vk, wk, sums)
+                    sums = observe.visit(c, t, m.warmup, p, rows_r, vk, wk, sums)
             if spec == SPEC_ANY and tl_window > 0:
-                n_tl = observe.timeline(r, t, tl_window, s.pos[r], w.moved, o, n_tl)
+                n_tl = observe.timeline(
+                    r, t, tl_window, s.pos[r], w.moved, p.target, p.n_targets, o, n_tl
+                )
             if spec == SPEC_ANY and battery:
                 stations.lowest_charge(r, s, m.min_charge)
-            observe.step_measures(r, t, n_cells, sums[0], waiting, longest, m)
+            observe.step_measures(r, t, p.n_targets, sums[0], waiting, longest, m)
+            if t > m.warmup:
+                m.interferences[r] += observe.blocked(w)
             observe.trail(r, t, s.pos[r], o)
             t_r = t
         observe.store_sums(m, r, sums)
@@ -569,13 +578,14 @@ class Loop:
         rules = (p.communication, p.avoid_collisions, p.diameter, p.max_episode_steps)
         bp = bundles.Params(
             *consts, np.int64(n_dots), reward_w, *rules, p.episodes, *battery, *pockets,
-            p.capacity, p.margin, p.charge_steps,
+            p.capacity, p.margin, p.charge_steps, p.target, np.int64(p.n_targets),
         )  # fmt: skip
         bs = bundles.World(*(getattr(s, f) for f in bundles.World._fields))
         bm = bundles.Meas(
             m.last, m.last_sum, m.visits, m.window_visits, m.idle_total, m.worst, m.measured,
             m.gap_sum, m.gap_count, m.gap_max, m.max_wait, m.wait_total, m.warmup,
-            m.min_charge,
+            m.min_charge, m.gap_sq, m.target_gap_sum, m.target_gap_count, m.cycle_start,
+            m.cycle_seen, m.cycles, m.interferences,
         )  # fmt: skip
         tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
         ups = (np.empty((rows, UP_INT), np.int64), np.empty((rows, UP_FLOAT), np.float64))

@@ -125,7 +125,9 @@ class Sim:
         starts = world.place_agents(p, self.map, self.streams.generators[0])[None, :]
         self.starts = starts
         self.state = world.init_state(p, starts)
-        self.measures = measures.Measures(1, p.n_agents, p.n_cells, int(self.cfg["record.warmup"]))
+        self.measures = measures.Measures(
+            1, p.n_agents, p.n_cells, int(self.cfg["record.warmup"]), p.target
+        )
         self.recorder = Recorder(np.array([self.run]))
         self.outcome = None
         self._begin()

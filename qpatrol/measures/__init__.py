@@ -1,7 +1,9 @@
 """Patrolling measures, watched from outside the world, one dict per run.
 
 The standard measures of the multi-agent patrolling literature (Machado et al. 2002;
-Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup``.
+Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup``,
+and over the *target* cells only (``Map.target``: every cell of a grid, the vertices of
+a graph; entering a waypoint of a graph's edge is no visit).
 
 * idleness of cell c after team step t: ``t - last visit of c by any robot`` (every
   cell counts as visited at step 0);
@@ -15,16 +17,22 @@ Chevaleyre 2004), all over the same *window*: the team steps ``t > record.warmup
 * ``max_wait``: the longest stretch of consecutive team steps, reached in the window,
   in which a robot could not make the move its strategy or its battery asked for
   (waiting for a station included);
-* ``mean_steps_per_episode``: over complete episodes that started in the window.
+* ``mean_steps_per_episode``: over complete episodes that started in the window;
+* the patrolling field's measures (:data:`FIELD_MEASURES`, :func:`field_measures`):
+  the intervals' quadratic mean and spread, the spread of the targets' visit
+  frequencies, the worst, mean, median and spread of the targets' average intervals,
+  complete patrol cycles and interferences (``docs/model.md``).
 
 The work per step does not grow with the map: the sum of last-visit times is kept as
-visits happen (``sum_c idle = C t - sum_c last``), and the worst idleness is the
-largest visit gap (a cell visited at t after l peaked at ``t - 1 - l``, in the step
-before), plus the gaps still open at the end.
+visits happen (``sum_c idle = T t - sum_c last`` over the T targets), the worst
+idleness is the largest visit gap (a cell visited at t after l peaked at ``t - 1 - l``,
+in the step before), plus the gaps still open at the end, and each visit adds its
+interval to the run's and its target's sums and ticks the patrol cycle under way.
 """
 
 from __future__ import annotations
 
+import math
 from typing import Any
 
 import numpy as np
@@ -33,17 +41,21 @@ import pandas as pd
 from qpatrol.world import Outcome, Params
 
 
-def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray):
+def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray, target: np.ndarray | None = None):
     """The visits of one step, robot by robot: ``(k, rows, cells, prev)`` for each robot
-    ``k`` that entered a cell in some runs (``rows`` int ``[B]``, the cells entered
+    ``k`` that entered a target cell in some runs (``rows`` int ``[B]``, the cells entered
     ``cells`` int ``[B]``, ``prev`` int ``[B]`` their previous visit, 0 for none), after
     recording the visit: ``last`` int ``[R, C]`` (the step of each cell's last visit) set
     to ``out.t`` and ``last_sum`` int ``[R]`` (the sum of ``last`` over cells) kept equal
-    to it. The one place the measures and the timeline (:mod:`qpatrol.measures.timeline`)
-    learn of a visit."""
+    to it. ``target``: bool ``[C]``, the cells that count (None: every cell); a move into
+    any other cell (a graph's waypoint) is no visit. The one place the measures and the
+    timeline (:mod:`qpatrol.measures.timeline`) learn of a visit."""
     t = out.t
     for k in range(out.moved.shape[1]):
-        rows = np.flatnonzero(out.moved[:, k])
+        entered = out.moved[:, k]
+        if target is not None:
+            entered = entered & target[out.pos[:, k]]
+        rows = np.flatnonzero(entered)
         if rows.size == 0:
             continue
         c = out.pos[rows, k]
@@ -56,24 +68,46 @@ def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray):
 class Measures:
     """Accumulators over a batch of runs; call :meth:`observe` after every step.
 
+    Every measure counts the target cells only (``target``; a graph's waypoints are in
+    transit): a move into another cell is no visit, but for ``visits``.
+
     Attributes:
-        last: int ``[R, C]``, last visit of each cell by any robot (0 = never).
-        last_sum: int ``[R]``, sum of ``last`` over cells.
-        visits: int ``[R, K, C]``, cells entered by each robot (the whole run).
-        window_visits: int ``[R, K, C]``, the same, in the window only.
-        idle_total: int ``[R]``, sum over window steps of the summed idleness of cells.
+        target: bool ``[C]``, the cells that count; n_targets: their number.
+        last: int ``[R, C]``, last visit of each target by any robot (0 = never).
+        last_sum: int ``[R]``, sum of ``last`` over targets.
+        visits: int ``[R, K, C]``, cells entered by each robot (the whole run, every cell).
+        window_visits: int ``[R, K, C]``, targets entered, in the window only.
+        idle_total: int ``[R]``, sum over window steps of the summed idleness of targets.
         worst: int ``[R]``, worst idleness of a closed gap in the window.
         measured: int ``[R]``, window steps taken.
         gap_sum, gap_count, gap_max: int ``[R]``, visit intervals ending in the window.
+        gap_sq: int ``[R]``, the sum of their squares.
+        target_gap_sum, target_gap_count: int ``[R, C]``, the same intervals, by target.
+        cycle_start: int ``[R]``, first step of the patrol cycle under way.
+        cycle_seen: int ``[R]``, targets visited in it so far.
+        cycles: int ``[R]``, patrol cycles completed in the window.
+        interferences: int ``[R]``, robot-steps in the window in which a robot asked for
+            a move and did not make it.
         max_wait: int ``[R]``, longest wait reached in the window.
         wait_total: int ``[R]``, robot-steps spent waiting in the window.
         min_charge: int ``[R]``, lowest battery charge seen.
     """
 
-    def __init__(self, n_runs: int, n_agents: int, n_cells: int, warmup: int):
+    def __init__(
+        self,
+        n_runs: int,
+        n_agents: int,
+        n_cells: int,
+        warmup: int,
+        target: np.ndarray | None = None,
+    ):
         r, k, c = n_runs, n_agents, n_cells
         self.warmup = warmup
         self.n_cells = c
+        mask = np.ones(c, dtype=bool) if target is None else np.asarray(target, dtype=bool)
+        # in a tuple: not an array attribute, which batches would join or slice as per-run
+        self._target = (mask,)
+        self.n_targets = int(mask.sum())
         self.last = np.zeros((r, c), dtype=np.int64)
         self.last_sum = np.zeros(r, dtype=np.int64)
         self.visits = np.zeros((r, k, c), dtype=np.int64)
@@ -84,12 +118,24 @@ class Measures:
         self.gap_sum = np.zeros(r, dtype=np.int64)
         self.gap_count = np.zeros(r, dtype=np.int64)
         self.gap_max = np.zeros(r, dtype=np.int64)
+        self.gap_sq = np.zeros(r, dtype=np.int64)
+        self.target_gap_sum = np.zeros((r, c), dtype=np.int64)
+        self.target_gap_count = np.zeros((r, c), dtype=np.int64)
+        self.cycle_start = np.full(r, warmup + 1, dtype=np.int64)
+        self.cycle_seen = np.zeros(r, dtype=np.int64)
+        self.cycles = np.zeros(r, dtype=np.int64)
+        self.interferences = np.zeros(r, dtype=np.int64)
         self.max_wait = np.zeros(r, dtype=np.int64)
         self.wait_total = np.zeros(r, dtype=np.int64)
         self.min_charge = np.full(r, np.iinfo(np.int64).max, dtype=np.int64)
 
+    @property
+    def target(self) -> np.ndarray:
+        """bool ``[C]``: the cells every measure counts."""
+        return self._target[0]
+
     def observe(self, out: Outcome, wait: np.ndarray, charge: np.ndarray | None) -> None:
-        """Take in one step: visits, intervals, idleness, waits and charge.
+        """Take in one step: visits, intervals, idleness, cycles, waits and charge.
 
         Args:
             out: the step's outcome.
@@ -98,8 +144,10 @@ class Measures:
         """
         t = out.t
         in_window = t > self.warmup
-        for k, rows, c, prev in entries(out, self.last, self.last_sum):
-            self.visits[rows, k, c] += 1
+        for k in range(out.moved.shape[1]):
+            rows = np.flatnonzero(out.moved[:, k])
+            self.visits[rows, k, out.pos[rows, k]] += 1
+        for k, rows, c, prev in entries(out, self.last, self.last_sum, self.target):
             if in_window:
                 self.window_visits[rows, k, c] += 1
                 seen = prev > 0
@@ -107,21 +155,48 @@ class Measures:
                 self.gap_sum[rows] += gap
                 self.gap_count[rows] += seen
                 self.gap_max[rows] = np.maximum(self.gap_max[rows], gap)
+                self.gap_sq[rows] += gap * gap
+                self.target_gap_sum[rows, c] += gap
+                self.target_gap_count[rows, c] += seen
                 if t - 1 > self.warmup:
                     self.worst[rows] = np.maximum(self.worst[rows], t - 1 - prev)
+                # a patrol cycle: every target visited once since the cycle began
+                start = self.cycle_start[rows]
+                seen_now = self.cycle_seen[rows] + ((t >= start) & (prev < start))
+                done = seen_now == self.n_targets
+                self.cycles[rows] += done
+                self.cycle_start[rows] = np.where(done, t + 1, start)
+                self.cycle_seen[rows] = np.where(done, 0, seen_now)
         act = out.active
         if charge is not None:
             self.min_charge[act] = np.minimum(self.min_charge[act], charge[act].min(axis=1))
         if in_window:
-            self.idle_total[act] += self.n_cells * t - self.last_sum[act]
+            self.idle_total[act] += self.n_targets * t - self.last_sum[act]
             self.measured[act] += 1
             self.max_wait[act] = np.maximum(self.max_wait[act], wait[act].max(axis=1))
             self.wait_total[act] += (wait[act] > 0).sum(axis=1)
+            blocked = (out.ask[act] >= 0) & ~out.as_asked[act]
+            self.interferences[act] += blocked.sum(axis=1)
 
     def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
         """int ``[R]``: worst idleness in the window, open gaps at the end included."""
-        open_gaps = steps_done - self.last.min(axis=1)
+        open_gaps = steps_done - self.of_targets(self.last).min(axis=1)
         return np.where(steps_done > self.warmup, np.maximum(self.worst, open_gaps), self.worst)
+
+    def of_targets(self, a: np.ndarray) -> np.ndarray:
+        """``a[..., target]``: an array over cells (last axis) over the targets only
+        (``a`` itself when every cell is a target)."""
+        return a if self.n_targets == self.n_cells else a[..., self.target]
+
+    def target_averages(self, steps_done: np.ndarray) -> np.ndarray:
+        """float ``[R, T]``: each target's average interval over the intervals ending in
+        the window; a target with none counts with its idleness at the end,
+        ``steps_done - last`` (``steps_done`` if never visited)."""
+        total, count = self.of_targets(self.target_gap_sum), self.of_targets(self.target_gap_count)
+        open_gap = np.asarray(steps_done)[:, None] - self.of_targets(self.last)
+        avg = open_gap.astype(np.float64)
+        np.divide(total, count, out=avg, where=count > 0)
+        return avg
 
 
 def division_of_labour(visits: np.ndarray) -> np.ndarray:
@@ -164,8 +239,10 @@ def summarize(
 ) -> list[dict[str, Any]]:
     """Per-run measures as plain dicts (JSON-ready), in batch order."""
     dol = division_of_labour(m.window_visits)
-    coverage = (m.window_visits.sum(axis=1) > 0).mean(axis=1)
+    per_target = m.of_targets(m.window_visits).sum(axis=1)  # [R, T] window visits
+    coverage = (per_target > 0).mean(axis=1)
     worst = m.worst_idleness(steps_done)
+    field = field_measures(m, per_target, steps_done)
     ids = np.asarray(run_ids)
     n = ids.size
     # episodes per batch row, without a DataFrame filter per run (O(runs x episodes))
@@ -189,7 +266,7 @@ def summarize(
     # each quotient is the float64 division it was when written per run
     with np.errstate(divide="ignore", invalid="ignore"):
         per_episode = (done_steps / n_done).tolist()
-        avg = (m.idle_total / (m.n_cells * m.measured)).tolist()
+        avg = (m.idle_total / (m.n_targets * m.measured)).tolist()
         interval = (m.gap_sum / m.gap_count).tolist()
     measured = m.measured.tolist()
     gaps = m.gap_count.tolist()
@@ -231,6 +308,62 @@ def summarize(
                 "wait_bound": int(bound),
                 "live": bool(mwait <= bound),
                 "min_charge": None if charge == never else charge,
+                **{key: values[i] for key, values in field.items()},
             }
         )
+    return out
+
+
+#: The patrolling field's measures (:func:`field_measures`), after today's in a summary.
+FIELD_MEASURES = (
+    "qmi",
+    "std_interval",
+    "freq_std",
+    "worst_avg_idleness",
+    "mean_avg_idleness",
+    "median_idleness",
+    "std_idleness",
+    "cycles",
+    "interferences",
+)
+
+
+def field_measures(
+    m: Measures, per_target: np.ndarray, steps_done: np.ndarray
+) -> dict[str, list[Any]]:
+    """Each of :data:`FIELD_MEASURES` per run (a list ``[R]``; None where undefined),
+    from the accumulators of ``m``, ``per_target`` int ``[R, T]`` (window visits of each
+    target) and ``steps_done`` int ``[R]``; definitions in ``docs/model.md``,
+    "Patrolling measures". Sums of integers are exact (Python integers), then one
+    float division or square root; sums of floats are math.fsum's: the same
+    accumulators give the same bits, in any batch."""
+    n_t = m.n_targets
+    # each run's row alone (a reduction over the axis of a [R, T] array may add in an
+    # order that depends on R, and a run's numbers must not depend on its batch); sums
+    # by math.fsum, exactly rounded
+    worst_avg, mean_avg, median, spread = [], [], [], []
+    for a in m.target_averages(steps_done):  # float [T] per run
+        mean = math.fsum(a.tolist()) / n_t
+        worst_avg.append(float(a.max()))
+        mean_avg.append(mean)
+        median.append(float(np.median(a)))
+        spread.append(math.sqrt(math.fsum(((a - mean) ** 2).tolist()) / n_t))
+    visits = per_target.sum(axis=1).tolist()
+    visits_sq = (per_target * per_target).sum(axis=1).tolist()
+    out: dict[str, list[Any]] = {key: [] for key in FIELD_MEASURES}
+    sums = (m.measured, m.gap_count, m.gap_sum, m.gap_sq)
+    rows = zip(*(x.tolist() for x in sums), strict=True)
+    for i, (seen, n, s1, s2) in enumerate(rows):
+        out["qmi"].append(math.sqrt(s2 / n) if n else None)
+        out["std_interval"].append(math.sqrt(n * s2 - s1 * s1) / n if n else None)
+        # population std of visits / window length over targets: sqrt(T sum v^2 - (sum
+        # v)^2) / (T W)
+        spread_v = n_t * visits_sq[i] - visits[i] * visits[i]
+        out["freq_std"].append(math.sqrt(spread_v) / (n_t * seen) if seen else None)
+        out["worst_avg_idleness"].append(worst_avg[i] if seen else None)
+        out["mean_avg_idleness"].append(mean_avg[i] if seen else None)
+        out["median_idleness"].append(median[i] if seen else None)
+        out["std_idleness"].append(spread[i] if seen else None)
+    out["cycles"] = m.cycles.tolist()
+    out["interferences"] = m.interferences.tolist()
     return out

@@ -4,9 +4,11 @@ A recorder that watches from outside the world, like :mod:`qpatrol.measures`, bu
 instead of one number per run it keeps one row per window of ``record.timeline`` team
 steps, from step 1 on (no warm-up), so that learning shows as a curve:
 
-* ``avg_idleness`` of a window: mean over its steps t and over cells c of
+* ``avg_idleness`` of a window: mean over its steps t and over target cells c of
   ``t - last visit of c`` (every cell counts as visited at step 0);
-* ``worst_idleness``: the largest idleness any cell reached at a step of the window.
+* ``worst_idleness``: the largest idleness any target reached at a step of the window.
+
+Targets as in :mod:`qpatrol.measures`: every cell of a grid, a graph's vertices.
 
 The work per step does not grow with the map. The idleness sum is kept from the sum of
 last visits (``sum_c idle = C t - sum_c last``). A cell visited at t after l peaked at
@@ -31,6 +33,8 @@ class Timeline:
     Args:
         n_runs, n_cells: the batch's runs R and the map's cells C.
         window: steps per window (0: off, nothing is kept).
+        target: bool ``[C]``, the cells that count (None: every cell), as in
+            :class:`qpatrol.measures.Measures`.
 
     Attributes:
         last: int ``[R, C]``, last visit of each cell by any robot (0 = never).
@@ -41,9 +45,12 @@ class Timeline:
         rows: finished windows, ``(run row, window, first, last, avg, worst)``.
     """
 
-    def __init__(self, n_runs: int, n_cells: int, window: int):
+    def __init__(self, n_runs: int, n_cells: int, window: int, target: np.ndarray | None = None):
         self.window = window
         self.n_cells = n_cells
+        mask = np.ones(n_cells, dtype=bool) if target is None else np.asarray(target, dtype=bool)
+        self._target = (mask,)  # a tuple: not a per-run array (batches join and slice those)
+        self.n_targets = int(mask.sum())
         if not window:
             return
         self.last = np.zeros((n_runs, n_cells), dtype=np.int64)
@@ -53,17 +60,22 @@ class Timeline:
         self.steps = np.zeros(n_runs, dtype=np.int64)
         self.rows: list[tuple[int, int, int, int, float, int]] = []
 
+    @property
+    def target(self) -> np.ndarray:
+        """bool ``[C]``: the cells that count."""
+        return self._target[0]
+
     def observe(self, out: Outcome) -> None:
         """Take in one step of the runs still active."""
         if not self.window:
             return
         t = out.t
         start = ((t - 1) // self.window) * self.window + 1  # first step of t's window
-        for _, rows, _, prev in entries(out, self.last, self.last_sum):
+        for _, rows, _, prev in entries(out, self.last, self.last_sum, self.target):
             if t - 1 >= start:
                 self.worst[rows] = np.maximum(self.worst[rows], t - 1 - prev)
         act = out.active
-        self.idle_sum[act] += self.n_cells * t - self.last_sum[act]
+        self.idle_sum[act] += self.n_targets * t - self.last_sum[act]
         self.steps[act] += 1
         if t % self.window == 0:
             self._close(np.flatnonzero(act), t)
@@ -72,7 +84,7 @@ class Timeline:
         """End the window at step t for ``rows``: open gaps, then one row each."""
         if rows.size == 0:
             return
-        open_gap = t - self.last[rows].min(axis=1)
+        open_gap = t - self.last[rows][:, self.target].min(axis=1)
         worst = np.maximum(self.worst[rows], open_gap)
         for i, r in enumerate(rows.tolist()):
             self.rows.append(self._row(r, t, int(self.steps[r]), self.idle_sum[r], worst[i]))
@@ -83,7 +95,7 @@ class Timeline:
     def _row(self, r: int, t: int, n: int, idle: np.int64, worst: int) -> tuple:
         """A finished window of run row ``r``: ``n`` steps ending at ``t``, summed
         idleness ``idle`` (int64), worst idleness ``worst``."""
-        avg = float(np.int64(idle) / (self.n_cells * n))
+        avg = float(np.int64(idle) / (self.n_targets * n))
         return (r, (t - 1) // self.window, t - n + 1, t, avg, int(worst))
 
     def add_rows(self, rows: np.ndarray) -> None:
@@ -103,7 +115,7 @@ class Timeline:
         rows = list(self.rows)
         for r in np.flatnonzero(self.steps > 0).tolist():  # a window cut short by the end
             t = int(steps_done[r])
-            worst = max(int(self.worst[r]), int(t - self.last[r].min()))
+            worst = max(int(self.worst[r]), int(t - self.last[r, self.target].min()))
             rows.append(self._row(r, t, int(self.steps[r]), self.idle_sum[r], worst))
         df = pd.DataFrame(rows, columns=["row", *TIMELINE_COLUMNS[1:]])
         df.insert(0, "run", np.asarray(run_ids)[df["row"].to_numpy(dtype=np.int64)])

@@ -214,10 +214,12 @@ def _batch(
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
         if values:
             strategy.use_run_values(values)
-        watch = measures.Measures(state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"])
+        watch = measures.Measures(
+            state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"], p.target
+        )
         rec = Recorder(run_ids, transitions=cfg["record.transitions"], watch=cfg["record.watch"])
         tail = Tail(cfg["record.trajectory"], state)
-        timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"])
+        timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"], p.target)
         first = 0
     else:
         (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload

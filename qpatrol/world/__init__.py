@@ -67,6 +67,7 @@ class Params:
     pocket_depth: np.ndarray  # int [C], distance from the pocket's junction (0 outside)
     pocket_entry: np.ndarray  # int [H], the junction that cuts off a station's pocket, -1
     starts: np.ndarray  # int [n], start cells given by the map's digits
+    target: np.ndarray  # bool [C], the cells the measures count (every grid cell; graph vertices)
     diameter: int  # longest shortest path between two cells
     initial_heading: int
     # the reward's weights: a float, or float64 [R] when the rows of a batch differ
@@ -83,6 +84,11 @@ class Params:
     staggered: bool  # battery.initial_charge == "staggered"
     max_episode_steps: int  # 0 = no limit
     episodes: int  # 0 = no limit
+
+    @property
+    def n_targets(self) -> int:
+        """Number of target cells (``target.sum()``)."""
+        return int(self.target.sum())
 
     @property
     def n_groups(self) -> int:
@@ -169,6 +175,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         pocket_depth=pocket_depth,
         pocket_entry=pocket_entry,
         starts=m.starts,
+        target=m.target,
         diameter=int(dist.max()),
         initial_heading=DIRECTIONS.index(cfg["learning.initial_heading"]),
         incremental_value=float(cfg["reward.incremental_value"]),

@@ -57,8 +57,9 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         strategy
         + g * c * (1 + 8 + 1 + 4)  # dots, last visit, cells and states seen this episode
         + 2 * c * 8  # cell occupancy, measures' last visits
+        + 2 * c * 8  # measures' interval sums and counts by target
         + 2 * k * c * 8  # visits, window visits
-        + (12 * k + 24) * 8  # positions, headings, battery, episode and measure counters
+        + (12 * k + 31) * 8  # positions, headings, battery, episode and measure counters
         + 512 * k * 2 * 8  # block of uniforms
         + cfg["record.trajectory"] * k * 8
         + timeline
@@ -93,6 +94,7 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
     return (
         tables
         + k * c * 8  # visits
+        + 2 * c * 8  # the measures' interval sums and counts by target
         + cfg["record.trajectory"] * k * 6 * 8
         + windows * 6 * 8
         + rows * ROW_BYTES

@@ -38,6 +38,7 @@ class Params(NamedTuple):
             stations ``homes`` ``[H]``, ``home_dist``/``home_dir`` ``[H, C]``,
             ``nearest`` ``[C]``, ``depart_len`` ``[H]``, pockets ``pocket_of``,
             ``pocket_depth`` ``[C]``, ``pocket_entry`` ``[H]``, and scalars.
+        target: bool ``[C]``, the cells the measures count; n_targets: their number.
     """
 
     nbrs: np.ndarray
@@ -64,6 +65,8 @@ class Params(NamedTuple):
     capacity: int
     margin: int
     charge_steps: int
+    target: np.ndarray
+    n_targets: int
 
 
 #: The runs' state: the arrays of :class:`qpatrol.world.State` (all its fields but the
@@ -83,7 +86,10 @@ class Meas(NamedTuple):
     """The measures (:class:`qpatrol.measures.Measures`): ``last`` ``[R, C]`` (last
     visit), ``visits``, ``window_visits`` ``[R, K, C]``, and per run ``[R]`` the sums
     ``last_sum``, ``idle_total``, ``worst``, ``measured``, ``gap_sum``, ``gap_count``,
-    ``gap_max``, ``max_wait``, ``wait_total``, ``min_charge``; ``warmup`` (steps)."""
+    ``gap_max``, ``max_wait``, ``wait_total``, ``min_charge``; ``warmup`` (steps); the
+    field's measures: per run ``gap_sq``, ``cycle_start``, ``cycle_seen``, ``cycles``,
+    ``interferences`` ``[R]`` and per target ``target_gap_sum``, ``target_gap_count``
+    ``[R, C]``."""
 
     last: np.ndarray
     last_sum: np.ndarray
@@ -99,6 +105,13 @@ class Meas(NamedTuple):
     wait_total: np.ndarray
     warmup: int
     min_charge: np.ndarray
+    gap_sq: np.ndarray
+    target_gap_sum: np.ndarray
+    target_gap_count: np.ndarray
+    cycle_start: np.ndarray
+    cycle_seen: np.ndarray
+    cycles: np.ndarray
+    interferences: np.ndarray
 
 
 class Out(NamedTuple):

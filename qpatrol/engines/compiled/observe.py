@@ -8,46 +8,84 @@ from numba import njit
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def visit(c, t, warmup, m_last_r, visits_k, window_visits_k, sums):
-    """Measures.observe of a robot's visit to cell ``c`` at step ``t``: the run's last
-    visits (``m_last_r`` ``[C]``) and the robot's visit counts (``visits_k``,
-    ``window_visits_k`` ``[C]``) take it; returns the run's ``sums`` ``(last_sum,
-    gap_sum, gap_count, gap_max, worst)`` updated (inside the window, step ``t`` >
-    ``warmup``, with the visit's gap and the worst idleness it ends)."""
-    last_sum, gap_sum, gap_count, gap_max, worst = sums
+def visit(c, t, warmup, p, rows_r, visits_k, window_visits_k, sums):
+    """Measures.observe of a robot's visit to cell ``c`` at step ``t``: the robot's visit
+    counts ``visits_k`` ``[C]`` take it; if ``c`` is a target (``p.target``) so do the
+    run's last visits and per-target intervals (``rows_r``, :func:`rows_of`), the robot's
+    ``window_visits_k`` ``[C]`` and the run's ``sums`` (:func:`sums_of`: last_sum,
+    gap_sum, gap_count, gap_max, worst, gap_sq, cycle_start, cycle_seen, cycles), which
+    it returns updated (inside the window, step ``t`` > ``warmup``, with the visit's gap,
+    the worst idleness it ends and the patrol cycle it may complete)."""
+    visits_k[c] += 1
+    if not p.target[c]:
+        return sums
+    last_sum, gap_sum, gap_count, gap_max, worst, gap_sq, c_start, c_seen, cycles = sums
+    m_last_r, tgap_sum_r, tgap_count_r = rows_r
     prev = m_last_r[c]
     m_last_r[c] = t
     last_sum += t - prev
-    visits_k[c] += 1
     if t > warmup:
         window_visits_k[c] += 1
         gap = t - prev if prev > 0 else 0
         gap_sum += gap
+        gap_sq += gap * gap
+        tgap_sum_r[c] += gap
         if prev > 0:
             gap_count += 1
+            tgap_count_r[c] += 1
         gap_max = max(gap_max, gap)
         if t - 1 > warmup:
             worst = max(worst, t - 1 - prev)
-    return last_sum, gap_sum, gap_count, gap_max, worst
+        if t >= c_start and prev < c_start:  # a target new to the cycle under way
+            c_seen += 1
+            if c_seen == p.n_targets:
+                cycles += 1
+                c_start = t + 1
+                c_seen = 0
+    return last_sum, gap_sum, gap_count, gap_max, worst, gap_sq, c_start, c_seen, cycles
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def rows_of(m, r):
+    """Run ``r``'s rows ``[C]`` of the measures ``m`` that :func:`visit` writes: last
+    visits, per-target interval sums and counts."""
+    return m.last[r], m.target_gap_sum[r], m.target_gap_count[r]
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def sums_of(m, r):
     """The run's sums that :func:`visit` updates, read from the measures ``m``."""
-    return m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r]
+    return (
+        m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r], m.gap_sq[r],
+        m.cycle_start[r], m.cycle_seen[r], m.cycles[r],
+    )  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def store_sums(m, r, sums):
     """Store :func:`visit`'s sums of run ``r`` into the measures ``m``."""
-    m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r] = sums
+    (
+        m.last_sum[r], m.gap_sum[r], m.gap_count[r], m.gap_max[r], m.worst[r], m.gap_sq[r],
+        m.cycle_start[r], m.cycle_seen[r], m.cycles[r],
+    ) = sums  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def step_measures(r, t, n_cells, sums_last, waiting, longest, m):
-    """The step's idleness (``n_cells t - last_sum``) and waits, inside the window."""
+def blocked(w):
+    """Robots that asked for a move (``w.ask``) and did not make it (``w.as_asked``):
+    the step's interferences."""
+    n = 0
+    for k in range(w.ask.shape[0]):
+        if w.ask[k] >= 0 and not w.as_asked[k]:
+            n += 1
+    return n
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def step_measures(r, t, n_targets, sums_last, waiting, longest, m):
+    """The step's idleness (``n_targets t - last_sum``) and waits, inside the window."""
     if t > m.warmup:
-        m.idle_total[r] += n_cells * t - sums_last
+        m.idle_total[r] += n_targets * t - sums_last
         m.measured[r] += 1
         m.max_wait[r] = max(m.max_wait[r], longest)
         m.wait_total[r] += waiting
@@ -63,14 +101,15 @@ def trail(r, t, pos_r, o):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def timeline(r, t, tl_window, pos_r, moved, o, n_tl):
-    """Timeline.observe: its own last visits ``o.tl_last`` ``[R, C]``, peaks inside t's
-    window; a window that closes (``Timeline._close``) is a row of ``o.tl_buf`` (run,
-    window, first step, last step, idleness sum, worst). Returns the rows written."""
+def timeline(r, t, tl_window, pos_r, moved, target, n_targets, o, n_tl):
+    """Timeline.observe: its own last visits ``o.tl_last`` ``[R, C]`` of the targets
+    (``target`` bool ``[C]``, ``n_targets`` of them), peaks inside t's window; a window that closes
+    (``Timeline._close``) is a row of ``o.tl_buf`` (run, window, first step, last step,
+    idleness sum, worst). Returns the rows written."""
     n_cells = o.tl_last.shape[1]
     start = ((t - 1) // tl_window) * tl_window + 1
     for k in range(pos_r.shape[0]):
-        if not moved[k]:
+        if not moved[k] or not target[pos_r[k]]:
             continue
         c = pos_r[k]
         prev = o.tl_last[r, c]
@@ -78,12 +117,13 @@ def timeline(r, t, tl_window, pos_r, moved, o, n_tl):
         o.tl_last_sum[r] += t - prev
         if t - 1 >= start:
             o.tl_worst[r] = max(o.tl_worst[r], t - 1 - prev)
-    o.tl_idle_sum[r] += n_cells * t - o.tl_last_sum[r]
+    o.tl_idle_sum[r] += n_targets * t - o.tl_last_sum[r]
     o.tl_steps[r] += 1
     if t % tl_window == 0:
-        low = o.tl_last[r, 0]
-        for c in range(1, n_cells):
-            low = min(low, o.tl_last[r, c])
+        low = t
+        for c in range(n_cells):
+            if target[c]:
+                low = min(low, o.tl_last[r, c])
         row = o.tl_buf[n_tl]
         row[0] = r
         row[1] = (t - 1) // tl_window
