@@ -121,6 +121,19 @@ def test_hcr_on_a_grid_is_the_idlest_open_neighbour():
     assert decide(p, s, strat, 20, 0.0)[0] == 2 and strat.goal[0, 0] == south
 
 
+@pytest.mark.parametrize("battery", [True, False])
+def test_hcr_on_a_grid_moves_as_shared_conscientious(battery):
+    """On a grid every target is one move away, so the distance term is 0 and hcr's goal
+    is the idlest open neighbour on the group map, ties broken alike: the same run."""
+    from qpatrol.run import simulate
+
+    base = {"agents": 4, "runs": 2, "steps": 400, "engine": "numpy"}
+    base.update({"battery.enabled": battery, "record.trajectory": 400})
+    hcr, sc = (simulate(from_flat({**base, "policy": p})) for p in ("hcr", "shared-conscientious"))
+    assert (hcr.trajectory["cell"].to_numpy() == sc.trajectory["cell"].to_numpy()).all()
+    assert hcr.summary == sc.summary
+
+
 def test_cc_goes_to_its_own_oldest_target_by_a_shortest_path():
     """Own memory: every cell entered at step 5 but a far corner (1) and the neighbour
     (2) and the robot's own cell (0, never chosen): the goal is the corner, the first
