@@ -320,6 +320,29 @@ def test_engines_agree(tmp_path, policy, case):
     assert both(flat, tmp_path, strategy=True) == ("numba", "")
 
 
+@pytest.mark.parametrize("policy", ["gbs", "sebs"])
+def test_engines_agree_on_the_bayes_keys(tmp_path, policy):
+    """A low G2 (most gains capped: posteriors of 1 tie, broken by the stream) and an
+    edge_min above the shortest edges."""
+    pytest.importorskip("numba")
+    from test_engines import both
+
+    flat = {
+        "runs": 2,
+        "seed": 8,
+        "steps": 400,
+        "record.trajectory": 400,
+        "map": str(graph_file(tmp_path)),
+        "agents": 3,
+        "policy": policy,
+        "battery.capacity": 60,
+        "bayes.g2": 5.0,
+        "bayes.edge_min": 2.0,
+        "bayes.g1": 0.3,
+    }
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+
+
 @pytest.mark.parametrize("policy", FIELD)
 @pytest.mark.parametrize("name", ["map_a", "graph"])
 @pytest.mark.parametrize("k", [1, 2, 4])
