@@ -225,7 +225,7 @@ def _travel(r, k, c, g, battery, p, s, open_mask, dist):
     return first
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
+@njit(cache=True, nogil=True, _nrt=False)
 def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, memory):
     """``w.ask[k]`` for each robot of run ``r`` at step ``t``: goals chosen robot by
     robot, then the move towards the goal; -1 for robots not choosing."""
