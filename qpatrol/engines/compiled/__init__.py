@@ -140,7 +140,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
     elif code >= HCR and code <= SEBS:
         goals.act(
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
-            sp.dist, sp.cell_i,
+            sp.dist, sp.cell_i, sp.row_f,
         )  # fmt: skip
 
 

@@ -14,7 +14,8 @@ ln(1/g1)/g2, g2, edge_min, factor_0 .. factor_K]`` (``sebs``'s intention factors
 ``robot_i`` int64 ``[R, K, 1]`` each robot's goal (copied, and back by :func:`unpack`);
 ``cell_i`` (``cc``) the strategy's ``memory`` int64 ``[R, K, C]`` (its own array);
 ``table_i`` int64 ``[C, 2 D]`` = ``tnbr | tcost``; ``row_i`` int64 ``[C]`` the targets
-(0/1); ``dist`` int64 ``[C, C]``.
+(0/1); ``dist`` int64 ``[C, C]``; ``row_f`` float64 ``[R, D]`` scratch, each run's
+candidates' scores (written and read within one choice).
 """
 
 from __future__ import annotations
@@ -47,6 +48,7 @@ def pack(strategy) -> Pack:
         ),
         "row_i": strategy.is_target.astype(np.int64),
         "dist": np.ascontiguousarray(strategy.dist, dtype=np.int64),
+        "row_f": np.zeros((strategy.n_runs, strategy.tnbr.shape[1])),
     }
     if kind == CC:
         fields["cell_i"] = strategy.memory
@@ -85,7 +87,7 @@ def _closed(r, k, c, nb, battery, pocket_of, pocket_depth, reserved):
     return pocket_of[c] != h or pocket_depth[nb] > pocket_depth[c]
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _score(kind, d, r, k, t, c, i_max, c_max, communication, last, goal, table, fpar):
     """The score of port d's far target for robot k on target c (greater is better)."""
     n_ports = table.shape[1] // 2
@@ -112,8 +114,9 @@ def _score(kind, d, r, k, t, c, i_max, c_max, communication, last, goal, table, 
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def _choose_neighbour(kind, r, k, t, uu, c, battery, p, s, open_mask, goal, table, fpar):
-    """Robot k's new goal from target c: the far target of its best candidate port."""
+def _choose_neighbour(kind, r, k, t, uu, c, battery, p, s, open_mask, goal, table, fpar, score):
+    """Robot k's new goal from target c: the far target of its best candidate port
+    (``score`` float64 ``[D]``: scratch, the run's own row)."""
     nbrs = p.nbrs
     n_ports = nbrs.shape[1]
     # the candidate ports: open and not closed, else not closed, else all (bits)
@@ -137,25 +140,22 @@ def _choose_neighbour(kind, r, k, t, uu, c, battery, p, s, open_mask, goal, tabl
             i_max = max(i_max, t - last[r, 0 if p.communication else k, table[c, d]])
             c_max = max(c_max, table[c, n_ports + d])
     best = -np.inf
-    for d in range(n_ports):
-        if allowed >> d & 1:
-            sc = _score(kind, d, r, k, t, c, i_max, c_max, p.communication, last, goal, table, fpar)
-            if sc > best:
-                best = sc
     count = 0
     for d in range(n_ports):
         if allowed >> d & 1:
             sc = _score(kind, d, r, k, t, c, i_max, c_max, p.communication, last, goal, table, fpar)
-            if sc == best:
+            score[d] = sc
+            if sc > best:
+                best = sc
+                count = 1
+            elif sc == best:
                 count += 1
     j = min(np.int64(uu * count), count - 1)
     for d in range(n_ports):
-        if allowed >> d & 1:
-            sc = _score(kind, d, r, k, t, c, i_max, c_max, p.communication, last, goal, table, fpar)
-            if sc == best:
-                if j == 0:
-                    return table[c, d]
-                j -= 1
+        if allowed >> d & 1 and score[d] == best:
+            if j == 0:
+                return table[c, d]
+            j -= 1
     return -1
 
 
@@ -226,7 +226,7 @@ def _travel(r, k, c, g, battery, p, s, open_mask, dist):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, memory):
+def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, memory, scratch):
     """``w.ask[k]`` for each robot of run ``r`` at step ``t``: goals chosen robot by
     robot, then the move towards the goal; -1 for robots not choosing."""
     kind = ipar[0]
@@ -248,8 +248,9 @@ def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, me
                 )
             elif is_target[c] != 0:
                 g = _choose_neighbour(
-                    kind, r, k, t, ur[k, 1], c, battery, p, s, open_mask, goal, table, fpar
-                )
+                    kind, r, k, t, ur[k, 1], c, battery, p, s, open_mask, goal, table, fpar,
+                    scratch[r],
+                )  # fmt: skip
             else:
                 g = _nearest_target(r, k, c, p.pocket_of, s.reserved, is_target, dist)
         goal[r, k, 0] = g
