@@ -84,6 +84,10 @@ POLICIES: tuple[str, ...] = (
     "partition",
     "evap",
     "qlearning-idleness",
+    "hcr",
+    "cc",
+    "gbs",
+    "sebs",
 )
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
@@ -234,6 +238,34 @@ SCHEMA: tuple[Field, ...] = (
         low_open=True,
         high=1.0,
         used_by=("evap",),
+    ),
+    F(
+        "bayes.g1",
+        "float",
+        0.1,
+        "gbs/sebs: the posterior of a gain of 0 (patrolling_sim's G1)",
+        low=0.0,
+        low_open=True,
+        high=1.0,
+        used_by=("gbs", "sebs"),
+    ),
+    F(
+        "bayes.g2",
+        "float",
+        100.0,
+        "gbs/sebs: the gain (idleness / moves) from which the posterior is 1 (patrolling_sim's G2)",
+        low=0.0,
+        low_open=True,
+        used_by=("gbs", "sebs"),
+    ),
+    F(
+        "bayes.edge_min",
+        "float",
+        1.0,
+        "gbs/sebs: the least edge length, in moves, a gain divides by (patrolling_sim's edge_min)",
+        low=0.0,
+        low_open=True,
+        used_by=("gbs", "sebs"),
     ),
     F(
         "qidle.gamma",

@@ -40,6 +40,10 @@ COMPILED_POLICIES = (
     "evap",
     "cyclic",
     "partition",
+    "hcr",
+    "cc",
+    "gbs",
+    "sebs",
 )
 
 

@@ -21,6 +21,7 @@ from qpatrol.engines.compiled import (
     conscientious,
     evap,
     follow,
+    goals,
     qlearning,
     qlearning_idleness,
     random,
@@ -35,6 +36,7 @@ cachelock.install()
 QLEARNING = 0
 QLEARNING_IDLENESS = 1
 RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 5, 6, 7
+HCR, CC, GBS, SEBS = 8, 9, 10, 11  # the goal followers (compiled/goals.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -46,6 +48,10 @@ MODULES = {
     "evap": (EVAP, evap),
     "cyclic": (CYCLIC, follow),
     "partition": (PARTITION, follow),
+    "hcr": (HCR, goals),
+    "cc": (CC, goals),
+    "gbs": (GBS, goals),
+    "sebs": (SEBS, goals),
 }
 
 
@@ -131,6 +137,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, nbrs, battery, p.pocket_of, pos, s.reserved, choosing, ask, sp.ipar,
             sp.robot_i, sp.table_i, sp.row_i, sp.dist,
         )  # fmt: skip
+    elif code >= HCR and code <= SEBS:
+        goals.act(
+            r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
+            sp.dist, sp.cell_i, sp.row_f,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -156,4 +167,6 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
         evap.learn(r, t, p.communication, s.pos, w.moved, sp.cell_f, sp.cell_i, sp.fpar)
     elif code == CYCLIC or code == PARTITION:
         follow.learn(r, w.blocked_by, sp.robot_i)
+    elif code >= HCR and code <= SEBS:
+        goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
     return n_up
