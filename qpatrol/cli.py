@@ -944,7 +944,7 @@ def _import_graph(
     unit_edges: bool,
 ) -> tuple[str, str]:
     """The graph map text of a patrolling_sim or SimPatrol file and the one-line report."""
-    from qpatrol.maps.graphimport import import_graph_file
+    from qpatrol.maps.graphfile import import_graph_file
 
     try:
         r = import_graph_file(source, name, agents, stations, edge_step, unit_edges)

@@ -15,10 +15,10 @@ from typer.testing import CliRunner
 from qpatrol.cli import app
 from qpatrol.maps import load_map, parse_map
 from qpatrol.maps.graph import build_graph_map
+from qpatrol.maps.graphfile import import_graph_file
 from qpatrol.maps.graphimport import (
     GraphImportError,
     edge_moves,
-    import_graph_file,
     layout,
     shortest_lengths,
     stress,

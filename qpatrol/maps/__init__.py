@@ -26,174 +26,35 @@ as patrol targets.
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
+from qpatrol.maps.core import (  # noqa: F401 (the package names them)
+    ALLOWED,
+    BIG,
+    BIG_DOT,
+    DIR_LETTERS,
+    DIRECTIONS,
+    DOT,
+    EAST,
+    EMPTY,
+    HOME,
+    NO_DOT,
+    NORTH,
+    OFFSETS,
+    OPPOSITE,
+    SMALL_DOT,
+    SOUTH,
+    WALL,
+    WEST,
+    Map,
+    MapError,
+    all_pairs_distances,
+    bfs,
+)
+from qpatrol.maps.graph import parse_graph_map
 from qpatrol.util.data import shipped_dir  # noqa: F401 (maps.shipped_dir)
-
-NORTH, EAST, SOUTH, WEST = 0, 1, 2, 3
-DIRECTIONS = ("north", "east", "south", "west")
-DIR_LETTERS = "NESW"
-#: (row, col) offset of a move in each direction.
-OFFSETS = np.array([[-1, 0], [0, 1], [1, 0], [0, -1]], dtype=np.int64)
-#: Direction opposite to each direction.
-OPPOSITE = np.array([SOUTH, WEST, NORTH, EAST], dtype=np.int64)
-
-WALL, DOT, EMPTY, BIG_DOT, HOME = "#", ".", "-", "o", "H"
-ALLOWED = set("#.-oH0123456789")
-
-#: Dot kinds stored per cell.
-NO_DOT, SMALL_DOT, BIG = 0, 1, 2
-
-
-class MapError(ValueError):
-    """A map file that cannot be used; the message names file, line and column."""
-
-
-@dataclass(frozen=True)
-class Map:
-    """A parsed maze. Cell arrays are indexed by state number (free cells, row-major).
-
-    Attributes:
-        name: the map's name (``; name:`` comment or file stem).
-        description: the ``; description:`` comment, or "".
-        grid: the grid rows as text, walls included.
-        free: bool ``[rows, cols]``, True on free cells.
-        cell_id: int ``[rows, cols]``, the state number of a free cell, -1 on walls.
-        coords: int ``[cells, 2]``, (row, col) of each state.
-        neighbors: int ``[cells, 4]``, the state one move N/E/S/W away, -1 if wall.
-        dot_kind: int ``[cells]``, 0 no dot, 1 dot, 2 big dot.
-        homes: int ``[n_homes]``, states of the charging stations ``H``.
-        starts: int ``[n_starts]``, the start state of agent k for k = 0..n_starts-1.
-        back: int ``[cells, D]``, for the move out of cell c by port p, the port of
-            ``neighbors[c, p]`` that leads back to c (-1 where there is no move); a grid's
-            is the opposite direction.
-        entry: int ``[cells, D]``, the heading a robot has after the move out of cell c by
-            port p: on a grid the direction moved (p), on a graph the port it arrived
-            through (``back``). Either names the arrival side of the new cell uniquely.
-        target: bool ``[cells]``, the cells every measure counts: all cells of a grid, the
-            vertices of a graph (not the waypoints inside its edges).
-        xy: float ``[cells, 2]``, where to draw each cell: (col, row) on a grid, the
-            vertex position (waypoints evenly spaced along their edge) on a graph.
-        kind: ``"grid"`` or ``"graph"``.
-        edges: int ``[E, 3]``, a graph's edges as (vertex a, vertex b, moves); empty for
-            a grid.
-        labels: a graph's vertex ids as the source file named them; () for a grid.
-        source: the file it came from, if any.
-        text: the text it was parsed from (copied into run folders as ``map.txt``).
-    """
-
-    name: str
-    description: str
-    grid: tuple[str, ...]
-    free: np.ndarray
-    cell_id: np.ndarray
-    coords: np.ndarray
-    neighbors: np.ndarray
-    dot_kind: np.ndarray
-    homes: np.ndarray
-    starts: np.ndarray
-    back: np.ndarray
-    entry: np.ndarray
-    target: np.ndarray
-    xy: np.ndarray
-    kind: str = "grid"
-    edges: np.ndarray = field(default_factory=lambda: np.zeros((0, 3), dtype=np.int64))
-    labels: tuple[str, ...] = ()
-    source: str = ""
-    text: str = field(default="", repr=False, compare=False)
-    _dist: list = field(default_factory=list, repr=False, compare=False)
-
-    @property
-    def n_cells(self) -> int:
-        """Number of free cells (states)."""
-        return int(self.coords.shape[0])
-
-    @property
-    def shape(self) -> tuple[int, int]:
-        """(rows, cols) of the grid."""
-        return self.free.shape  # type: ignore[return-value]
-
-    @property
-    def n_ports(self) -> int:
-        """D, the most moves out of one cell (4 on a grid)."""
-        return int(self.neighbors.shape[1])
-
-    @property
-    def is_graph(self) -> bool:
-        """True for a patrol graph, False for a grid maze."""
-        return self.kind == "graph"
-
-    @property
-    def n_targets(self) -> int:
-        """Number of target cells (every cell of a grid, a graph's vertices)."""
-        return int(self.target.sum())
-
-    @property
-    def degree(self) -> np.ndarray:
-        """int ``[cells]``: number of free neighbours of each state."""
-        return (self.neighbors >= 0).sum(axis=1)
-
-    def distances(self) -> np.ndarray:
-        """int ``[cells, cells]``: shortest-path length in moves between two states.
-
-        Computed once by breadth-first search from every cell, then cached.
-        """
-        if not self._dist:
-            self._dist.append(all_pairs_distances(self.neighbors))
-        return self._dist[0]
-
-    def state_at(self, row: int, col: int) -> int:
-        """State number of the free cell at (row, col); raises if it is a wall."""
-        s = int(self.cell_id[row, col])
-        if s < 0:
-            raise ValueError(f"({row}, {col}) is a wall")
-        return s
-
-
-def bfs(neighbors: np.ndarray, source: int) -> np.ndarray:
-    """int ``[cells]``: moves from ``source`` to every state (-1 if unreachable)."""
-    dist = np.full(neighbors.shape[0], -1, dtype=np.int64)
-    dist[source] = 0
-    queue = deque([source])
-    while queue:
-        c = queue.popleft()
-        for nb in neighbors[c]:
-            if nb >= 0 and dist[nb] < 0:
-                dist[nb] = dist[c] + 1
-                queue.append(nb)
-    return dist
-
-
-def all_pairs_distances(neighbors: np.ndarray) -> np.ndarray:
-    """int ``[cells, cells]``: BFS distances between all states (-1 if unreachable).
-
-    Frontier expansion over all sources at once, one numpy pass per distance.
-    """
-    n = neighbors.shape[0]
-    dist = np.full((n, n), -1, dtype=np.int64)
-    src = np.arange(n)
-    dist[src, src] = 0
-    frontier_src, frontier_cell = src, src
-    d = 0
-    while frontier_src.size:
-        d += 1
-        nb = neighbors[frontier_cell]  # [F, D]
-        s = np.repeat(frontier_src, neighbors.shape[1])
-        c = nb.ravel()
-        ok = c >= 0
-        s, c = s[ok], c[ok]
-        new = dist[s, c] < 0
-        s, c = s[new], c[new]
-        # drop duplicates discovered twice in this wave
-        key = np.unique(s * n + c)
-        s, c = key // n, key % n
-        dist[s, c] = d
-        frontier_src, frontier_cell = s, c
-    return dist
 
 
 def parse_map(text: str, source: str = "<string>") -> Map:
@@ -204,8 +65,6 @@ def parse_map(text: str, source: str = "<string>") -> Map:
     for raw in text.splitlines():
         line = raw.strip()
         if line.startswith(";") and line[1:].strip().lower().replace(" ", "") == "kind:graph":
-            from qpatrol.maps.graph import parse_graph_map
-
             return parse_graph_map(text, source)
     name = Path(source).stem if source != "<string>" else "map"
     description = ""

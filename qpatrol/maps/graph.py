@@ -36,7 +36,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qpatrol.maps import BIG, NO_DOT, SMALL_DOT, Map, MapError, bfs
+from qpatrol.maps.core import BIG, NO_DOT, SMALL_DOT, Map, MapError, bfs
 
 __all__ = [
     "GraphSpec",
@@ -313,7 +313,8 @@ def graph_summary(m: Map) -> str:
         lab = m.labels[v] if m.labels and m.labels[v] else ""
         return f"{v} ({lab})" if lab else str(v)
 
-    lines.append(f"charging stations (vertex): {', '.join(named(int(v)) for v in m.homes) or 'none'}")
+    homes = ", ".join(named(int(v)) for v in m.homes) or "none"
+    lines.append(f"charging stations (vertex): {homes}")
     starts = ", ".join(f"{k}: {named(int(v))}" for k, v in enumerate(m.starts))
     lines.append(f"starts (agent: vertex): {starts or 'none'}")
     return "\n".join(lines)

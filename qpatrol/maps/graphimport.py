@@ -35,7 +35,6 @@ __all__ = [
     "ImportedGraph",
     "SourceGraph",
     "edge_moves",
-    "import_graph_file",
     "layout",
     "shortest_lengths",
     "stress",
@@ -376,33 +375,6 @@ def _description(
     )
     parts = [f"imported from {g.kind} {g.path.name} ({g.facts})", cut, pos, placed, *g.notes]
     return "; ".join(parts)
-
-
-def import_graph_file(
-    path: str | Path,
-    name: str | None = None,
-    agents: int = 4,
-    stations: int | None = None,
-    edge_step: float | None = None,
-    unit_edges: bool = False,
-) -> ImportedGraph:
-    """Import a patrolling_sim ``.graph`` or a SimPatrol ``.xml`` file (by its suffix)."""
-    p = Path(path)
-    suffix = p.suffix.lower()
-    if suffix == ".graph":
-        from qpatrol.maps.patrolling_sim import read_patrolling_sim
-
-        g = read_patrolling_sim(p)
-    elif suffix == ".xml":
-        from qpatrol.maps.simpatrol import read_simpatrol
-
-        g = read_simpatrol(p)
-    else:
-        raise GraphImportError(
-            f"{p}: unknown graph file kind {suffix or '(no suffix)'!r}; "
-            "expected .graph (patrolling_sim) or .xml (SimPatrol)"
-        )
-    return to_graph_map(g, name or p.stem, agents, stations, edge_step, unit_edges)
 
 
 def read_text(path: Path) -> str:
