@@ -961,7 +961,8 @@ def _import_graph(
     report = (
         f"graph of {m.n_targets} vertices, {len(m.edges)} edges of "
         f"{int(m.edges[:, 2].sum()) if len(m.edges) else 0} moves ({m.n_cells} cells, "
-        f"D = {m.n_ports}), {step}, {len(m.starts)} starts, {len(m.homes)} stations; {reach}"
+        f"D = {m.n_ports}), {step}, {len(m.starts)} starts, {len(m.homes)} "
+        f"station{'' if len(m.homes) == 1 else 's'}; {reach}"
     )
     for note in r.source.notes:
         report += f"; {note}"

@@ -368,10 +368,11 @@ def _description(
             f"{moves.min()}-{moves.max()})"
         )
     pos = "positions as in the file" if g.xy is not None else "positions laid out by MDS"
+    st = f"{homes} charging station{'' if homes == 1 else 's'}"
     placed = (
-        f"{agents} starts by farthest-point sampling and the file's {homes} charging stations"
+        f"{agents} starts by farthest-point sampling and the file's {st}"
         if how == "the file's"
-        else f"{agents} starts and {homes} charging stations placed by farthest-point sampling"
+        else f"{agents} starts and {st} placed by farthest-point sampling"
     )
     parts = [f"imported from {g.kind} {g.path.name} ({g.facts})", cut, pos, placed, *g.notes]
     return "; ".join(parts)
