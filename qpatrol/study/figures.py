@@ -548,6 +548,33 @@ def policies_data(
     return df.drop(columns=["_order", "_policy"]).reset_index(drop=True)
 
 
+#: The field's benchmark: the policies study's measures and the patrolling field's.
+FIELD_STUDY_MEASURES = (
+    "avg_idleness",
+    "worst_idleness",
+    "mean_interval",
+    "max_interval",
+    "qmi",
+    "std_interval",
+    "freq_std",
+    "worst_avg_idleness",
+    "mean_avg_idleness",
+    "median_idleness",
+    "std_idleness",
+    "cycles",
+    "interferences",
+    "max_wait",
+    "coverage",
+)
+
+
+def field_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
+    """The field's benchmark: graph x strategy x team size, the mean and 95% t-interval
+    over runs of each of :data:`FIELD_STUDY_MEASURES`, with each graph's closed walk, as
+    :func:`policies_data`."""
+    return policies_data(sweep_dir, level, FIELD_STUDY_MEASURES)
+
+
 def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
     """Idleness in windows along each strategy's run (from ``timeline.csv``).
 

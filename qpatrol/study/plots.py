@@ -821,6 +821,15 @@ STRATEGY_STYLE = {
     "partition": ("tab:olive", "v"),
     "evap": ("tab:purple", "P"),
     "qlearning-idleness": ("tab:orange", "*"),
+    # patrolling_sim's strategies: dashed-family colours, hollow-looking markers
+    "hcr": ("tab:brown", "h"),
+    "cc": ("tab:pink", "<"),
+    "gbs": ("navy", ">"),
+    "sebs": ("darkgoldenrod", "p"),
+    "cbls": ("crimson", "8"),
+    "dta-greedy": ("teal", "d"),
+    "dta-ssi": ("slategray", "X"),
+    "dta-ssi-part": ("darkgreen", "1"),
 }
 
 
@@ -926,25 +935,63 @@ POLICY_PANELS = (
 def policies(csv: str | Path, out: str | Path) -> Path:
     """One row per map: average idleness, worst idleness and mean interval against team
     size for every strategy (mean over runs, 95% t-interval), with the cyclic bound."""
+    return _per_map(
+        csv,
+        out,
+        POLICY_PANELS,
+        "Learned against classic patrol ({runs}{window} after warm-up; battery off). "
+        "L: the closed walk through every cell.",
+    )
+
+
+#: The field's figure: (measure, label, what divides L/K for the cyclic bound line, or 0
+#: for none, log y-axis).
+FIELD_PANELS = (
+    ("avg_idleness", "average idleness", 2, True),
+    ("worst_avg_idleness", "worst average idleness of a vertex", 1, True),
+    ("qmi", "quadratic mean interval (QMI)", 1, True),
+    ("freq_std", "std of visit frequencies", 0, True),
+    ("interferences", "interferences", 0, False),
+)
+
+
+def field(csv: str | Path, out: str | Path) -> Path:
+    """The field's benchmark: one row per patrol graph, the field's measures against team
+    size for every strategy (mean over runs, 95% t-interval), with the cyclic bound."""
+    return _per_map(
+        csv,
+        out,
+        FIELD_PANELS,
+        "patrolling_sim's graphs, at the vertices ({runs}{window} after warm-up; battery "
+        "off). L: the closed walk through every vertex.",
+    )
+
+
+def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Path:
+    """One row per map, one column per panel ``(measure, label, divisor of L/K or 0,
+    log y)``: each measure against team size for every strategy, with the bound."""
+    panels = tuple((*p, True)[:4] for p in panels)
     cols = [
         "map",
         "policy",
         "agents",
-        *(f"{m}_{s}" for m, *_ in POLICY_PANELS for s in "mean lo hi".split()),
+        *(f"{m}_{s}" for m, *_ in panels for s in "mean lo hi".split()),
     ]
     df = _read(csv, cols)
     maps = list(dict.fromkeys(df["map"]))
     names = _policy_order(set(df["policy"]))
     ks = sorted(df["agents"].unique())
-    fig, axes = plt.subplots(len(maps), 3, figsize=(13.5, 3.3 * len(maps)), squeeze=False)
+    n = len(panels)
+    fig, axes = plt.subplots(len(maps), n, figsize=(4.5 * n, 3.3 * len(maps)), squeeze=False)
     for r, mname in enumerate(maps):
         dm = df[df["map"] == mname]
-        panels = tuple(m for m, *_ in POLICY_PANELS)
-        _strategy_errorbars(axes[r], dm, panels, names, spread=0.025, emphasise=True)
+        _strategy_errorbars(
+            axes[r], dm, tuple(m for m, *_ in panels), names, spread=0.025, emphasise=True
+        )
         b = dm.drop_duplicates("agents").sort_values("agents")
         has_bound = "bound_per_robot" in dm.columns and b["bound_per_robot"].notna().any()
-        for c, (ax, (_m, label, div)) in enumerate(zip(axes[r], POLICY_PANELS, strict=True)):
-            if has_bound:
+        for c, (ax, (_m, label, div, log)) in enumerate(zip(axes[r], panels, strict=True)):
+            if has_bound and div:
                 walk = int(b["walk_length"].iloc[0])
                 ax.plot(
                     b["agents"],
@@ -960,14 +1007,17 @@ def policies(csv: str | Path, out: str | Path) -> Path:
                     loc="lower left",
                 )
             ax.set_xscale("log", base=2)
-            _log_y(ax, f"{label} (team steps)" if c == 0 else label)
+            ylabel = f"{label} (team steps)" if c == 0 else label
+            if log:
+                _log_y(ax, ylabel)
+            else:
+                ax.set_ylabel(ylabel)
             ax.set_xticks(ks, [str(k) for k in ks])
             ax.xaxis.set_minor_formatter(NullFormatter())
             ax.grid(alpha=0.3, lw=0.4, which="both")
             if r == len(maps) - 1:
                 ax.set_xlabel("team size K (robots)")
-            title = f"{mname}: {label}"
-            ax.set_title(title, fontsize=10)
+            ax.set_title(f"{mname}: {label}", fontsize=10)
     handles = [
         plt.Line2D([], [], color=_style(n, i)[0], marker=_style(n, i)[1], ms=5, label=n)
         for i, n in enumerate(names)
@@ -982,13 +1032,9 @@ def policies(csv: str | Path, out: str | Path) -> Path:
     )
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     window = f", {int(df['window'].min()):,} steps measured" if "window" in df.columns else ""
-    fig.suptitle(
-        f"Learned against classic patrol ({runs}{window} after warm-up; battery off). "
-        "L: the closed walk through every cell.",
-        fontsize=10,
-        y=1.025,
-    )
-    fig.tight_layout(rect=(0, 0, 1, 0.975))
+    rows = -(-len(names) // 8)
+    fig.suptitle(title.format(runs=runs, window=window), fontsize=10, y=1.0 + 0.025 * rows)
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows))
     return _save(fig, out)
 
 

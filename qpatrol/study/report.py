@@ -572,6 +572,113 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     )
 
 
+#: patrolling_sim's strategies (the field's benchmark names them apart from qpatrol's own).
+PATROLLING_SIM = ("hcr", "cc", "gbs", "sebs", "cbls", "dta-greedy", "dta-ssi", "dta-ssi-part")
+#: The field's measures the report ranks strategies by (all: lower is better).
+FIELD_RANKED = (
+    ("avg_idleness", "average idleness"),
+    ("worst_avg_idleness", "worst average idleness"),
+    ("qmi", "QMI"),
+)
+
+
+def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+    """The field's benchmark: every strategy on patrolling_sim's graphs, at the vertices."""
+    fig = fig.copy()
+    rows = []
+    wins: dict[str, dict[str, int]] = {m: {} for m, _ in FIELD_RANKED}
+    cells = 0
+    for (m, k), d in fig.groupby(["map", "agents"], sort=False):
+        cells += 1
+        row = [f"| {m} | {int(k)} "]
+        for col, _ in FIELD_RANKED:
+            ok = d[d[f"{col}_mean"].notna()]
+            if not len(ok):
+                row.append("| - ")
+                continue
+            best = ok.sort_values(f"{col}_mean", kind="stable").iloc[0]
+            wins[col][best.policy] = wins[col].get(best.policy, 0) + 1
+            row.append(f"| {_fmt(best[f'{col}_mean'])} ({best.policy}) ")
+        cyc = d[d["policy"] == "cyclic"]
+        if len(cyc):
+            c = cyc.iloc[0]
+            row.append(
+                f"| {_fmt(c.avg_idleness_mean)} / {_fmt(c.worst_avg_idleness_mean)} "
+                f"/ {_fmt(c.qmi_mean)} "
+            )
+        else:
+            row.append("| - ")
+        ps = d[d["policy"].isin(PATROLLING_SIM)]
+        if len(ps):
+            b = ps.sort_values("qmi_mean", kind="stable").iloc[0]
+            row.append(f"| {_fmt(b.qmi_mean)} ({b.policy}) ")
+        else:
+            row.append("| - ")
+        rows.append("".join(row) + "|")
+    table = "\n".join(
+        [
+            "| graph | K | best average idleness | best worst average idleness | best QMI "
+            "| cyclic: average / worst average / QMI | best patrolling_sim QMI |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
+    tallies = []
+    for col, label in FIELD_RANKED:
+        order = sorted(wins[col].items(), key=lambda kv: (-kv[1], kv[0]))
+        tallies.append(
+            f"Best {label}: "
+            + ", ".join(f"{n} in {c} of {cells}" for n, c in order)
+            + " graph and team-size cells."
+        )
+    runs = int(fig["runs"].min())
+    window = int(fig["window"].min())
+    frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
+    missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
+    low = fig[fig["coverage_mean"] < 1] if "coverage_mean" in fig.columns else fig.iloc[:0]
+    uncovered = ""
+    if len(low):
+        parts = []
+        for name, g in low.groupby("policy", sort=False):
+            worst = g.sort_values("coverage_mean").iloc[0]
+            parts.append(
+                f"{name} at {len(g)} point{'s' * (len(g) != 1)} (lowest "
+                f"{_fmt(worst.coverage_mean)}: {worst['map']}, K = {int(worst.agents)})"
+            )
+        uncovered = (
+            " Points where some run left a vertex unvisited for the whole window (mean "
+            "coverage below 1): " + "; ".join(parts) + "."
+        )
+    interf = fig.sort_values("interferences_mean", kind="stable").iloc[-1]
+    return Section(
+        "Beyond the paper: the field's benchmark on patrolling_sim's graphs",
+        ["figures/field.png"],
+        "The paper uses a grid maze; the multi-robot patrolling field compares strategies on "
+        "patrol graphs with its own measures (patrolling_sim's monitor; QMI of Sampaio and "
+        "Ramalho).",
+        "measured",
+        [
+            f"{runs} runs per point on patrolling_sim's grid, example, cumberland and "
+            "DIAG_floor1 graphs (shipped as `ps_*`, edges cut into moves of the shortest "
+            "edge's length), 1 to 12 robots; battery off, collisions avoided, communication "
+            f"on. Every point measures {window:,} team steps after the policies study's "
+            "warm-up, at the vertices only (waypoints inside edges are in transit). L/K: K "
+            "robots evenly spaced on the closed walk of length L through every vertex.",
+            f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`), "
+            f"{missing} without an idleness value.{uncovered}{_no_episode(res)} Most "
+            f"interferences: {interf.policy} on {interf['map']} with K = "
+            f"{int(interf.agents)} ({_fmt(interf.interferences_mean)} per run).",
+            "Cells give the mean over runs and the strategy that reaches it. Every measure "
+            "of every strategy with its 95% t-interval (median and spread of the vertices' "
+            "average idleness, visit-frequency spread, complete cycles, interferences): "
+            "`figures/field.csv`.",
+            table,
+            *tallies,
+        ],
+        "no paper numbers to compare with; mean over runs.",
+    )
+
+
 def learning(fig: pd.DataFrame) -> Section:
     """Idleness in windows along a long run: do the learners approach the others?"""
     lines = []
@@ -677,6 +784,7 @@ def build(
         lambda: strategies(f("strategies"), d("strategies")),
         lambda: policies(f("policies"), d("policies")),
         lambda: learning(f("learning")),
+        lambda: field(f("field"), d("field")),
     ]
     sections = [m() for m in makers]
     quick = mode == "quick"

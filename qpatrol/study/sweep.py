@@ -265,6 +265,38 @@ def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
     return points
 
 
+#: The field's benchmark (``qpatrol sweep field``): patrolling_sim's graphs, its team sizes.
+FIELD_MAPS = ("ps_grid", "ps_example", "ps_cumberland", "ps_diag_floor1")
+FIELD_TEAMS = (1, 2, 4, 6, 8, 12)
+
+
+def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy x patrolling_sim graph x team size (where the team fits), each
+    with the policies study's warm-up and window.
+
+    ``quick``: two graphs, K = 1 and 4, and short runs (a smoke test, not a result).
+    """
+    from qpatrol.strategies import learns
+
+    maps, teams = (("ps_grid", "ps_example"), (1, 4)) if quick else (FIELD_MAPS, FIELD_TEAMS)
+    window = 500 if quick else POLICY_WINDOW
+    points = []
+    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
+        warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
+        for m in maps:
+            for k in teams:
+                points.append(
+                    {
+                        "map": m,
+                        "policy": name,
+                        "agents": k,
+                        "steps": warm + window,
+                        "record.warmup": warm,
+                    }
+                )
+    return points
+
+
 def learning_overrides(quick: bool = False) -> list[dict[str, Any]]:
     """Every strategy but ``random``: learners for a long run, the others shorter.
 
@@ -296,6 +328,7 @@ NAMED_SWEEPS: dict[str, NamedSweep] = {
         None,
     ),
     "policies": NamedSweep("configs/policies.yaml", policies_overrides, None),
+    "field": NamedSweep("configs/field.yaml", field_overrides, None),
     "learning": NamedSweep("configs/learning.yaml", learning_overrides, None),
 }
 
