@@ -192,8 +192,9 @@ class WalkFollower(base.Strategy):
             done += skip
 
     def step_towards(self, pos: np.ndarray, goal: np.ndarray) -> np.ndarray:
-        """int ``[R, K]``: the first move of a shortest path (N, E, S, W first); -1 there."""
-        nbr = self.params.neighbors[pos]  # [R, K, 4]
+        """int ``[R, K]``: the first move of a shortest path (lowest port first: N, E, S, W
+        on a grid); -1 there."""
+        nbr = self.params.neighbors[pos]  # [R, K, D]
         d_next = self.dist[np.maximum(nbr, 0), goal[..., None]]
         closer = (nbr >= 0) & (d_next == self.dist[pos, goal][..., None] - 1)
         return np.where(closer.any(axis=-1), closer.argmax(axis=-1), -1)

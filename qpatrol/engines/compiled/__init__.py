@@ -92,7 +92,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
 
     ``p``, ``s``, ``w``: the loop's ``Params``, ``World`` (the world as the step
     starts) and ``Work`` (:mod:`qpatrol.engines.compiled.bundles`), ``w.open_mask`` bool
-    ``[K, 4]`` the world's open moves (every legal move where none is open); ``sp``:
+    ``[K, D]`` the world's open moves (every legal move where none is open); ``sp``:
     the strategy's :class:`Pack`."""
     nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
@@ -112,19 +112,20 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             choosing,
             ask,
             sp,
+            w.score,
         )
     elif code == RANDOM:
         random.act(ur, open_mask, choosing, ask)
     elif code == CONSCIENTIOUS:
-        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
+        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i, w.score)
     elif code == SHARED_CONSCIENTIOUS:
         shared_conscientious.act(
-            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask
+            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask, w.score
         )
     elif code == EVAP:
         evap.act(
             r, t, ur, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
-            sp.cell_i, sp.fpar,
+            sp.cell_i, sp.fpar, w.score,
         )  # fmt: skip
     elif code == CYCLIC or code == PARTITION:
         follow.act(

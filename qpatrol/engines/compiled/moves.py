@@ -57,7 +57,7 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r
     while head < tail and m == 0:
         c = queue[head]
         head += 1
-        for d in range(4):
+        for d in range(nbrs.shape[1]):
             nb = nbrs[c, d]
             if nb < 0 or nb == own or parent[nb] != -2:
                 continue
@@ -93,14 +93,14 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r
 def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
     """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
     (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
-    else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
-    along :func:`push_path`. Returns whether the push failed (it did not move as
-    asked)."""
+    else a neighbour (in port order: N, E, S, W on a grid), empty or emptied by pushing
+    the robots in the way along :func:`push_path`. Returns whether the push failed (it
+    did not move as asked)."""
     want, moved, as_asked, path = w.want, w.moved, w.as_asked, w.path
     own = pos_r[tok]
     dest = -1
     m = 0
-    for ci in range(5):
+    for ci in range(nbrs.shape[1] + 1):
         if ci == 0:
             cell = want[tok]
         else:
@@ -195,7 +195,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
         w.held_back[k] = False
         w.yielding[k] = False
         any_open = False
-        for d in range(4):
+        for d in range(nbrs.shape[1]):
             nb = nbrs[c, d]
             ok = nb >= 0
             if ok and battery:
@@ -211,7 +211,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
             w.open_mask[k, d] = ok
             any_open = any_open or ok
         if not any_open:
-            for d in range(4):
+            for d in range(nbrs.shape[1]):
                 w.open_mask[k, d] = nbrs[c, d] >= 0
         w.prev_pos[k] = c
         w.prev_head[k] = s.head[r, k]
