@@ -200,13 +200,16 @@ def _heading_after_entering(engine: str) -> tuple[int, int, int]:
         obs = world.begin_step(s, p)
         world.step(s, p, obs, np.array([[port_to_1]]))
         return int(s.pos[0, 0]), int(s.head[0, 0]), int(m.back[wp, port_to_1])
-    from qpatrol.engines.compiled import enter
+    from qpatrol.engines.compiled import bundles, enter
+
+    ports = bundles.ports_marker(p.neighbors, p.entry)
+    assert ports.ndim == 2  # a graph's: headings read from entry
 
     grp = (s.dots[0, 0], s.last[0, 0], s.ep_seen[0, 0], s.ep_seen_state[0, 0])
     cnt = (s.dots_left[0, 0], s.ep_dots[0, 0], s.ep_visits[0, 0])
     for asked in (port_to_1, -1):  # as asked, and pushed (the port found from the cells)
         heading, *_ = enter.enter(
-            wp, 1, asked, 1, p.neighbors, p.entry, p.dot_value, grp, cnt, (1.0, 100.0, 1.0)
+            wp, 1, asked, 1, p.neighbors, p.entry, ports, p.dot_value, grp, cnt, (1.0, 100.0, 1.0)
         )
         assert heading == m.back[wp, port_to_1]
     return 1, int(heading), int(m.back[wp, port_to_1])
@@ -279,3 +282,42 @@ def test_envs_act_by_port_on_a_graph(tmp_path):
     assert single.observation_space.contains(obs)
     with pytest.raises(ValueError, match="0..4"):
         single.step(5)
+
+
+#: A graph of D = 4 (vertex 0 has four edges): its headings are ports arrived through,
+#: not the ports moved by, so the compiled loops must not take a grid's shortcut.
+SQUARE = """\
+; name: square
+; kind: graph
+v 0 0 0
+v 1 2 0
+v 2 2 2
+v 3 0 2
+v 4 1 1 station
+e 0 1 2
+e 1 2 2
+e 2 3 1
+e 3 0 2
+e 0 4 2
+e 0 2 3
+"""
+
+
+def test_the_compiled_grid_shortcut_is_taken_on_grids_only(tmp_path, rooms_map):
+    """``bundles.ports_marker``: a grid's (4 ports, heading = move) lets the compiled
+    loops fix D = 4 and skip ``entry``; a graph's, even of D = 4, does not; and the
+    engines agree on that D = 4 graph."""
+    pytest.importorskip("numba")
+    from qpatrol.engines.compiled import bundles
+    from qpatrol.maps import load_map
+
+    grid = load_map(rooms_map)
+    assert bundles.ports_marker(grid.neighbors, grid.entry).ndim == 1
+    square = parse_map(SQUARE)
+    assert square.n_ports == 4 and (square.entry != np.arange(4)).any()
+    assert bundles.ports_marker(square.neighbors, square.entry).ndim == 2
+    path = tmp_path / "square.txt"
+    path.write_text(SQUARE)
+    for policy, k in (("qlearning", 1), ("qlearning", 2), ("qlearning-idleness", 2)):
+        flat = {**flat_of(path, policy, k, False), "record.transitions": True}
+        assert both(flat, tmp_path / f"{policy}{k}") == ("numba", "")

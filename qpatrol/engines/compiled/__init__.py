@@ -26,6 +26,7 @@ from qpatrol.engines.compiled import (
     random,
     shared_conscientious,
 )
+from qpatrol.engines.compiled.choice import n_ports
 from qpatrol.engines.compiled.pack import Pack
 
 # a sweep's worker processes compile different loops (signatures of one function) side
@@ -97,7 +98,10 @@ def act(code, r, t, ur, battery, p, s, w, sp):
     nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
         _, epsilon, use_heading, q_f, _ = qlearning.tables(sp, r)
-        qlearning.act(ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f)
+        nd = n_ports(p.ports, nbrs)
+        qlearning.act(
+            ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f, nd
+        )
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r,

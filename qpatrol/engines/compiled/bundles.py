@@ -31,6 +31,13 @@ class Params(NamedTuple):
             (:func:`qpatrol.engines.compiled.choice.legal_bits`), read with ``MASKED``.
         entry: int64 ``[C, D]``, the heading after the move out of a cell by a port
             (:attr:`qpatrol.maps.Map.entry`: the port itself on a grid).
+        ports: an int8 marker whose ``ndim`` tells the compiler the kind of map
+            (:func:`ports_marker`, read by
+            :func:`qpatrol.engines.compiled.choice.n_ports`): 1 for a grid's (D = 4, a
+            constant of the compiled code, and each move's heading the move itself), so
+            that a grid's loops keep their fixed four-move code; 2 for any other (D read
+            from ``nbrs``, headings from ``entry``: one machine code for every patrol
+            graph).
         dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
         reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
             idle horizon, lambda).
@@ -47,6 +54,7 @@ class Params(NamedTuple):
     wall_legal: np.ndarray
     cell_moves: np.ndarray
     entry: np.ndarray
+    ports: np.ndarray
     dot_value: np.ndarray
     has_dot: np.ndarray
     n_dots: int
@@ -170,6 +178,16 @@ class Work(NamedTuple):
     uniforms: np.ndarray
     sink: np.ndarray
     score: np.ndarray
+
+
+def ports_marker(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray:
+    """The marker of :attr:`Params.ports`: int8 of ``ndim`` 1 for a map whose cells have
+    4 ports and whose every move's heading is the move (``entry``, int ``[C, D]``, equal
+    to the port wherever ``neighbors`` has a move: a grid's), 2 otherwise."""
+    grid_like = neighbors.shape[1] == 4 and bool(
+        (entry == np.where(neighbors >= 0, np.arange(4), entry)).all()
+    )
+    return np.zeros((1,) * (1 if grid_like else 2), dtype=np.int8)
 
 
 def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:

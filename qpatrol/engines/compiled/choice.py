@@ -41,6 +41,27 @@ def legal_bits(nbrs: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def n_ports(ports, nbrs):
+    """D, the ports of a cell (``nbrs`` int ``[C, D]``): 4, a constant of the compiled
+    code, where the marker ``ports`` (a grid's:
+    :func:`qpatrol.engines.compiled.bundles.ports_marker`) has ``ndim`` 1; else
+    ``nbrs``'s second dimension."""
+    if ports.ndim == 1:
+        return 4
+    return nbrs.shape[1]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def heading_after(ports, entry, c, a):
+    """The heading after the move out of cell ``c`` by port ``a``: ``entry[c, a]``
+    (``Map.entry``), which on a grid (marker ``ports`` of ``ndim`` 1: :func:`n_ports`)
+    is ``a`` itself, taken without the load."""
+    if ports.ndim == 1:
+        return a
+    return entry[c, a]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pick(bits, count, uu):
     """The ``floor(uu x count)``-th port of the mask ``bits`` (``count`` set bits),
     as :func:`qpatrol.strategies.learner.pick`; -1 when ``count`` is 0."""
