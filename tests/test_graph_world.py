@@ -202,14 +202,14 @@ def _heading_after_entering(engine: str) -> tuple[int, int, int]:
         return int(s.pos[0, 0]), int(s.head[0, 0]), int(m.back[wp, port_to_1])
     from qpatrol.engines.compiled import bundles, enter
 
-    ports = bundles.ports_marker(p.neighbors, p.entry)
-    assert ports.ndim == 2  # a graph's: headings read from entry
+    entry = bundles.compiled_entry(p.neighbors, p.entry)
+    assert entry is not None  # a graph's: headings read from entry
 
     grp = (s.dots[0, 0], s.last[0, 0], s.ep_seen[0, 0], s.ep_seen_state[0, 0])
     cnt = (s.dots_left[0, 0], s.ep_dots[0, 0], s.ep_visits[0, 0])
     for asked in (port_to_1, -1):  # as asked, and pushed (the port found from the cells)
         heading, *_ = enter.enter(
-            wp, 1, asked, 1, p.neighbors, p.entry, ports, p.dot_value, grp, cnt, (1.0, 100.0, 1.0)
+            wp, 1, asked, 1, p.neighbors, entry, p.dot_value, grp, cnt, (1.0, 100.0, 1.0)
         )
         assert heading == m.back[wp, port_to_1]
     return 1, int(heading), int(m.back[wp, port_to_1])
@@ -304,18 +304,18 @@ e 0 2 3
 
 
 def test_the_compiled_grid_shortcut_is_taken_on_grids_only(tmp_path, rooms_map):
-    """``bundles.ports_marker``: a grid's (4 ports, heading = move) lets the compiled
-    loops fix D = 4 and skip ``entry``; a graph's, even of D = 4, does not; and the
-    engines agree on that D = 4 graph."""
+    """``bundles.compiled_entry``: a grid's (4 ports, heading = move) is None, which lets
+    the compiled loops fix D = 4 and skip ``entry``; a graph's, even of D = 4, is its
+    ``entry``; and the engines agree on that D = 4 graph."""
     pytest.importorskip("numba")
     from qpatrol.engines.compiled import bundles
     from qpatrol.maps import load_map
 
     grid = load_map(rooms_map)
-    assert bundles.ports_marker(grid.neighbors, grid.entry).ndim == 1
+    assert bundles.compiled_entry(grid.neighbors, grid.entry) is None
     square = parse_map(SQUARE)
     assert square.n_ports == 4 and (square.entry != np.arange(4)).any()
-    assert bundles.ports_marker(square.neighbors, square.entry).ndim == 2
+    assert bundles.compiled_entry(square.neighbors, square.entry) is square.entry
     path = tmp_path / "square.txt"
     path.write_text(SQUARE)
     for policy, k in (("qlearning", 1), ("qlearning", 2), ("qlearning-idleness", 2)):

@@ -75,7 +75,7 @@ from qpatrol.engines.compiled import (
     qlearning,
     stations,
 )
-from qpatrol.engines.compiled.choice import legal_bits, n_ports
+from qpatrol.engines.compiled.choice import legal_bits, ports_of
 from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
 
@@ -134,7 +134,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     weights = (p.reward_w[r, 0], p.reward_w[r, 1], p.reward_w[r, 2])
     nbrs, cell_moves, warmup = p.nbrs, p.cell_moves, m.warmup
-    nd = n_ports(p.ports, nbrs)  # D ports (on a grid 4, a constant of the code)
+    nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
     warm = _touch_tables(q_f, n_f)
     for cc in range(s.last.shape[2]):
         warm += s.last[r, 0, cc] + m.last[r, cc]
@@ -175,7 +175,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         if aa >= 0:  # --- it moves and enters c1 (a: the heading it enters with) --------
             c1 = nbrs[c, aa]
             a, _, cnt, reward = enter.enter(
-                c, c1, -1, t, nbrs, p.entry, p.ports, p.dot_value, grp, cnt, weights
+                c, c1, -1, t, nbrs, p.entry, p.dot_value, grp, cnt, weights
             )
         if cnt[0] == 0 or (p.max_ep > 0 and t - start >= p.max_ep):  # --- episodes ---
             s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0] = cnt
@@ -187,7 +187,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             at1 = (c1 * nd + hb) * nd  # Q(c1, hb, .), flat
             legal1 = cell_moves[c1]
             best, _, _ = qlearning.update(
-                q_f, n_f, at + aa, at1, legal1, reward, gamma, p.ports, nbrs
+                q_f, n_f, at + aa, at1, legal1, reward, gamma, p.entry, nd
             )
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
             sums = observe.visit(c1, t, warmup, m_last_r, visits_r, window_visits_r, sums)
@@ -228,13 +228,13 @@ def _team_enters(r, k, c0, c1, t, learns, ha, aa, p, s, m, tables, sums):
     a, _, reward = enter.group_enters(r, g, c0, c1, aa if learns else -1, t, p, s)
     if learns:
         gamma, use_heading, q_f, n_f = tables
-        nd = n_ports(p.ports, p.nbrs)
+        nd = ports_of(p.entry, p.nbrs.shape[1])
         hs = ha if use_heading else 0
         hb = a if use_heading else 0  # the state reached: (c1, hb), a the heading entered
         base = k * p.nbrs.shape[0]
         at0 = ((base + c0) * nd + hs) * nd + aa  # Q(c0, hs, aa), flat
         at1 = ((base + c1) * nd + hb) * nd  # Q(c1, hb, .)
-        qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma, p.ports, p.nbrs)
+        qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma, p.entry, nd)
     sums = observe.visit(c1, t, m.warmup, m.last[r], m.visits[r, k], m.window_visits[r, k], sums)
     return a, sums
 
@@ -253,7 +253,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     draws. Returns ``(last team step taken, episode rows written)``."""
     n_agents, n_cells = s.pos.shape[1], p.nbrs.shape[0]
     nbrs, cell_moves, avoid, diameter = p.nbrs, p.cell_moves, p.avoid, p.diameter
-    nd = n_ports(p.ports, nbrs)  # D ports (on a grid 4, a constant of the code)
+    nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
     want, ask, moved, as_asked = w.want, w.ask, w.moved, w.as_asked
     gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     tables = (gamma, use_heading, q_f, n_f)
@@ -467,7 +467,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(
                     w.uniforms, s.pos[r], s.head[r], w.open_mask, w.choosing, w.ask,
-                    epsilon, use_heading, q_f, n_ports(p.ports, p.nbrs),
+                    epsilon, use_heading, q_f, ports_of(p.entry, p.nbrs.shape[1]),
                 )  # fmt: skip
             if spec == SPEC_ANY and battery:
                 stations.ask(r, p, s, w)
@@ -582,8 +582,8 @@ class Loop:
         battery = (p.battery, p.homes, p.home_dist, p.home_dir, p.nearest_home_dist)
         pockets = (p.depart_len, p.pocket_of, p.pocket_depth, p.pocket_entry)
         consts = (
-            p.neighbors, p.wall_legal, legal_bits(p.neighbors), p.entry,
-            bundles.ports_marker(p.neighbors, p.entry), p.dot_value, p.has_dot,
+            p.neighbors, p.wall_legal, legal_bits(p.neighbors),
+            bundles.compiled_entry(p.neighbors, p.entry), p.dot_value, p.has_dot,
         )  # fmt: skip
         rules = (p.communication, p.avoid_collisions, p.diameter, p.max_episode_steps)
         bp = bundles.Params(

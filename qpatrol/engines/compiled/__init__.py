@@ -26,7 +26,7 @@ from qpatrol.engines.compiled import (
     random,
     shared_conscientious,
 )
-from qpatrol.engines.compiled.choice import n_ports
+from qpatrol.engines.compiled.choice import ports_of
 from qpatrol.engines.compiled.pack import Pack
 
 # a sweep's worker processes compile different loops (signatures of one function) side
@@ -98,7 +98,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
     nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
         _, epsilon, use_heading, q_f, _ = qlearning.tables(sp, r)
-        nd = n_ports(p.ports, nbrs)
+        nd = ports_of(p.entry, nbrs.shape[1])
         qlearning.act(
             ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f, nd
         )

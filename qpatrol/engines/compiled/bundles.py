@@ -30,14 +30,12 @@ class Params(NamedTuple):
         cell_moves: int64 ``[C]``, the legal moves as D bits
             (:func:`qpatrol.engines.compiled.choice.legal_bits`), read with ``MASKED``.
         entry: int64 ``[C, D]``, the heading after the move out of a cell by a port
-            (:attr:`qpatrol.maps.Map.entry`: the port itself on a grid).
-        ports: an int8 marker whose ``ndim`` tells the compiler the kind of map
-            (:func:`ports_marker`, read by
-            :func:`qpatrol.engines.compiled.choice.n_ports`): 1 for a grid's (D = 4, a
-            constant of the compiled code, and each move's heading the move itself), so
-            that a grid's loops keep their fixed four-move code; 2 for any other (D read
-            from ``nbrs``, headings from ``entry``: one machine code for every patrol
-            graph).
+            (:attr:`qpatrol.maps.Map.entry`), or None on a grid (4 ports, each move's
+            heading the move itself: :func:`compiled_entry`). None is a type of its
+            own to the compiler: a grid's loops are compiled with D = 4 a constant and
+            no load of a heading (:func:`qpatrol.engines.compiled.choice.ports_of`,
+            ``heading_of``), as before patrol graphs; every graph shares one machine
+            code, D read from ``nbrs``.
         dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
         reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
             idle horizon, lambda).
@@ -53,8 +51,7 @@ class Params(NamedTuple):
     nbrs: np.ndarray
     wall_legal: np.ndarray
     cell_moves: np.ndarray
-    entry: np.ndarray
-    ports: np.ndarray
+    entry: np.ndarray | None
     dot_value: np.ndarray
     has_dot: np.ndarray
     n_dots: int
@@ -180,14 +177,14 @@ class Work(NamedTuple):
     score: np.ndarray
 
 
-def ports_marker(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray:
-    """The marker of :attr:`Params.ports`: int8 of ``ndim`` 1 for a map whose cells have
-    4 ports and whose every move's heading is the move (``entry``, int ``[C, D]``, equal
-    to the port wherever ``neighbors`` has a move: a grid's), 2 otherwise."""
+def compiled_entry(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray | None:
+    """:attr:`Params.entry`: None for a map whose cells have 4 ports and whose every
+    move's heading is the move (``entry``, int ``[C, D]``, equal to the port wherever
+    ``neighbors`` has a move: a grid's), else ``entry``."""
     grid_like = neighbors.shape[1] == 4 and bool(
         (entry == np.where(neighbors >= 0, np.arange(4), entry)).all()
     )
-    return np.zeros((1,) * (1 if grid_like else 2), dtype=np.int8)
+    return None if grid_like else entry
 
 
 def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:

@@ -12,6 +12,8 @@ from __future__ import annotations
 
 import numpy as np
 from numba import njit
+from numba.core import types
+from numba.extending import overload
 
 from qpatrol.strategies.learner import _NTH, MAX_PORTS
 
@@ -40,25 +42,32 @@ def legal_bits(nbrs: np.ndarray) -> np.ndarray:
     return ((nbrs >= 0) << np.arange(nbrs.shape[1])).sum(axis=1).astype(np.int64)
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
-def n_ports(ports, nbrs):
-    """D, the ports of a cell (``nbrs`` int ``[C, D]``): 4, a constant of the compiled
-    code, where the marker ``ports`` (a grid's:
-    :func:`qpatrol.engines.compiled.bundles.ports_marker`) has ``ndim`` 1; else
-    ``nbrs``'s second dimension."""
-    if ports.ndim == 1:
-        return 4
-    return nbrs.shape[1]
+def ports_of(entry, nd):
+    """D, the ports of a cell: 4, a constant of the compiled code, where ``entry`` is
+    None (a grid's: :func:`qpatrol.engines.compiled.bundles.compiled_entry`), else
+    ``nd`` (the second dimension of the neighbours). Compiled by :func:`_ports_of`."""
+    return 4 if entry is None else nd
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
-def heading_after(ports, entry, c, a):
+@overload(ports_of, inline="always")
+def _ports_of(entry, nd):
+    if isinstance(entry, types.NoneType):
+        return lambda entry, nd: 4
+    return lambda entry, nd: nd
+
+
+def heading_of(entry, c, a):
     """The heading after the move out of cell ``c`` by port ``a``: ``entry[c, a]``
-    (``Map.entry``), which on a grid (marker ``ports`` of ``ndim`` 1: :func:`n_ports`)
-    is ``a`` itself, taken without the load."""
-    if ports.ndim == 1:
-        return a
-    return entry[c, a]
+    (``Map.entry``, int ``[C, D]``), or on a grid, where ``entry`` is None (the heading
+    is the move), ``a`` itself, without a load. Compiled by :func:`_heading_of`."""
+    return a if entry is None else entry[c, a]
+
+
+@overload(heading_of, inline="always")
+def _heading_of(entry, c, a):
+    if isinstance(entry, types.NoneType):
+        return lambda entry, c, a: a
+    return lambda entry, c, a: entry[c, a]
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

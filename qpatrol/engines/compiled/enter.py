@@ -11,22 +11,22 @@ from __future__ import annotations
 
 from numba import njit
 
-from qpatrol.engines.compiled.choice import heading_after, n_ports
+from qpatrol.engines.compiled.choice import heading_of, ports_of
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def enter(c0, c1, asked, t, nbrs, entry, ports, dot_value, grp, cnt, weights):
+def enter(c0, c1, asked, t, nbrs, entry, dot_value, grp, cnt, weights):
     """A robot of a dot group moves from cell ``c0`` into ``c1`` at step ``t`` (as it
     ``asked``, or -1: pushed or unknown). ``grp``: the group's dots, last visits, cells
     and states seen this episode (``[C]``, ``[C]``, ``[C]``, ``[C, D]``); ``cnt``: its
     episode's dots left, eaten and cells entered; ``weights``: ``(inc, horizon, lam)``;
-    ``entry`` int ``[C, D]``: the heading after each move (``Map.entry``); ``ports``:
-    the marker of D (:func:`~qpatrol.engines.compiled.choice.n_ports`). Returns
+    ``entry`` int ``[C, D]``: the heading after each move (``Map.entry``), None on a
+    grid (``bundles.Params.entry``). Returns
     ``(heading entered, dot eaten, cnt, reward)``."""
     dots_g, last_g, seen_g, seen_state_g = grp
     left, eaten, entered = cnt
     inc, horizon, lam = weights
-    nd = n_ports(ports, nbrs)
+    nd = ports_of(entry, nbrs.shape[1])
     if asked >= 0 and nd == 4:
         # it moved as asked: the first direction into c1 is at most that one
         nb = nbrs[c0]
@@ -40,7 +40,7 @@ def enter(c0, c1, asked, t, nbrs, entry, ports, dot_value, grp, cnt, weights):
             if nbrs[c0, d] == c1:
                 a = d
                 break
-    a = heading_after(ports, entry, c0, a)  # a graph's: the port of c1 arrived through
+    a = heading_of(entry, c0, a)  # a graph's: the port of c1 arrived through
     ate = dots_g[c1]
     dots_g[c1] = False
     if ate:
@@ -64,9 +64,7 @@ def group_enters(r, g, c0, c1, asked, t, p, s):
     grp = (s.dots[r, g], s.last[r, g], s.ep_seen[r, g], s.ep_seen_state[r, g])
     cnt = (s.dots_left[r, g], s.ep_dots[r, g], s.ep_visits[r, g])
     weights = (p.reward_w[r, 0], p.reward_w[r, 1], p.reward_w[r, 2])
-    a, ate, cnt, reward = enter(
-        c0, c1, asked, t, p.nbrs, p.entry, p.ports, p.dot_value, grp, cnt, weights
-    )
+    a, ate, cnt, reward = enter(c0, c1, asked, t, p.nbrs, p.entry, p.dot_value, grp, cnt, weights)
     s.dots_left[r, g], s.ep_dots[r, g], s.ep_visits[r, g] = cnt
     return a, ate, reward
 

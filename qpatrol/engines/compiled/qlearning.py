@@ -19,9 +19,9 @@ from qpatrol.engines.compiled.choice import (
     MASKED,
     MASKED_PORTS,
     POPCOUNT,
-    heading_after,
-    n_ports,
+    heading_of,
     pick,
+    ports_of,
 )
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 from qpatrol.engines.compiled.updates import record, wanted
@@ -119,7 +119,7 @@ def tables(sp, r):
 def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f, nd):
     """``ask[k]`` for every choosing robot of a run (``pos_r``, ``head_r`` int ``[K]``;
     ``open_mask`` bool ``[K, D]``; ``ur`` float ``[K, 2]``: the step's uniforms;
-    ``q_f``: :func:`tables`; ``nd``: D, :func:`~qpatrol.engines.compiled.choice.n_ports`):
+    ``q_f``: :func:`tables`; ``nd``: D, :func:`~qpatrol.engines.compiled.choice.ports_of`):
     :func:`choose` over its open moves; -1 for the others."""
     n_cells = q_f.shape[0] // (pos_r.shape[0] * nd * nd)
     for k in range(pos_r.shape[0]):
@@ -146,14 +146,14 @@ def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f, 
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def update(q_f, n_f, at0, at1, legal1, reward, gamma, ports, nbrs):
+def update(q_f, n_f, at0, at1, legal1, reward, gamma, entry, nd):
     """The Q-learning update of one robot, on its tables flat (``q_f`` float64, ``n_f``
     int32): ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max_{a' legal} Q(s', a') - Q(s,
     a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+D-1`` (D ports:
-    :func:`~qpatrol.engines.compiled.choice.n_ports` of ``ports``, ``nbrs``), the greatest
-    over the legal moves of s' (``legal1``, a mask of ports: :func:`best_of`). Returns
-    ``(max Q(s', .), alpha, Q(s, a) before)``."""
-    top = best_of(q_f, at1, legal1, n_ports(ports, nbrs))
+    :func:`~qpatrol.engines.compiled.choice.ports_of` ``(entry, nd)``, 4 on a grid,
+    whose ``entry`` is None), the greatest over the legal moves of s' (``legal1``, a
+    mask of ports: :func:`best_of`). Returns ``(max Q(s', .), alpha, Q(s, a) before)``."""
+    top = best_of(q_f, at1, legal1, ports_of(entry, nd))
     target = reward + gamma * top
     q_sa = q_f[at0]
     n_after = n_f[at0] + 1
@@ -170,7 +170,7 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
     :meth:`qpatrol.measures.records.Recorder.updates` wants them. ``p``, ``w``, ``o``:
     the loop's ``Params``, ``Work`` and ``Out`` (:mod:`qpatrol.engines.compiled.bundles`).
     Returns the number of update rows now written."""
-    n_cells, nd = p.nbrs.shape[0], n_ports(p.ports, p.nbrs)
+    n_cells, nd = p.nbrs.shape[0], ports_of(p.entry, p.nbrs.shape[1])
     for k in range(w.prev_pos.shape[0]):
         if not w.as_asked[k] or not w.choosing[k]:
             continue
@@ -178,12 +178,12 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
         ha = w.prev_head[k] if use_heading else 0
         aa = w.ask[k]
         cb = p.nbrs[ca, aa]
-        hb = heading_after(p.ports, p.entry, ca, aa) if use_heading else 0  # after the move
+        hb = heading_of(p.entry, ca, aa) if use_heading else 0  # after the move
         at = ((k * n_cells + ca) * nd + ha) * nd  # Q(ca, ha, .), flat
         at1 = ((k * n_cells + cb) * nd + hb) * nd  # Q(cb, hb, .)
         legal1 = p.cell_moves[cb]
         reward = w.reward[k]
-        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, legal1, reward, gamma, p.ports, p.nbrs)
+        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, legal1, reward, gamma, p.entry, nd)
         if wanted(o, ca):
             ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
             floats = (w.reward[k], alpha, q_sa, q_f[at + aa], gamma * top)

@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import greatest
+from qpatrol.engines.compiled.choice import greatest, heading_of
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 from qpatrol.engines.compiled.updates import record, wanted
 
@@ -209,7 +209,7 @@ def learn(r, t, p, s, w, sp, o, n_up):
         aa = ask[k]
         sa = ha * n_feat + feat[r, k, 0]
         cb = pos[r, k]
-        hb = p.entry[ca, aa] if use_heading else 0  # the heading after the move
+        hb = heading_of(p.entry, ca, aa) if use_heading else 0  # the heading after the move
         sb = hb * n_feat + (_idlest(nbrs, last, r, g, cb) if use_idle else 0)
         top = -np.inf
         for d in range(nbrs.shape[1]):
