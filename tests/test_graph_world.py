@@ -321,3 +321,19 @@ def test_the_compiled_grid_shortcut_is_taken_on_grids_only(tmp_path, rooms_map):
     for policy, k in (("qlearning", 1), ("qlearning", 2), ("qlearning-idleness", 2)):
         flat = {**flat_of(path, policy, k, False), "record.transitions": True}
         assert both(flat, tmp_path / f"{policy}{k}") == ("numba", "")
+
+
+def test_a_station_at_the_end_of_a_long_edge_has_its_waypoints_as_pocket():
+    """Pockets are corridors of degree-2 cells: on the spur the station's pocket is the
+    edge's four waypoints and the station, cut off by vertex 0; a homing robot's first
+    move there goes along the spur (home_dir over ports)."""
+    m = parse_map(SPUR)
+    cfg = from_flat({"agents": 1, "battery.enabled": True, "battery.capacity": 60})
+    p = world.make_params(cfg, m)
+    spur = [c for c in range(m.n_cells) if not m.target[c] and m.xy[c, 0] < 0]
+    assert len(spur) == 4
+    assert sorted(np.flatnonzero(p.pocket_of == 0).tolist()) == sorted([*spur, 4])
+    assert p.pocket_entry.tolist() == [0]
+    assert p.pocket_depth[4] == 5
+    toward = int(p.home_dir[0, 0])
+    assert m.neighbors[0, toward] in spur and p.home_dist[0, 0] == 5
