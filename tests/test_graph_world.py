@@ -337,3 +337,26 @@ def test_a_station_at_the_end_of_a_long_edge_has_its_waypoints_as_pocket():
     assert p.pocket_depth[4] == 5
     toward = int(p.home_dir[0, 0])
     assert m.neighbors[0, toward] in spur and p.home_dist[0, 0] == 5
+
+
+def test_plain_python_reference_loop_gives_the_cores_q_table_on_a_graph(tmp_path):
+    """``qpatrol.run.reference`` (the yardstick of ``qpatrol bench``) on the wheel: a lone
+    learner's Q-table to the bit, so the core's headings on a graph are the ports
+    arrived through (``entry``) as the plain loop has them."""
+    from qpatrol.run import reference, simulate
+
+    path = write(tmp_path, "wheel")
+    cfg = from_flat(
+        {"map": str(path), "agents": 1, "steps": 400, "seed": 2, "max_episode_steps": 90}
+    )
+    core = simulate(cfg.replace(engine="numpy"))
+    streams = Streams(run_seeds(cfg["seed"], 1), 1)
+    starts = world.place_agents(core.params, core.map, streams.generators[0]).tolist()
+    q_init = core.strategy.q_init.tolist()
+    assert len(q_init) == 7
+    ref = reference.run(core.params, starts, streams.take(400)[0], q_init, cfg["learning.gamma"])
+    q, n = ref.arrays(core.params.n_cells, 1, q_init)
+    assert n.sum() > 0
+    np.testing.assert_array_equal(n, core.strategy.n[0])
+    assert np.array_equal(q, core.strategy.q[0])
+    assert ref.pos == core.state.pos[0].tolist()
