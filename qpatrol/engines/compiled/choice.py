@@ -49,7 +49,10 @@ def ports_of(entry, nd):
     return 4 if entry is None else nd
 
 
-@overload(ports_of, inline="always")
+# (not ``inline="always"``: numba's inlining of these overloads into the loops compiled
+# a step of the Q-learning loop with recorders wrongly, tests/test_engines.py's
+# test_recorders; as calls they are trivial and the compiler inlines them)
+@overload(ports_of)
 def _ports_of(entry, nd):
     if isinstance(entry, types.NoneType):
         return lambda entry, nd: 4
@@ -63,7 +66,7 @@ def heading_of(entry, c, a):
     return a if entry is None else entry[c, a]
 
 
-@overload(heading_of, inline="always")
+@overload(heading_of)
 def _heading_of(entry, c, a):
     if isinstance(entry, types.NoneType):
         return lambda entry, c, a: a
