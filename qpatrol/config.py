@@ -172,7 +172,8 @@ SCHEMA: tuple[Field, ...] = (
         "learning.initial_heading",
         "choice",
         "north",
-        "heading an agent has before its first move",
+        "heading an agent has before its first move (on a patrol graph, whose headings "
+        "are ports, it is port 0 whatever this says)",
         choices=("north", "east", "south", "west"),
     ),
     F("reward.dot_value", "float", 1.0, "reward for eating a dot", low=0.0, used_by=QL),

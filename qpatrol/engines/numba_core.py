@@ -75,7 +75,7 @@ from qpatrol.engines.compiled import (
     qlearning,
     stations,
 )
-from qpatrol.engines.compiled.choice import legal_bits
+from qpatrol.engines.compiled.choice import legal_bits, ports_of
 from qpatrol.engines.compiled.pack import PER_RUN, Pack
 from qpatrol.world import Params, State
 
@@ -101,7 +101,7 @@ SPEC_NAMES = {
 }
 #: Columns of the Q-update buffers: ints run, step, agent, cell, heading, action,
 #: next cell, next heading, dot; floats reward, alpha, q_before, q_after, bootstrap,
-#: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update.
+#: Q(s, N), Q(s, E), Q(s, S), Q(s, W) after the update (a graph's first four ports).
 UP_INT, UP_FLOAT = 9, 9
 #: Where :class:`Loop`'s arguments hold the output rows (``Out``) and the working arrays.
 _OUT, _WORK = 6, 7
@@ -134,6 +134,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     weights = (p.reward_w[r, 0], p.reward_w[r, 1], p.reward_w[r, 2])
     nbrs, cell_moves, warmup = p.nbrs, p.cell_moves, m.warmup
+    nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
     warm = _touch_tables(q_f, n_f)
     for cc in range(s.last.shape[2]):
         warm += s.last[r, 0, cc] + m.last[r, cc]
@@ -163,26 +164,32 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         t = t0 + i + 1
         # --- the robot chooses: greedy over its legal moves (qlearning.choose) --------
         hs = h if use_heading else 0
-        at = (c * 4 + hs) * 4  # Q(c, hs, .), flat
+        at = (c * nd + hs) * nd  # Q(c, hs, .), flat
         legal = cell_moves[c]
         if not known:
-            best = qlearning.best_of(q_f, at, legal)
+            best = qlearning.best_of(q_f, at, legal, nd)
         # the step's two uniforms: the first for epsilon, the second to break ties
         a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
         explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
-        aa = qlearning.choose(q_f, at, legal, best, explore, pcg.uniform(s_lo, s_hi), False)
-        if aa >= 0:  # --- it moves and enters c1 --------------------------------------
+        u_tie = pcg.uniform(s_lo, s_hi)
+        aa = qlearning.choose(q_f, at, legal, best, explore, u_tie, False, nd)
+        if aa >= 0:  # --- it moves and enters c1 (a: the heading it enters with) --------
             c1 = nbrs[c, aa]
-            a, _, cnt, reward = enter.enter(c, c1, -1, t, nbrs, p.dot_value, grp, cnt, weights)
+            a, _, cnt, reward = enter.enter(
+                c, c1, -1, t, nbrs, p.entry, p.dot_value, grp, cnt, weights
+            )
         if cnt[0] == 0 or (p.max_ep > 0 and t - start >= p.max_ep):  # --- episodes ---
             s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0] = cnt
             n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
             cnt = (s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0])
             start, going = s.ep_start[r, 0], s.active[r]
         if aa >= 0:  # --- it learns (qlearning.update), the measures see the visit -----
-            hb = aa if use_heading else 0  # the state reached: (c1, hb)
-            at1 = (c1 * 4 + hb) * 4  # Q(c1, hb, .), flat
-            best, _, _ = qlearning.update(q_f, n_f, at + aa, at1, cell_moves[c1], reward, gamma)
+            hb = a if use_heading else 0  # the state reached: (c1, hb)
+            at1 = (c1 * nd + hb) * nd  # Q(c1, hb, .), flat
+            legal1 = cell_moves[c1]
+            best, _, _ = qlearning.update(
+                q_f, n_f, at + aa, at1, legal1, reward, gamma, p.entry, nd
+            )
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
             sums = observe.visit(c1, t, warmup, p, rows_r, visits_r, window_visits_r, sums)
             c = c1
@@ -222,12 +229,13 @@ def _team_enters(r, k, c0, c1, t, learns, ha, aa, p, s, m, tables, sums):
     a, _, reward = enter.group_enters(r, g, c0, c1, aa if learns else -1, t, p, s)
     if learns:
         gamma, use_heading, q_f, n_f = tables
+        nd = ports_of(p.entry, p.nbrs.shape[1])
         hs = ha if use_heading else 0
-        hb = aa if use_heading else 0  # the state reached: (c1, hb)
+        hb = a if use_heading else 0  # the state reached: (c1, hb), a the heading entered
         base = k * p.nbrs.shape[0]
-        at0 = ((base + c0) * 4 + hs) * 4 + aa  # Q(c0, hs, aa), flat
-        at1 = ((base + c1) * 4 + hb) * 4  # Q(c1, hb, .)
-        qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma)
+        at0 = ((base + c0) * nd + hs) * nd + aa  # Q(c0, hs, aa), flat
+        at1 = ((base + c1) * nd + hb) * nd  # Q(c1, hb, .)
+        qlearning.update(q_f, n_f, at0, at1, p.cell_moves[c1], reward, gamma, p.entry, nd)
     rows_r = observe.rows_of(m, r)
     sums = observe.visit(c1, t, m.warmup, p, rows_r, m.visits[r, k], m.window_visits[r, k], sums)
     return a, sums
@@ -247,6 +255,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     draws. Returns ``(last team step taken, episode rows written)``."""
     n_agents, n_cells = s.pos.shape[1], p.nbrs.shape[0]
     nbrs, cell_moves, avoid, diameter = p.nbrs, p.cell_moves, p.avoid, p.diameter
+    nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
     want, ask, moved, as_asked = w.want, w.ask, w.moved, w.as_asked
     gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
     tables = (gamma, use_heading, q_f, n_f)
@@ -283,26 +292,33 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             free = legal
             if avoid:  # the legal moves into cells no robot stands in
                 nb = nbrs[c]  # (a wall's -1 reads the last cell: masked by legal)
-                taken = (
-                    (1 if occ_r[nb[0]] >= 0 else 0)
-                    | (2 if occ_r[nb[1]] >= 0 else 0)
-                    | (4 if occ_r[nb[2]] >= 0 else 0)
-                    | (8 if occ_r[nb[3]] >= 0 else 0)
-                )
+                if nd == 4:
+                    taken = (
+                        (1 if occ_r[nb[0]] >= 0 else 0)
+                        | (2 if occ_r[nb[1]] >= 0 else 0)
+                        | (4 if occ_r[nb[2]] >= 0 else 0)
+                        | (8 if occ_r[nb[3]] >= 0 else 0)
+                    )
+                else:
+                    taken = 0
+                    for d in range(nd):
+                        if occ_r[nb[d]] >= 0:
+                            taken |= 1 << d
                 free = legal & ~taken
                 if k == tok:  # the holder: and those a push can make room for
-                    for d in range(4):
+                    for d in range(nd):
                         if (taken & legal) >> d & 1 and moves.pushable(r, c, nb[d], False, p, s, w):
                             free |= 1 << d
                 if free == 0:  # base.prefer_open: every legal move where none is open
                     free = legal
             hs = head_r[k] if use_heading else 0
-            at = ((k * n_cells + c) * 4 + hs) * 4  # Q(c, hs, .), flat
+            at = ((k * n_cells + c) * nd + hs) * nd  # Q(c, hs, .), flat
             # the robot's two uniforms of the step (qlearning.choose)
             a_lo, a_hi, s_lo, s_hi = pcg.two_steps(s_lo, s_hi, inc_lo, inc_hi, inc2_lo, inc2_hi)
             explore = epsilon > 0.0 and pcg.uniform(a_lo, a_hi) < epsilon
-            best = qlearning.best_of(q_f, at, free)
-            aa = qlearning.choose(q_f, at, free, best, explore, pcg.uniform(s_lo, s_hi), True)
+            best = qlearning.best_of(q_f, at, free, nd)
+            u_tie = pcg.uniform(s_lo, s_hi)
+            aa = qlearning.choose(q_f, at, free, best, explore, u_tie, True, nd)
             ask[k] = aa
             want[k] = nbrs[c, aa] if aa >= 0 else -1
         # --- the moves: the common step, every robot asking for a cell that is empty
@@ -456,7 +472,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(
                     w.uniforms, s.pos[r], s.head[r], w.open_mask, w.choosing, w.ask,
-                    epsilon, use_heading, q_f,
+                    epsilon, use_heading, q_f, ports_of(p.entry, p.nbrs.shape[1]),
                 )  # fmt: skip
             if spec == SPEC_ANY and battery:
                 stations.ask(r, p, s, w)
@@ -574,7 +590,10 @@ class Loop:
         self.words = words()
         battery = (p.battery, p.homes, p.home_dist, p.home_dir, p.nearest_home_dist)
         pockets = (p.depart_len, p.pocket_of, p.pocket_depth, p.pocket_entry)
-        consts = (p.neighbors, p.wall_legal, legal_bits(p.neighbors), p.dot_value, p.has_dot)
+        consts = (
+            p.neighbors, p.wall_legal, legal_bits(p.neighbors),
+            bundles.compiled_entry(p.neighbors, p.entry), p.dot_value, p.has_dot,
+        )  # fmt: skip
         rules = (p.communication, p.avoid_collisions, p.diameter, p.max_episode_steps)
         bp = bundles.Params(
             *consts, np.int64(n_dots), reward_w, *rules, p.episodes, *battery, *pockets,
@@ -593,7 +612,7 @@ class Loop:
         tl = self._timeline_args(timeline, n_runs, max_steps)
         bo = bundles.Out(tail_pos, tail.n, ep_buf, rec.transitions, watched, *ups, *tl)
         self.args = (self.words, bp, self.code, self.pack, bs, bm, bo)
-        self.args += (bundles.work(k, p.n_groups, p.n_cells),)
+        self.args += (bundles.work(k, p.n_groups, p.n_cells, p.neighbors.shape[1]),)
         self.timeline = timeline if timeline is not None and timeline.window else None
         # the arrays with a leading runs axis, sliced for a call on some runs only
         owners = [s, m, tail] + ([timeline] if self.timeline is not None else [])

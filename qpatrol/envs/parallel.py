@@ -40,14 +40,15 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
     :mod:`qpatrol.envs.observe`: the robot's cell, row, col, heading, battery and mode,
     then dot and idleness of its N, E, S, W neighbours (-1 for a wall).
 
-    Action: ``Discrete(4)``, 0..3 = N, E, S, W. ``infos[agent]["action_mask"]`` (int8
-    ``[4]``) marks the moves qpatrol's strategies choose from: the open moves (not into
-    a wall, a cell another robot stands in, or a station pocket another robot holds),
-    or every non-wall move when none is open. A move outside the mask is still applied
-    by the world's rules (into a wall: the robot stays; into a robot: it waits, or the
-    robot with right of way pushes). When the world moves the robot itself (homing,
-    queued or charging: ``infos[agent]["choosing"]`` False) the mask is all zero and the
-    action is ignored; an agent missing from the action dict, or given None, asks for
+    Action: ``Discrete(4)``, 0..3 = N, E, S, W (``Discrete(D)``, the cell's ports, on a
+    patrol graph). ``infos[agent]["action_mask"]`` (int8 ``[4]``, ``[D]``) marks the
+    moves qpatrol's strategies choose from: the open moves (not into a wall, a cell
+    another robot stands in, or a station pocket another robot holds), or every non-wall
+    move when none is open. A move outside the mask is still applied by the world's
+    rules (into a wall: the robot stays; into a robot: it waits, or the robot with right
+    of way pushes). When the world moves the robot itself (homing, queued or charging:
+    ``infos[agent]["choosing"]`` False) the mask is all zero and the action is ignored;
+    an agent missing from the action dict, or given None, asks for
     no move.
 
     Reward: the world's reward for the cell the robot entered in the step (dot, idleness
@@ -94,7 +95,9 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
         self.observation_spaces = {
             a: observe.space(self.sim, self.idleness_map) for a in self.possible_agents
         }
-        self.action_spaces = {a: spaces.Discrete(4) for a in self.possible_agents}
+        self.action_spaces = {
+            a: spaces.Discrete(self.sim.map.n_ports) for a in self.possible_agents
+        }
 
     def observation_space(self, agent: str) -> spaces.Box:
         return self.observation_spaces[agent]
@@ -122,7 +125,7 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
             if agent not in self._index:
                 raise ValueError(f"actions: unknown agent {agent!r}; allowed: {self.agents}")
             if action is not None:
-                choice[self._index[agent]] = _direction(action, agent)
+                choice[self._index[agent]] = _direction(action, agent, self.sim.map.n_ports)
         out = self.sim.step(choice)
         live = self.agents
         obs = self._observations()
@@ -155,12 +158,14 @@ class PatrolParallelEnv(WorldView, ParallelEnv):
         """Nothing to release."""
 
 
-def _direction(action: Any, who: str) -> int:
-    """An action as a direction 0..3; ValueError for anything else."""
+def _direction(action: Any, who: str, n_ports: int = 4) -> int:
+    """An action as a direction 0..3 (a port 0..n_ports-1 on a patrol graph);
+    ValueError for anything else."""
+    allowed = "0..3 (N, E, S, W)" if n_ports == 4 else f"0..{n_ports - 1} (the cell's ports)"
     try:
         a = int(action)
     except (TypeError, ValueError):
-        raise ValueError(f"action of {who}: got {action!r}; allowed: 0..3 (N, E, S, W)") from None
-    if a != action or not 0 <= a <= 3:
-        raise ValueError(f"action of {who}: got {action!r}; allowed: 0..3 (N, E, S, W)")
+        raise ValueError(f"action of {who}: got {action!r}; allowed: {allowed}") from None
+    if a != action or not 0 <= a < n_ports:
+        raise ValueError(f"action of {who}: got {action!r}; allowed: {allowed}")
     return a

@@ -174,7 +174,7 @@ class Sim:
         return out
 
     def open_moves(self) -> np.ndarray:
-        """bool ``[K, 4]``: the moves a choosing robot may take (all zero if not choosing).
+        """bool ``[K, D]``: the moves a choosing robot may take (all zero if not choosing).
 
         The open moves (:attr:`~qpatrol.world.Observation.open`), or every legal move
         where none is open, as qpatrol's strategies choose from

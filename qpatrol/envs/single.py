@@ -78,7 +78,7 @@ class PatrolEnv(WorldView, gymnasium.Env):
         self.team: strategies.base.Strategy | None = None
         self.idleness_map = bool(idleness_map)
         self.observation_space = observe.space(self.sim, self.idleness_map)
-        self.action_space = spaces.Discrete(4)
+        self.action_space = spaces.Discrete(self.sim.map.n_ports)
 
     def reset(
         self, *, seed: int | None = None, options: dict[str, Any] | None = None
@@ -101,7 +101,7 @@ class PatrolEnv(WorldView, gymnasium.Env):
             choice = self.team.act(sim.obs, sim.uniforms[None])[0].copy()
         else:
             choice = np.full(sim.n_agents, -1, dtype=np.int64)
-        choice[self.agent] = _direction(action, f"agent {self.agent}")
+        choice[self.agent] = _direction(action, f"agent {self.agent}", sim.map.n_ports)
         out = sim.step(choice)
         if self.team is not None:
             self.team.learn(out)

@@ -21,7 +21,8 @@ from qpatrol.world import Params
 
 @dataclass
 class ReferenceResult:
-    """What the loop leaves: ``q``/``n`` as dicts ``(agent, cell, heading) -> [4]``."""
+    """What the loop leaves: ``q``/``n`` as dicts ``(agent, cell, heading) -> [D]`` (D
+    ports: 4 on a grid)."""
 
     q: dict[tuple[int, int, int], list[float]]
     n: dict[tuple[int, int, int], list[int]]
@@ -29,9 +30,11 @@ class ReferenceResult:
     steps: int
 
     def arrays(self, n_cells: int, n_agents: int, q_init: list[float]) -> tuple[np.ndarray, ...]:
-        """``(q, n)`` as the core's ``[K, C, 4, 4]`` arrays (unvisited states at q_init)."""
-        q = np.broadcast_to(np.array(q_init, dtype=np.float64), (n_agents, n_cells, 4, 4)).copy()
-        n = np.zeros((n_agents, n_cells, 4, 4), dtype=np.int64)
+        """``(q, n)`` as the core's ``[K, C, D, D]`` arrays (unvisited states at q_init,
+        one value per port)."""
+        d = len(q_init)
+        q = np.broadcast_to(np.array(q_init, dtype=np.float64), (n_agents, n_cells, d, d)).copy()
+        n = np.zeros((n_agents, n_cells, d, d), dtype=np.int64)
         for key, row in self.q.items():
             q[key] = row
         for key, row in self.n.items():
@@ -55,12 +58,13 @@ def run(
         starts: the K start cells.
         u: float ``[T, K, 2]``, the run's uniforms (``u[..., 0]`` explore, ``u[..., 1]``
             ties), as :class:`qpatrol.world.rng.Streams` draws them.
-        q_init: the initial Q of N, E, S, W (multiplier applied).
+        q_init: the initial Q of each port (N, E, S, W on a grid; multiplier applied).
         gamma, epsilon: discount and exploration probability.
         use_heading: state ``(cell, heading)``; False: ``(cell, 0)``.
     """
     nbrs = p.neighbors.tolist()
-    legal_dirs = [[d for d in range(4) if row[d] >= 0] for row in nbrs]
+    entry = p.entry.tolist()  # the heading after a move (Map.entry: the move on a grid)
+    legal_dirs = [[d for d in range(len(row)) if row[d] >= 0] for row in nbrs]
     dot_value = p.dot_value.tolist()
     has_dot = p.has_dot.tolist()
     n_dots = sum(has_dot)
@@ -132,14 +136,14 @@ def run(
             )
             pos[k] = c1
             s = (k, c0, head[k] if use_heading else 0)
-            head[k] = a
-            nxt = q.get((k, c1, a if use_heading else 0)) or q_init
+            head[k] = h = entry[c0][a]
+            nxt = q.get((k, c1, h if use_heading else 0)) or q_init
             bootstrap = gamma * max([nxt[d] for d in legal_dirs[c1]])
             target = reward + bootstrap
             qs = q.get(s)
             if qs is None:
                 qs = q[s] = list(q_init)
-                n[s] = [0, 0, 0, 0]
+                n[s] = [0] * len(q_init)
             ns = n[s]
             ns[a] += 1
             alpha = 1.0 / ns[a]

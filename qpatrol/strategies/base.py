@@ -1,7 +1,8 @@
 """What every strategy is: a batch-shaped chooser of moves that may learn from outcomes.
 
 A strategy sees the world through an :class:`~qpatrol.world.Observation` and answers
-with one direction per robot (``int [R, K]``, 0..3 = N, E, S, W, -1 for no move); the
+with one port per robot (``int [R, K]``, 0..D-1; on a grid 0..3 = N, E, S, W; -1 for
+no move); the
 world asks it only for robots that are patrolling (homing and charging are the
 world's). After the step it receives the :class:`~qpatrol.world.Outcome` and may learn.
 Its own arrays carry the same leading runs axis ``R`` and robots axis ``K``.
@@ -76,7 +77,7 @@ class Strategy:
 
 
 def prefer_open(obs: Observation) -> np.ndarray:
-    """bool ``[R, K, 4]``: the open moves, or every legal move where none is open.
+    """bool ``[R, K, D]``: the open moves, or every legal move where none is open.
 
     Robots avoid cells other robots stand in (the paper's "avoiding"), but a robot
     hemmed in still asks for a move, so that the world can make room for it.
@@ -88,10 +89,10 @@ def choose_min(score: np.ndarray, mask: np.ndarray, u: np.ndarray) -> np.ndarray
     """int ``[R, K]``: the masked direction of least ``score``, ties broken by ``u``.
 
     Args:
-        score: float ``[R, K, 4]``.
-        mask: bool ``[R, K, 4]``, the directions allowed.
-        u: float ``[R, K]`` in [0, 1): the j-th tied direction (N, E, S, W order) is
-            taken, ``j = floor(u x ties)``.
+        score: float ``[R, K, D]``.
+        mask: bool ``[R, K, D]``, the ports allowed.
+        u: float ``[R, K]`` in [0, 1): the j-th tied port (port order: N, E, S, W on a
+            grid) is taken, ``j = floor(u x ties)``.
 
     Returns:
         The direction, or -1 where the mask allows none.
@@ -100,19 +101,19 @@ def choose_min(score: np.ndarray, mask: np.ndarray, u: np.ndarray) -> np.ndarray
     best = masked.min(axis=-1, keepdims=True)
     cand = mask & (masked == best)
     shape = cand.shape[:-1]
-    action, has = pick(cand.reshape(-1, 4), u.reshape(-1))
+    action, has = pick(cand.reshape(-1, cand.shape[-1]), u.reshape(-1))
     return np.where(has, action, -1).reshape(shape)
 
 
 def neighbour_values(values: np.ndarray, obs: Observation, per_group: bool) -> np.ndarray:
-    """float ``[R, K, 4]``: a per-cell map read at each robot's four neighbours.
+    """float ``[R, K, D]``: a per-cell map read at each robot's D neighbours.
 
     Args:
         values: ``[R, G, C]`` (``per_group``: the robot's group map) or ``[R, K, C]``.
         obs: the observation (robots' cells, groups).
     """
     s, p = obs.state, obs.params
-    targets = np.maximum(p.neighbors[s.pos], 0)  # [R, K, 4]
+    targets = np.maximum(p.neighbors[s.pos], 0)  # [R, K, D]
     rows = np.arange(s.n_runs)[:, None, None]
     plane = obs.group_of()[None, :, None] if per_group else np.arange(p.n_agents)[None, :, None]
     return values[rows, plane, targets]

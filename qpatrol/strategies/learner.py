@@ -33,10 +33,11 @@ def choose(
     """Greedy action with random tie-breaks, or a random legal one with probability epsilon.
 
     Args:
-        q_row: float ``[B, 4]``, Q(s, a) for the four directions.
-        legal: bool ``[B, 4]``, the actions that may be taken.
+        q_row: float ``[B, D]``, Q(s, a) for the D ports (four directions on a grid).
+        legal: bool ``[B, D]``, the actions that may be taken.
         u_explore: float ``[B]`` in [0, 1): explore when ``u_explore < epsilon``.
-        u_pick: float ``[B]`` in [0, 1): picks among the candidates, in N, E, S, W order.
+        u_pick: float ``[B]`` in [0, 1): picks among the candidates, in port order (N, E,
+            S, W on a grid).
         epsilon: probability of choosing uniformly among legal actions (a float, or
             float ``[B]``, one per row).
 
@@ -51,22 +52,29 @@ def choose(
     return pick(cand, u_pick)
 
 
-#: Candidate masks as 4-bit numbers (N=1, E=2, S=4, W=8): how many candidates each has,
-#: and the j-th candidate's direction in N, E, S, W order.
-_BITS = np.array([1, 2, 4, 8])
-_COUNT = np.array([bin(m).count("1") for m in range(16)])
+#: Candidate masks as D-bit numbers (port p is bit ``1 << p``; on a grid N=1, E=2, S=4,
+#: W=8), for any D up to 8: how many candidates each has, and the j-th candidate's port
+#: in port order (N, E, S, W on a grid). A mask of the first four ports reads the rows
+#: and columns the 4-bit tables had, so a grid's choices are what they were.
+MAX_PORTS = 8
+_BITS = 1 << np.arange(MAX_PORTS)
+_COUNT = np.array([bin(m).count("1") for m in range(1 << MAX_PORTS)])
 _NTH = np.array(
-    [[d for d in range(4) if m >> d & 1] + [0] * (4 - bin(m).count("1")) for m in range(16)]
+    [
+        [d for d in range(MAX_PORTS) if m >> d & 1] + [0] * (MAX_PORTS - bin(m).count("1"))
+        for m in range(1 << MAX_PORTS)
+    ]
 )
 
 
 def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Choose uniformly among the True entries of each row of ``cand`` ``[B, 4]``.
+    """Choose uniformly among the True entries of each row of ``cand`` ``[B, D]``.
 
-    The j-th candidate (in N, E, S, W order) is taken, ``j = floor(u * n_candidates)``.
-    Returns ``(action [B], has_move [B])``; action is 0 where there is no candidate.
+    The j-th candidate (in port order: N, E, S, W on a grid) is taken,
+    ``j = floor(u * n_candidates)``. Returns ``(action [B], has_move [B])``; action is 0
+    where there is no candidate.
     """
-    mask = cand @ _BITS
+    mask = cand @ _BITS[: cand.shape[-1]]
     count = _COUNT[mask]
     j = np.minimum((u * count).astype(np.int64), np.maximum(count - 1, 0))
     return _NTH[mask, j], count > 0
@@ -79,8 +87,8 @@ def td_target(
 
     Args:
         reward: float ``[B]``.
-        q_next: float ``[B, 4]``, Q(s', .).
-        legal_next: bool ``[B, 4]``, the non-wall moves out of s'.
+        q_next: float ``[B, D]``, Q(s', .).
+        legal_next: bool ``[B, D]``, the non-wall moves out of s'.
         gamma: a float, or float ``[B]``, one per row.
     """
     bootstrap = gamma * np.where(legal_next, q_next, -np.inf).max(axis=1)

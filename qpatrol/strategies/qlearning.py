@@ -1,7 +1,9 @@
 """``qlearning``: the paper's learner (Hernandez et al. §3-§4), one Q-table per robot.
 
 State ``(cell, heading)``, heading being the direction of the move that brought the
-robot to its cell (``learning.state_space: cell`` drops it). The robot acts greedily
+robot to its cell (``learning.state_space: cell`` drops it); on a patrol graph the
+port of its cell it arrived through (:attr:`qpatrol.maps.Map.entry`), so a graph's
+table has D heading slots and D moves. The robot acts greedily
 over its open moves (moves into walls are never choices; moves into cells where
 another robot stands are avoided while an open move exists), ties broken by the run's
 stream, with an optional ``learning.epsilon`` of uniformly random moves. After a move
@@ -11,7 +13,9 @@ it chose and made, ``s -a-> s'`` with the world's reward ``r``::
     Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a' not into a wall} Q(s',a') - Q(s,a))
 
 A robot that waits, is pushed aside, or moves home does not update. The initial
-table is ``q_init x multiplier`` for every state (North 3, West 2, East 2, South 1).
+table is ``q_init x multiplier`` for every state (North 3, West 2, East 2, South 1); on
+a patrol graph, whose ports have no compass direction, every move starts at
+``multiplier x`` the largest ``q_init``.
 """
 
 from __future__ import annotations
@@ -33,7 +37,8 @@ if TYPE_CHECKING:
 
 
 class Strategy(base.Strategy):
-    """Tabular Q-learning; ``q`` (float64) and ``n`` are ``[R, K, C, 4 heading, 4 action]``.
+    """Tabular Q-learning; ``q`` (float64) and ``n`` are ``[R, K, C, D heading, D action]``
+    (``D`` = 4 on a grid).
 
     ``n`` is kept as int32 (a count never exceeds the steps of a run, at most 10**9) and
     written as int64 (:meth:`tables`); ``1.0 / (n + 1)`` is the same float either way.
@@ -62,14 +67,15 @@ class Strategy(base.Strategy):
         """Take the values of :data:`RUN_KEYS` that differ between the batch's rows
         (config key -> float64 ``[R]``; the others from the config) and, with ``table``,
         set the initial table ``q`` from them. ``gamma`` and ``epsilon`` are then
-        floats, or float64 ``[R]`` where the rows differ; ``q_init`` is ``[4]`` or
-        ``[R, 4]``."""
+        floats, or float64 ``[R]`` where the rows differ; ``q_init`` is ``[D]`` or
+        ``[R, D]``."""
         cfg, values = self.cfg, values or {}
         q_init = np.array([cfg[f"learning.q_init.{d}"] for d in DIRECTIONS], dtype=np.float64)
-        self.q_init = q_init * cfg["learning.multiplier"]
+        self.q_init = self._per_port(q_init * cfg["learning.multiplier"])
         self.gamma = float(cfg["learning.gamma"])
         self.epsilon = float(cfg["learning.epsilon"])
-        shape = (self.n_runs, self.n_agents, self.params.n_cells, 4, 4)
+        d = self.map.n_ports
+        shape = (self.n_runs, self.n_agents, self.params.n_cells, d, d)
         if any(f"learning.q_init.{d}" in values for d in DIRECTIONS) or (
             "learning.multiplier" in values
         ):
@@ -77,7 +83,7 @@ class Strategy(base.Strategy):
             for i, d in enumerate(DIRECTIONS):
                 rows[:, i] = values.get(f"learning.q_init.{d}", cfg[f"learning.q_init.{d}"])
             mult = values.get("learning.multiplier", cfg["learning.multiplier"])
-            self.q_init = rows * np.asarray(mult, dtype=np.float64).reshape(-1, 1)
+            self.q_init = self._per_port(rows * np.asarray(mult, dtype=np.float64).reshape(-1, 1))
             if table:
                 self.q = np.broadcast_to(self.q_init[:, None, None, None, :], shape).copy()
         elif table:  # one run's table, copied into each run's (faster than one broadcast)
@@ -88,6 +94,14 @@ class Strategy(base.Strategy):
         if "learning.epsilon" in values:
             self.epsilon = np.asarray(values["learning.epsilon"], dtype=np.float64)
 
+    def _per_port(self, q_init: np.ndarray) -> np.ndarray:
+        """The initial values ``[..., 4]`` (N, E, S, W) as one per port ``[..., D]``: the
+        same on a grid; on a patrol graph the largest of the four for every port."""
+        if not self.map.is_graph:
+            return q_init
+        top = q_init.max(axis=-1, keepdims=True)
+        return np.repeat(top, self.map.n_ports, axis=-1)
+
     def _heading(self, head: np.ndarray) -> np.ndarray:
         return head if self.use_heading else np.zeros_like(head)
 
@@ -95,11 +109,12 @@ class Strategy(base.Strategy):
         s = obs.state
         rows = np.arange(s.n_runs)[:, None]
         agents = np.arange(self.n_agents)[None, :]
-        q_row = self.q[rows, agents, s.pos, self._heading(s.head)]  # [R, K, 4]
+        q_row = self.q[rows, agents, s.pos, self._heading(s.head)]  # [R, K, D]
         R, K = s.pos.shape
+        d = q_row.shape[-1]
         action, can = learner.choose(
-            q_row.reshape(-1, 4),
-            base.prefer_open(obs).reshape(-1, 4),
+            q_row.reshape(-1, d),
+            base.prefer_open(obs).reshape(-1, d),
             u[..., 0].reshape(-1),
             u[..., 1].reshape(-1),
             self.epsilon if np.ndim(self.epsilon) == 0 else np.repeat(self.epsilon, K),
@@ -115,7 +130,7 @@ class Strategy(base.Strategy):
         ha = self._heading(out.prev_head[rr, kk])
         aa = out.ask[rr, kk]
         cb = p.neighbors[ca, aa]
-        hb = self._heading(aa)
+        hb = self._heading(p.entry[ca, aa])  # the heading after the move
         reward = out.reward[rr, kk]
         target, bootstrap = learner.td_target(
             reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], per_row(self.gamma, rr)

@@ -6,10 +6,11 @@ idleness information in their state. Not the paper's model (that is ``qlearning`
 untouched); every key is ``qidle.*``.
 
 State ``(cell, heading, idlest)``: ``heading`` is the direction of the move that
-brought the robot to its cell (as in ``qlearning``), ``idlest`` the direction of the
-robot's non-wall neighbour visited longest ago on its last-visit map (the team's
-shared map with communication on, its own otherwise), first in N, E, S, W order on a
-tie. ``qidle.state`` drops a part (ablations): ``cell_heading``, ``cell_idle``.
+brought the robot to its cell (as in ``qlearning``; on a patrol graph the port it
+arrived through), ``idlest`` the port (direction, on a grid) of the robot's non-wall
+neighbour visited longest ago on its last-visit map (the team's shared map with
+communication on, its own otherwise), first in port order (N, E, S, W) on a tie.
+``qidle.state`` drops a part (ablations): ``cell_heading``, ``cell_idle``.
 
 Reward of entering ``s'`` at team step ``t`` (``qidle.reward``):
 
@@ -65,18 +66,18 @@ STATES = {
 
 
 def idlest(last: np.ndarray, cells: np.ndarray, neighbors: np.ndarray) -> np.ndarray:
-    """int ``[...]``: direction of the non-wall neighbour of ``cells`` visited longest ago.
+    """int ``[...]``: port of the non-wall neighbour of ``cells`` visited longest ago.
 
     Args:
         last: int ``[..., C]``, the last-visit map each entry of ``cells`` reads.
         cells: int ``[...]``.
-        neighbors: int ``[C, 4]``, -1 for a wall.
+        neighbors: int ``[C, D]``, -1 for a wall.
 
-    Ties go to the first direction in N, E, S, W order (deterministic, not random: the
-    feature is part of the state).
+    Ties go to the first port (N, E, S, W order on a grid; deterministic, not random:
+    the feature is part of the state).
     """
-    nb = neighbors[cells]  # [..., 4]
-    seen = np.take_along_axis(last, np.maximum(nb, 0).reshape(*cells.shape, 4), axis=-1)
+    nb = neighbors[cells]  # [..., D]
+    seen = np.take_along_axis(last, np.maximum(nb, 0).reshape(*cells.shape, nb.shape[-1]), axis=-1)
     seen = np.where(nb >= 0, seen, np.iinfo(np.int64).max)
     return seen.argmin(axis=-1)
 
@@ -96,14 +97,14 @@ def td_step(
     """
     n_after = n_sa + 1
     a = alpha if alpha > 0 else 1.0 / n_after
-    best = max(float(q_next[b]) for b in range(4) if legal_next[b])
+    best = max(float(q_next[b]) for b in range(len(q_next)) if legal_next[b])
     return q_sa + a * (reward + gamma * best - q_sa), n_after
 
 
 class Strategy(base.Strategy):
     """Tabular Q-learning over ``(cell, heading, idlest)``; ``q``, ``n``:
-    ``[R, P, C, H, F, 4]`` with ``P`` tables per run (1 shared, or one per robot),
-    ``H`` 4 headings (1 without), ``F`` 4 idlest directions (1 without)."""
+    ``[R, P, C, H, F, D]`` with ``P`` tables per run (1 shared, or one per robot),
+    ``H`` D headings (1 without), ``F`` D idlest ports (1 without); ``D`` = 4 on a grid."""
 
     name = "qlearning-idleness"
     learns = True
@@ -122,13 +123,14 @@ class Strategy(base.Strategy):
         self.use_heading, self.use_idle = STATES[cfg["qidle.state"]]
         self.shared = bool(cfg["qidle.share"]) and p.communication
         planes = 1 if self.shared else p.n_agents
+        d = m.n_ports
         shape = (
             self.n_runs,
             planes,
             p.n_cells,
-            4 if self.use_heading else 1,
-            4 if self.use_idle else 1,
-            4,
+            d if self.use_heading else 1,
+            d if self.use_idle else 1,
+            d,
         )
         self.q = np.full(shape, float(cfg["qidle.q_init"]))
         self.n = np.zeros(shape, dtype=np.int32)  # a count never exceeds 10**9 (steps)
@@ -172,11 +174,11 @@ class Strategy(base.Strategy):
         return np.minimum(self.cap, (t - self.last[rows, groups, cells]) / self.scale)
 
     def known_rewards(self, cells: np.ndarray, t: int) -> np.ndarray:
-        """float ``[R, K, 4]``: the reward each move out of ``cells`` would earn at step
+        """float ``[R, K, D]``: the reward each move out of ``cells`` would earn at step
         ``t`` (0 without ``qidle.known_reward``; walls: 0, never chosen)."""
         if not self.known:
-            return np.zeros((*cells.shape, 4))
-        nb = np.maximum(self.params.neighbors[cells], 0)  # [R, K, 4]
+            return np.zeros((*cells.shape, self.params.neighbors.shape[1]))
+        nb = np.maximum(self.params.neighbors[cells], 0)  # [R, K, D]
         rows = np.arange(self.n_runs)[:, None, None]
         return self.reward_of(nb, self.group()[None, :, None], rows, t)
 
@@ -189,9 +191,10 @@ class Strategy(base.Strategy):
         rows = np.arange(R)[:, None]
         q_row = self.q[rows, self.plane()[None, :], s.pos, self.heading_slot(s.head), self.feat]
         score = q_row + self.known_rewards(s.pos, obs.t)
+        d = score.shape[-1]
         action, can = learner.choose(
-            score.reshape(-1, 4),
-            base.prefer_open(obs).reshape(-1, 4),
+            score.reshape(-1, d),
+            base.prefer_open(obs).reshape(-1, d),
             u[..., 0].reshape(-1),
             u[..., 1].reshape(-1),
             self.epsilon_at(obs.t),
@@ -225,9 +228,10 @@ class Strategy(base.Strategy):
         p = self.params
         cb = out.pos
         next_feat = self.features(cb)
-        next_known = self.known_rewards(cb, out.t + 1)  # [R, K, 4]
+        next_known = self.known_rewards(cb, out.t + 1)  # [R, K, D]
         ha = self.heading_slot(out.prev_head)
-        hb = self.heading_slot(np.maximum(out.ask, 0))
+        # the heading after the move (Map.entry: the move's direction on a grid)
+        hb = self.heading_slot(p.entry[out.prev_pos, np.maximum(out.ask, 0)])
         planes = self.plane()
         # with the reward known before the move, Q is the value after it: no r in the target
         paid = 0.0 if self.known else 1.0

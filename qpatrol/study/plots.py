@@ -1010,8 +1010,9 @@ def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Pat
             ylabel = f"{label} (team steps)" if c == 0 else label
             if log:
                 _log_y(ax, ylabel)
-            else:
+            else:  # a count: its interval's lower end is cut at 0
                 ax.set_ylabel(ylabel)
+                ax.set_ylim(bottom=0)
             ax.set_xticks(ks, [str(k) for k in ks])
             ax.xaxis.set_minor_formatter(NullFormatter())
             ax.grid(alpha=0.3, lw=0.4, which="both")
@@ -1032,9 +1033,9 @@ def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Pat
     )
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     window = f", {int(df['window'].min()):,} steps measured" if "window" in df.columns else ""
-    rows = -(-len(names) // 8)
+    rows = -(-len(names) // 8)  # legend rows
     fig.suptitle(title.format(runs=runs, window=window), fontsize=10, y=1.0 + 0.025 * rows)
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows))
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.3 * 4 / fig.get_figheight()))
     return _save(fig, out)
 
 

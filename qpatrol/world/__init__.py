@@ -8,10 +8,12 @@ what they watch. The full model, in words, is ``docs/model.md``.
 
 Description (paper §2)
     Each free cell of the map is a *state*; robots move North, East, South or West
-    (0..3), never into a wall. Dots lie on the free cells; entering a dot cell eats its
-    dot. When every dot of a dot map is eaten the episode ends and the next one starts
-    at once with all dots back and the robots where they are. An episode still running
-    after ``max_episode_steps`` team steps ends as *truncated*.
+    (0..3), never into a wall; on a patrol graph they move by a cell's ports 0..D-1
+    (:attr:`qpatrol.maps.Map.entry` gives the heading after each move). Dots lie on the
+    free cells; entering a dot cell eats its dot. When every dot of a dot map is eaten
+    the episode ends and the next one starts at once with all dots back and the robots
+    where they are. An episode still running after ``max_episode_steps`` team steps ends
+    as *truncated*.
 
 Reward on entering ``s'`` (what a learning strategy is paid)
     ``dot(s') + incremental_value * min(1, idle(s') / idle_horizon) + lambda_w * lambda``
@@ -48,19 +50,21 @@ PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUE
 class Params:
     """Everything constant during a run, built once from a config and a map.
 
-    Cell arrays are ``[C]`` or ``[C, 4]``; station arrays ``[H]`` or ``[H, C]``.
+    Cell arrays are ``[C]`` or ``[C, D]`` (``D`` ports: 4 on a grid, N, E, S, W);
+    station arrays ``[H]`` or ``[H, C]``.
     """
 
     n_cells: int
     n_agents: int
-    neighbors: np.ndarray  # int [C, 4], next state per direction, -1 = wall
-    wall_legal: np.ndarray  # bool [C, 4], move is not into a wall
+    neighbors: np.ndarray  # int [C, D], next state per port, -1 = wall (no move)
+    wall_legal: np.ndarray  # bool [C, D], move is not into a wall
+    entry: np.ndarray  # int [C, D], heading after the move out of c by port p (Map.entry)
     dot_value: np.ndarray  # float [C], reward of the dot initially on the cell (0 if none)
     has_dot: np.ndarray  # bool [C], the cell holds a dot at an episode's start
     homes: np.ndarray  # int [H], states of charging stations
     station_of: np.ndarray  # int [C], index into homes of the station on a cell, -1 if none
     home_dist: np.ndarray  # int [H, C], moves from cell to station h
-    home_dir: np.ndarray  # int [H, C], first direction on a shortest path to h (-1 at h)
+    home_dir: np.ndarray  # int [H, C], first port on a shortest path to h (-1 at h)
     nearest_home_dist: np.ndarray  # int [C]
     depart_len: np.ndarray  # int [H], moves from station h to the nearest junction (>= 1)
     pocket_of: np.ndarray  # int [C], the station whose dead-end pocket holds the cell, -1
@@ -122,7 +126,7 @@ def make_params(cfg: Config, m: Map) -> Params:
     home_dir = np.full((homes.size, c), -1, dtype=np.int64)
     for i in range(homes.size):
         d = home_dist[i]
-        for direction in range(3, -1, -1):  # N wins ties: written last
+        for direction in range(m.n_ports - 1, -1, -1):  # port 0 (N) wins ties: written last
             nb = m.neighbors[:, direction]
             ok = (nb >= 0) & (d[np.maximum(nb, 0)] == d - 1)
             home_dir[i, ok] = direction
@@ -163,6 +167,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         n_agents=k,
         neighbors=m.neighbors,
         wall_legal=m.neighbors >= 0,
+        entry=m.entry,
         dot_value=dot_value,
         has_dot=has_dot,
         homes=homes,
@@ -177,7 +182,8 @@ def make_params(cfg: Config, m: Map) -> Params:
         starts=m.starts,
         target=m.target,
         diameter=int(dist.max()),
-        initial_heading=DIRECTIONS.index(cfg["learning.initial_heading"]),
+        # on a patrol graph a heading is a port, not a compass direction: port 0
+        initial_heading=0 if m.is_graph else DIRECTIONS.index(cfg["learning.initial_heading"]),
         incremental_value=float(cfg["reward.incremental_value"]),
         idle_horizon=float(cfg["reward.idle_horizon"]),
         lambda_weight=float(cfg["reward.lambda"]),
@@ -261,7 +267,8 @@ class State:
     Attributes:
         t: team steps taken so far (the same for every run).
         pos: int ``[R, K]``, the cell of each robot.
-        head: int ``[R, K]``, direction of each robot's last move.
+        head: int ``[R, K]``, each robot's heading: the direction of its last move on a
+            grid, the port of its cell it arrived through on a graph (``Map.entry``).
         occ: int ``[R, C]``, the robot standing on each cell, -1 if none.
         dots: bool ``[R, G, C]``, dot still present on a group's dot map.
         last: int ``[R, G, C]``, team step of the group's last visit of a cell (0 = never).
@@ -270,7 +277,7 @@ class State:
         ep_start: int ``[R, G]``, team step at which the current episode started (0-based).
         ep_count: int ``[R, G]``, episodes ended so far.
         ep_seen: bool ``[R, G, C]``, cells entered this episode.
-        ep_seen_state: bool ``[R, G, C, 4]``, (cell, heading) states entered this episode.
+        ep_seen_state: bool ``[R, G, C, D]``, (cell, heading) states entered this episode.
         charge: int ``[R, K]``, battery left (never below 0).
         mode: int ``[R, K]``, PATROL, HOMING, QUEUED or CHARGING (:mod:`qpatrol.world.battery`).
         rest: int ``[R, K]``, charging steps left.
@@ -411,7 +418,7 @@ def init_state(p: Params, start_cells: np.ndarray) -> State:
         ep_start=zeros_rg.copy(),
         ep_count=zeros_rg.copy(),
         ep_seen=np.zeros((r, g, c), dtype=bool),
-        ep_seen_state=np.zeros((r, g, c, 4), dtype=bool),
+        ep_seen_state=np.zeros((r, g, c, p.neighbors.shape[1]), dtype=bool),
         charge=battery.initial_charge(p, pos),
         mode=np.full((r, k), PATROL, dtype=np.int64),
         rest=zeros_rk.copy(),
@@ -437,8 +444,8 @@ class Observation:
         params: the world's parameters.
         choosing: bool ``[R, K]``, robots whose strategy chooses this step (patrolling,
             in an active run).
-        legal: bool ``[R, K, 4]``, moves that do not run into a wall.
-        open: bool ``[R, K, 4]``, legal moves into a cell no other robot stands in at the
+        legal: bool ``[R, K, D]``, moves that do not run into a wall.
+        open: bool ``[R, K, D]``, legal moves into a cell no other robot stands in at the
             start of the step, and not into the pocket of a station another robot holds
             (:mod:`qpatrol.world.battery`); for the robot holding the right of way, every legal
             move outside such pockets.
@@ -461,7 +468,7 @@ def begin_step(state: State, p: Params) -> Observation:
     """Battery bookkeeping for the step about to start, then what strategies see."""
     s = state
     battery.begin(s, p, s.t + 1)
-    targets = p.neighbors[s.pos]  # [R, K, 4]
+    targets = p.neighbors[s.pos]  # [R, K, D]
     legal = targets >= 0
     if p.battery:
         legal_open = legal & ~battery.closed_cells(s, p, targets)
@@ -489,8 +496,8 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         state: the world (modified).
         p: its parameters.
         obs: what :func:`begin_step` returned for this step.
-        choice: int ``[R, K]``, the direction (0..3) each choosing robot asks for; -1 (or
-            a wall) for no move. Ignored for robots that are not choosing.
+        choice: int ``[R, K]``, the port (0..D-1; N, E, S, W on a grid) each choosing
+            robot asks for; -1 (or a wall) for no move. Ignored for robots that are not choosing.
     """
     s = state
     s.t += 1
@@ -524,14 +531,17 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     moved = res.moved
     reward = np.zeros((R, K))
     eaten = np.zeros((R, K), dtype=bool)
+    # the heading after the move: the direction moved on a grid, the port arrived
+    # through on a graph (Map.entry)
     direction = traffic.direction_of(p, prev_pos, s.pos)
+    heading = np.take_along_axis(p.entry[prev_pos], direction[..., None], axis=-1)[..., 0]
     for k in range(K):
         rows = np.flatnonzero(moved[:, k])
         if rows.size == 0:
             continue
         g = 0 if p.communication else k
         c1 = s.pos[rows, k]
-        a = direction[rows, k]
+        a = heading[rows, k]
         ate = s.dots[rows, g, c1]
         s.dots[rows, g, c1] = False
         s.dots_left[rows, g] -= ate

@@ -176,7 +176,7 @@ def way_out(s: State, p: Params, station: np.ndarray) -> np.ndarray:
     h = np.maximum(station, 0)
     inside = p.pocket_of[s.pos] == h
     on_entry = s.pos == p.pocket_entry[h]
-    nbr = p.neighbors[s.pos]  # [R, K, 4]
+    nbr = p.neighbors[s.pos]  # [R, K, D]
     nb = np.maximum(nbr, 0)
     shallower = (nbr >= 0) & (
         (p.pocket_of[nb] != h[..., None]) | (p.pocket_depth[nb] < p.pocket_depth[s.pos][..., None])
@@ -209,14 +209,14 @@ def held_pockets(s: State, p: Params, r: int) -> np.ndarray:
 
 
 def closed_cells(s: State, p: Params, targets: np.ndarray) -> np.ndarray:
-    """bool ``[R, K, 4]``: moves deeper into the pocket of a station another robot holds.
+    """bool ``[R, K, D]``: moves deeper into the pocket of a station another robot holds.
 
     Moving out of such a pocket stays open, so robots inside leave it.
     """
     if p.homes.size == 0:
         return np.zeros(targets.shape, dtype=bool)
     t = np.maximum(targets, 0)
-    h = p.pocket_of[t]  # [R, K, 4]
+    h = p.pocket_of[t]  # [R, K, D]
     rows = np.arange(s.n_runs)[:, None, None]
     holder = s.reserved[rows, np.maximum(h, 0)]
     here = s.pos[..., None]

@@ -2,7 +2,7 @@
 
 * ``record.watch`` must name states of the map.
 * The memory a run needs is estimated from the world's and the strategy's arrays
-  (:func:`bytes_per_run`: for Q-learning agents x cells x 16 Q-values and visit counts;
+  (:func:`bytes_per_run`: for Q-learning agents x cells x D x D Q-values and visit counts;
   dot maps, visit counts, the trajectory buffer, the Q-update log), plus what a batch
   needs whatever its runs (:func:`batch_bytes`: the all-pairs distances of the map).
   :func:`qpatrol.run.simulate` computes the runs in consecutive batches of at most
@@ -36,18 +36,19 @@ class Estimate:
 
 def bytes_per_run(cfg: Config, m: Map) -> int:
     """Estimated bytes one run adds to a batch of ``cfg`` on ``m``: the world state, the
-    strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, cells, 4,
-    4]``), the measures and the recorders (trajectory ring, timeline, Q-update rows)."""
-    k, c = cfg["agents"], m.n_cells
+    strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, cells, D,
+    D]``, D = 4 on a grid), the measures and the recorders (trajectory ring, timeline,
+    Q-update rows)."""
+    k, c, d = cfg["agents"], m.n_cells, m.n_ports
     g = 1 if cfg["team.communication"] else k
     policy = cfg["policy"]
     strategy = {
-        "qlearning": k * c * 16 * (8 + 4),  # q float64 and n int32
+        "qlearning": k * c * d * d * (8 + 4),  # q float64 and n int32
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
         # q float64 and n int32 (one table, or one per robot), its own last-visit and
         # dot maps
-        "qlearning-idleness": k * c * 64 * (8 + 4) + g * c * 9,
+        "qlearning-idleness": k * c * d**3 * (8 + 4) + g * c * 9,
     }.get(policy, 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
     timeline = 0
@@ -55,7 +56,7 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         timeline = (cfg["steps"] // cfg["record.timeline"] + 1) * 6 * 8 + c * 8
     return (
         strategy
-        + g * c * (1 + 8 + 1 + 4)  # dots, last visit, cells and states seen this episode
+        + g * c * (1 + 8 + 1 + d)  # dots, last visit, cells and states seen this episode
         + 2 * c * 8  # cell occupancy, measures' last visits
         + 2 * c * 8  # measures' interval sums and counts by target
         + 2 * k * c * 8  # visits, window visits
@@ -84,10 +85,10 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
     """Estimated bytes of one run's results kept until its folder is written, whatever
     the batches: the learner's tables (``n`` also as the int64 written to
     ``q_table.npz``), visit counts, recorded rows and the summary."""
-    k, c = cfg["agents"], m.n_cells
+    k, c, d = cfg["agents"], m.n_cells, m.n_ports
     tables = {
-        "qlearning": k * c * 16 * (8 + 4 + 8),
-        "qlearning-idleness": k * c * 64 * (8 + 4 + 8),
+        "qlearning": k * c * d * d * (8 + 4 + 8),
+        "qlearning-idleness": k * c * d**3 * (8 + 4 + 8),
     }.get(cfg["policy"], 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
     windows = cfg["steps"] // cfg["record.timeline"] + 1 if cfg["record.timeline"] else 0

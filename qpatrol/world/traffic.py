@@ -70,8 +70,8 @@ def priority(s: State, t: int) -> np.ndarray:
 
 
 def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) -> np.ndarray:
-    """bool ``[4]``: the moves robot ``k`` of run ``r`` can make as the holder of the right
-    of way: among ``legal_open`` (bool ``[4]``), those into an empty cell or into one a
+    """bool ``[D]``: the moves robot ``k`` of run ``r`` can make as the holder of the right
+    of way: among ``legal_open`` (bool ``[D]``), those into an empty cell or into one a
     push empties (:func:`_push_path`: not through the holder's cell, charging robots nor
     held pockets). The world offers the holder these as its open moves, so a holder
     whose strategy chooses among open moves always makes the move it chose."""
@@ -80,7 +80,7 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
     occ = s.occ[r].tolist()
     may_move = (s.mode[r] != battery.CHARGING).tolist()
     out = battery.held_pockets(s, p, r).tolist() if p.battery else None
-    ok = np.zeros(4, dtype=bool)
+    ok = np.zeros(len(legal_open), dtype=bool)
     for d, cell in enumerate(nbrs[own]):
         if cell >= 0 and legal_open[d]:
             ok[d] = occ[cell] < 0 or _push_path(nbrs, occ, own, cell, may_move, out) is not None
@@ -173,7 +173,7 @@ def _holder_move(
     """``(cell, push path)``: where the token holder goes, -1 if nowhere.
 
     Its asked cell first (empty, or emptied by a push); if that cannot be had, the
-    first other neighbour (N, E, S, W) that is empty or can be emptied, so that a
+    first other neighbour (N, E, S, W: port order) that is empty or can be emptied, so that a
     holder stuck in a jam steps aside and lets the jam unwind.
     """
     nbrs = _neighbour_lists(p)
@@ -280,5 +280,5 @@ def pass_token(
 
 
 def direction_of(p: Params, before: np.ndarray, after: np.ndarray) -> np.ndarray:
-    """int ``[R, K]``: the direction of the move ``before -> after`` (0 if no move)."""
+    """int ``[R, K]``: the port (direction) of the move ``before -> after`` (0 if no move)."""
     return (p.neighbors[before] == after[..., None]).argmax(axis=-1)

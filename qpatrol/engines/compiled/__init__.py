@@ -27,6 +27,7 @@ from qpatrol.engines.compiled import (
     random,
     shared_conscientious,
 )
+from qpatrol.engines.compiled.choice import ports_of
 from qpatrol.engines.compiled.pack import Pack
 
 # a sweep's worker processes compile different loops (signatures of one function) side
@@ -98,12 +99,15 @@ def act(code, r, t, ur, battery, p, s, w, sp):
 
     ``p``, ``s``, ``w``: the loop's ``Params``, ``World`` (the world as the step
     starts) and ``Work`` (:mod:`qpatrol.engines.compiled.bundles`), ``w.open_mask`` bool
-    ``[K, 4]`` the world's open moves (every legal move where none is open); ``sp``:
+    ``[K, D]`` the world's open moves (every legal move where none is open); ``sp``:
     the strategy's :class:`Pack`."""
     nbrs, pos, open_mask, choosing, ask = p.nbrs, s.pos, w.open_mask, w.choosing, w.ask
     if code == QLEARNING:
         _, epsilon, use_heading, q_f, _ = qlearning.tables(sp, r)
-        qlearning.act(ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f)
+        nd = ports_of(p.entry, nbrs.shape[1])
+        qlearning.act(
+            ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f, nd
+        )
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r,
@@ -118,19 +122,20 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             choosing,
             ask,
             sp,
+            w.score,
         )
     elif code == RANDOM:
         random.act(ur, open_mask, choosing, ask)
     elif code == CONSCIENTIOUS:
-        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i)
+        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i, w.score)
     elif code == SHARED_CONSCIENTIOUS:
         shared_conscientious.act(
-            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask
+            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask, w.score
         )
     elif code == EVAP:
         evap.act(
             r, t, ur, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
-            sp.cell_i, sp.fpar,
+            sp.cell_i, sp.fpar, w.score,
         )  # fmt: skip
     elif code == CYCLIC or code == PARTITION:
         follow.act(

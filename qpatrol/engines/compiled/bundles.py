@@ -24,10 +24,18 @@ class Params(NamedTuple):
     """The batch's constants (:class:`qpatrol.world.Params`).
 
     Attributes:
-        nbrs: int64 ``[C, 4]``, each cell's neighbour N, E, S, W (-1: wall).
-        wall_legal: bool ``[C, 4]``, the legal moves.
-        cell_moves: int64 ``[C]``, the legal moves as 4 bits
+        nbrs: int64 ``[C, D]``, each cell's neighbour by port (N, E, S, W on a grid;
+            -1: wall).
+        wall_legal: bool ``[C, D]``, the legal moves.
+        cell_moves: int64 ``[C]``, the legal moves as D bits
             (:func:`qpatrol.engines.compiled.choice.legal_bits`), read with ``MASKED``.
+        entry: int64 ``[C, D]``, the heading after the move out of a cell by a port
+            (:attr:`qpatrol.maps.Map.entry`), or None on a grid (4 ports, each move's
+            heading the move itself: :func:`compiled_entry`). None is a type of its
+            own to the compiler: a grid's loops are compiled with D = 4 a constant and
+            no load of a heading (:func:`qpatrol.engines.compiled.choice.ports_of`,
+            ``heading_of``), as before patrol graphs; every graph shares one machine
+            code, D read from ``nbrs``.
         dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
         reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
             idle horizon, lambda).
@@ -44,6 +52,7 @@ class Params(NamedTuple):
     nbrs: np.ndarray
     wall_legal: np.ndarray
     cell_moves: np.ndarray
+    entry: np.ndarray | None
     dot_value: np.ndarray
     has_dot: np.ndarray
     n_dots: int
@@ -74,7 +83,7 @@ class Params(NamedTuple):
 #: ``[R, K]``; ``occ`` ``[R, C]`` (robot on a cell, -1); per group ``dots``, ``last``
 #: ``[R, G, C]`` and the episode's ``dots_left``, ``ep_dots``, ``ep_visits``,
 #: ``ep_start``, ``ep_count`` ``[R, G]``, ``ep_seen`` ``[R, G, C]``, ``ep_seen_state``
-#: ``[R, G, C, 4]``; the right of way ``token``, ``token_held``, ``active``,
+#: ``[R, G, C, D]``; the right of way ``token``, ``token_held``, ``active``,
 #: ``steps_done`` ``[R]``; the battery's ``charge``, ``mode``, ``rest``, ``goal``,
 #: ``queued_since``, ``depart_left`` ``[R, K]`` and ``reserved`` ``[R, H]``.
 World = NamedTuple(  # noqa: UP014 (its fields are State's, not written again here)
@@ -148,12 +157,13 @@ class Work(NamedTuple):
     step's outcome (:class:`qpatrol.world.Outcome`): per robot ``[K]`` the cell wanted
     and the move asked (-1: none), the cell and heading before the step, moved, moved
     as asked, reward, eaten, the robot in the way (-1), the strategy chose, yielding,
-    held back; ``order``, ``key`` ``[K]`` for sorting; ``open_mask`` bool ``[K, 4]``;
+    held back; ``order``, ``key`` ``[K]`` for sorting; ``open_mask`` bool ``[K, D]``;
     ``ended`` bool ``[G]`` (the group's episode ended); and the push search's
     ``parent``, ``seen``, ``queue``, ``path`` ``[C]`` (``parent`` -2 between calls);
     ``uniforms`` float64 ``[K, 2]``: each robot's two uniforms of the step (epsilon,
     tie-break), drawn by the loop (:func:`qpatrol.engines.compiled.pcg.step_uniforms`);
-    ``sink`` float64 ``[1]`` keeps a warming read."""
+    ``sink`` float64 ``[1]`` keeps a warming read; ``score`` float64 ``[K, D]``: each
+    robot's score of each move (a strategy's scratch)."""
 
     want: np.ndarray
     ask: np.ndarray
@@ -177,9 +187,20 @@ class Work(NamedTuple):
     path: np.ndarray
     uniforms: np.ndarray
     sink: np.ndarray
+    score: np.ndarray
 
 
-def work(n_agents: int, n_groups: int, n_cells: int) -> Work:
+def compiled_entry(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray | None:
+    """:attr:`Params.entry`: None for a map whose cells have 4 ports and whose every
+    move's heading is the move (``entry``, int ``[C, D]``, equal to the port wherever
+    ``neighbors`` has a move: a grid's), else ``entry``."""
+    grid_like = neighbors.shape[1] == 4 and bool(
+        (entry == np.where(neighbors >= 0, np.arange(4), entry)).all()
+    )
+    return None if grid_like else entry
+
+
+def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:
     """The working arrays, allocated once per batch and lane (the loop allocates
     nothing: it is compiled without numba's reference counting)."""
     i8, b1, k = np.int64, np.bool_, n_agents
@@ -193,10 +214,11 @@ def work(n_agents: int, n_groups: int, n_cells: int) -> Work:
         *(np.zeros(k, b1) for _ in range(3)),
         np.zeros(k, i8),
         np.zeros(k, i8),
-        np.zeros((k, 4), b1),
+        np.zeros((k, n_ports), b1),
         np.zeros(n_groups, b1),
         np.full(n_cells, -2, i8),
         *(np.zeros(n_cells, i8) for _ in range(3)),
         np.zeros((k, 2), np.float64),
         np.zeros(1, np.float64),
+        np.zeros((k, n_ports), np.float64),
     )

@@ -25,14 +25,15 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, ur, nbrs, pos, open_mask, choosing, ask, memory):
-    """``ask[k]``: each choosing robot's open neighbour of oldest ``memory[r, k]``."""
+def act(r, ur, nbrs, pos, open_mask, choosing, ask, memory, score_k):
+    """``ask[k]``: each choosing robot's open neighbour of oldest ``memory[r, k]``
+    (``score_k`` float64 ``[K, D]``: scratch)."""
     for k in range(choosing.shape[0]):
         if not choosing[k]:
             ask[k] = -1
             continue
         c = pos[r, k]
-        score = at_neighbours(memory[r, k], nbrs, c)
+        score = at_neighbours(score_k[k], memory[r, k], nbrs, c)
         ask[k] = least(score, open_mask, k, ur[k, 1])
 
 

@@ -34,7 +34,7 @@ def end(r, t, p, s, ep_buf, n_ep, ended):
         for c in range(n_cells):
             if ep_seen[r, g, c]:
                 cells += 1
-            for d in range(4):
+            for d in range(ep_seen_state.shape[3]):
                 if ep_seen_state[r, g, c, d]:
                     states += 1
                 ep_seen_state[r, g, c, d] = False

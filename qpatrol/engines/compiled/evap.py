@@ -58,9 +58,9 @@ def _level(amount, since, pw, c, now):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, t, ur, nbrs, communication, pos, open_mask, choosing, ask, amount, since, pw):
+def act(r, t, ur, nbrs, communication, pos, open_mask, choosing, ask, amount, since, pw, score_k):
     """``ask[k]``: each choosing robot's open neighbour of least pheromone as step ``t``
-    starts (at ``t - 1``)."""
+    starts (at ``t - 1``; ``score_k`` float64 ``[K, D]``: scratch)."""
     now = t - 1
     for k in range(choosing.shape[0]):
         if not choosing[k]:
@@ -70,12 +70,9 @@ def act(r, t, ur, nbrs, communication, pos, open_mask, choosing, ask, amount, si
         g = 0 if communication else k
         a = amount[r, g]
         s = since[r, g]
-        score = (
-            _level(a, s, pw, max(nbrs[c, 0], 0), now),
-            _level(a, s, pw, max(nbrs[c, 1], 0), now),
-            _level(a, s, pw, max(nbrs[c, 2], 0), now),
-            _level(a, s, pw, max(nbrs[c, 3], 0), now),
-        )
+        score = score_k[k]
+        for d in range(nbrs.shape[1]):
+            score[d] = _level(a, s, pw, max(nbrs[c, d], 0), now)
         ask[k] = least(score, open_mask, k, ur[k, 1])
 
 

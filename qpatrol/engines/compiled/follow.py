@@ -8,10 +8,10 @@ has gathered or ``gather_until`` has passed; robots that blocked each other head
 walks, targets and spacings; a robot on its target advances it unless held or (spacing
 rule) the next patrolling robot's target ahead on its walk is nearer than its spacing
 (all decided on the targets before the advances); targets in another robot's held
-station pocket are skipped; each choosing robot asks for the first move (N, E, S, W) of
-a shortest path to its target cell. Then (collisions avoided) two robots each of whose
-next cell is the other's cell swap plans, advance, skip and ask again. Learning keeps
-who blocked whom.
+station pocket are skipped; each choosing robot asks for the first move (lowest port: N,
+E, S, W on a grid) of a shortest path to its target cell. Then (collisions avoided) two
+robots each of whose next cell is the other's cell swap plans, advance, skip and ask
+again. Learning keeps who blocked whom.
 
 Pack: ``robot_i`` int64 ``[R, K, 6]`` = (``wid``, ``target``, ``hold`` as 0/1,
 ``blocked_by``, ``spacing``, scratch) of each robot, copied from the strategy and back
@@ -147,14 +147,14 @@ def _skip_and_ask(
                 if h < 0 or reserved[r, h] < 0 or reserved[r, h] == k:
                     break
                 _advance(ri, k, length)
-    for k in range(n_agents):  # the first move of a shortest path, N, E, S, W first
+    for k in range(n_agents):  # the first move of a shortest path, lowest port first
         ask[k] = -1
         if not choosing[k]:
             continue
         c = pos[r, k]
         goal = walk[ri[k, WID], ri[k, TARGET]]
         closer = dist[c, goal] - 1
-        for d in range(4):
+        for d in range(nbrs.shape[1]):
             nb = nbrs[c, d]
             if nb >= 0 and dist[nb, goal] == closer:
                 ask[k] = d

@@ -11,6 +11,7 @@ from __future__ import annotations
 
 from numba import njit
 
+from qpatrol.engines.compiled.choice import ports_of
 from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, kept_out
 
 
@@ -35,14 +36,17 @@ def priority(wait, mode, depart_left, k, n_agents, t_mod):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r):
+def push_path(nbrs, entry, occ_r, own, start, scratch, battery, mode_r, pocket_of, reserved_r):
     """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
     charging robots, nor (battery on) cells of held pockets.
 
-    Fills ``w.path[:m]`` with ``[start, ..., empty]`` and returns m (0: none).
-    ``w.parent`` (-2 everywhere) and ``w.seen`` are scratch arrays ``[C]`` left clean.
+    ``scratch``: the loop's ``(w.parent, w.seen, w.queue, w.path)`` (four arrays, not
+    the whole ``Work``: fewer arguments to pass). Fills ``path[:m]`` with ``[start, ...,
+    empty]`` and returns m (0: none). ``parent`` (-2 everywhere) and ``seen`` are
+    scratch arrays ``[C]`` left clean. ``entry``: ``Params.entry`` (None on a grid: D
+    = 4 a constant, :func:`~qpatrol.engines.compiled.choice.ports_of`).
     """
-    parent, seen, queue, path = w.parent, w.seen, w.queue, w.path
+    parent, seen, queue, path = scratch
     if battery and mode_r[occ_r[start]] == CHARGING:
         return 0
     n_seen = 0
@@ -57,7 +61,7 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r
     while head < tail and m == 0:
         c = queue[head]
         head += 1
-        for d in range(4):
+        for d in range(ports_of(entry, nbrs.shape[1])):
             nb = nbrs[c, d]
             if nb < 0 or nb == own or parent[nb] != -2:
                 continue
@@ -90,17 +94,18 @@ def push_path(nbrs, occ_r, own, start, w, battery, mode_r, pocket_of, reserved_r
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
+def holder_moves(tok, nbrs, entry, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
     """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
     (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
-    else a neighbour (N, E, S, W), empty or emptied by pushing the robots in the way
-    along :func:`push_path`. Returns whether the push failed (it did not move as
-    asked)."""
+    else a neighbour (in port order: N, E, S, W on a grid), empty or emptied by pushing
+    the robots in the way along :func:`push_path`. Returns whether the push failed (it
+    did not move as asked)."""
     want, moved, as_asked, path = w.want, w.moved, w.as_asked, w.path
     own = pos_r[tok]
     dest = -1
     m = 0
-    for ci in range(5):
+    scratch = (w.parent, w.seen, w.queue, w.path)
+    for ci in range(ports_of(entry, nbrs.shape[1]) + 1):
         if ci == 0:
             cell = want[tok]
         else:
@@ -113,7 +118,9 @@ def holder_moves(tok, nbrs, occ_r, pos_r, w, battery, mode_r, pocket_of, reserve
             dest = cell
             m = 0
             break
-        m = push_path(nbrs, occ_r, own, cell, w, battery, mode_r, pocket_of, reserved_r)
+        m = push_path(
+            nbrs, entry, occ_r, own, cell, scratch, battery, mode_r, pocket_of, reserved_r
+        )
         if m > 0:
             dest = cell
             break
@@ -177,7 +184,10 @@ def pushable(r, c, nb, battery, p, s, w):
     """Whether the holder of the right of way on cell ``c`` of run ``r`` can enter its
     occupied neighbour ``nb``: a push path empties it (:func:`push_path`;
     traffic.feasible_moves)."""
-    return push_path(p.nbrs, s.occ[r], c, nb, w, battery, s.mode[r], p.pocket_of, s.reserved[r]) > 0
+    scratch = (w.parent, w.seen, w.queue, w.path)
+    occ_r, mode_r, reserved_r = s.occ[r], s.mode[r], s.reserved[r]
+    m = push_path(p.nbrs, p.entry, occ_r, c, nb, scratch, battery, mode_r, p.pocket_of, reserved_r)
+    return m > 0
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -189,13 +199,14 @@ def open_moves(r, tok, battery, avoid, p, s, w):
     (traffic.feasible_moves); every legal move where none is open, base.prefer_open); the
     step's outcome cleared (``w.prev_pos``, ``prev_head``, ``moved``, ...)."""
     nbrs, pocket_of, pocket_depth, occ = p.nbrs, p.pocket_of, p.pocket_depth, s.occ
+    nd = ports_of(p.entry, nbrs.shape[1])
     for k in range(s.pos.shape[1]):
         c = s.pos[r, k]
         w.choosing[k] = s.mode[r, k] == PATROL
         w.held_back[k] = False
         w.yielding[k] = False
         any_open = False
-        for d in range(4):
+        for d in range(nd):
             nb = nbrs[c, d]
             ok = nb >= 0
             if ok and battery:
@@ -211,7 +222,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
             w.open_mask[k, d] = ok
             any_open = any_open or ok
         if not any_open:
-            for d in range(4):
+            for d in range(nd):
                 w.open_mask[k, d] = nbrs[c, d] >= 0
         w.prev_pos[k] = c
         w.prev_head[k] = s.head[r, k]
@@ -240,7 +251,7 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
         return push_failed
     if tok >= 0 and want[tok] >= 0:
         push_failed = holder_moves(
-            tok, p.nbrs, occ_r, pos_r, w, battery, mode_r, p.pocket_of, s.reserved[r]
+            tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of, s.reserved[r]
         )
     if n_agents == 1:  # alone: the priority order is trivial
         wk = want[0]

@@ -20,8 +20,8 @@ class Pack(NamedTuple):
         row_f: float64 ``[R, F]``, parameters that may differ between runs (e.g. gamma,
             epsilon).
         ipar: int64 ``[I]``, integer parameters and flags.
-        q: float64 ``[R, P, C, S, 4]``, a value per (table, cell, state slot, move).
-        n: int32 ``[R, P, C, S, 4]``, visit counts of the same entries.
+        q: float64 ``[R, P, C, S, D]``, a value per (table, cell, state slot, move).
+        n: int32 ``[R, P, C, S, D]``, visit counts of the same entries.
         cell_i: int64 ``[R, X, C]``, an integer map per robot or group (e.g. last visits).
         cell_f: float64 ``[R, X, C]``, a float map per robot or group (e.g. pheromone).
         cell_b: bool ``[R, X, C]``, a flag map per robot or group (e.g. dots).

@@ -5,8 +5,8 @@ operation: greedy over the open moves, ties and epsilon from the run's uniforms;
 ``Q(s,a) <- Q(s,a) + (1/N) (r + gamma max_{a' legal} Q(s',a') - Q(s,a))``).
 
 Pack (see :mod:`qpatrol.engines.compiled`): ``q`` float64 and ``n`` int32
-``[R, K, C, H, 4]`` (``H`` = 4 headings); ``row_f`` float64 ``[R, 2]``: each run's
-``[gamma, epsilon]`` (they may differ between the runs of a batch);
+``[R, K, C, H, D]`` (``H`` = D headings, ``D`` ports: 4 on a grid); ``row_f``
+float64 ``[R, 2]``: each run's ``[gamma, epsilon]`` (they may differ between the runs of a batch);
 ``ipar = [use_heading]``.
 """
 
@@ -15,7 +15,14 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import MASKED, POPCOUNT, pick
+from qpatrol.engines.compiled.choice import (
+    MASKED,
+    MASKED_PORTS,
+    POPCOUNT,
+    heading_of,
+    pick,
+    ports_of,
+)
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 from qpatrol.engines.compiled.updates import record, wanted
 
@@ -44,23 +51,29 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def best_of(q_f, at, free):
-    """The greatest ``Q(s, .)`` (``q_f[at:at + 4]``) over the moves of ``free`` (a 4-bit
-    mask, N=1, E=2, S=4, W=8), taken with no branch per move (``MASKED``); -inf for
-    none."""
-    mf = MASKED[free]
-    return max(
-        max(q_f[at] + mf[0], q_f[at + 1] + mf[1]),
-        max(q_f[at + 2] + mf[2], q_f[at + 3] + mf[3]),
-    )
+def best_of(q_f, at, free, nd=4):
+    """The greatest ``Q(s, .)`` (``q_f[at:at + nd]``, ``nd`` ports: 4 on a grid) over the
+    moves of ``free`` (a mask of ports, on a grid N=1, E=2, S=4, W=8), taken with no
+    branch per move (``MASKED``); -inf for none."""
+    if nd == 4:
+        mf = MASKED[free]
+        return max(
+            max(q_f[at] + mf[0], q_f[at + 1] + mf[1]),
+            max(q_f[at + 2] + mf[2], q_f[at + 3] + mf[3]),
+        )
+    mp = MASKED_PORTS[free]
+    top = -np.inf
+    for d in range(nd):
+        top = max(top, q_f[at + d] + mp[d])
+    return top
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def choose(q_f, at, free, best, explore, u_tie, branch_free):
+def choose(q_f, at, free, best, explore, u_tie, branch_free, nd=4):
     """One robot's choice (``learner.choose``): the open move (``free``) of greatest
-    ``Q(s, .)`` (``q_f[at:at + 4]``; ``best``: :func:`best_of`, which a caller that
-    knows it passes), ties broken by ``u_tie``, or with ``explore`` any open move; -1
-    where none is open.
+    ``Q(s, .)`` (``q_f[at:at + nd]``, ``nd`` ports; ``best``: :func:`best_of`, which a
+    caller that knows it passes), ties broken by ``u_tie``, or with ``explore`` any open
+    move; -1 where none is open.
 
     ``branch_free`` (a constant at each call, so the compiler keeps one of the two
     forms) picks how the candidates are found, not which: a team's loop interleaves
@@ -68,7 +81,7 @@ def choose(q_f, at, free, best, explore, u_tie, branch_free):
     slower, 4 robots); a lone robot's steps are one chain of dependent loads, and there
     branches let the processor run ahead on the predicted move (branch-free: 14 %
     slower). ``tests/test_engines.py`` checks that both forms choose alike."""
-    if branch_free:
+    if branch_free and nd == 4:
         bits = free
         if not explore:
             bits &= (
@@ -81,51 +94,66 @@ def choose(q_f, at, free, best, explore, u_tie, branch_free):
     else:
         bits = 0
         count = 0
-        for d in range(4):
-            if free >> d & 1 and (explore or q_f[at + d] == best):
-                bits |= 1 << d
-                count += 1
+        if nd == 4:  # (a grid's: the loop the compiler unrolls)
+            for d in range(4):
+                if free >> d & 1 and (explore or q_f[at + d] == best):
+                    bits |= 1 << d
+                    count += 1
+        else:
+            for d in range(nd):
+                if free >> d & 1 and (explore or q_f[at + d] == best):
+                    bits |= 1 << d
+                    count += 1
     return pick(bits, count, u_tie)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def tables(sp, r):
     """Run ``r``'s parameters and tables: ``(gamma, epsilon, use_heading, q_f, n_f)``,
-    the tables ``[K, C, 4, 4]`` flat (one index, not four; a reshape is a call, taken
+    the tables ``[K, C, D, D]`` flat (one index, not four; a reshape is a call, taken
     once per run and block in the Q-learning loop)."""
     return sp.row_f[r, 0], sp.row_f[r, 1], sp.ipar[0] != 0, sp.q[r].reshape(-1), sp.n[r].reshape(-1)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f):
+def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f, nd):
     """``ask[k]`` for every choosing robot of a run (``pos_r``, ``head_r`` int ``[K]``;
-    ``open_mask`` bool ``[K, 4]``; ``ur`` float ``[K, 2]``: the step's uniforms;
-    ``q_f``: :func:`tables`): :func:`choose` over its open moves; -1 for the others."""
-    n_cells = q_f.shape[0] // (pos_r.shape[0] * 16)
+    ``open_mask`` bool ``[K, D]``; ``ur`` float ``[K, 2]``: the step's uniforms;
+    ``q_f``: :func:`tables`; ``nd``: D, :func:`~qpatrol.engines.compiled.choice.ports_of`):
+    :func:`choose` over its open moves; -1 for the others."""
+    n_cells = q_f.shape[0] // (pos_r.shape[0] * nd * nd)
     for k in range(pos_r.shape[0]):
         if not choosing[k]:
             ask[k] = -1
             continue
         hs = head_r[k] if use_heading else 0
-        at = ((k * n_cells + pos_r[k]) * 4 + hs) * 4  # Q(c, hs, .), flat
-        free = (
-            (1 if open_mask[k, 0] else 0)
-            | (2 if open_mask[k, 1] else 0)
-            | (4 if open_mask[k, 2] else 0)
-            | (8 if open_mask[k, 3] else 0)
-        )
+        at = ((k * n_cells + pos_r[k]) * nd + hs) * nd  # Q(c, hs, .), flat
+        if nd == 4:
+            free = (
+                (1 if open_mask[k, 0] else 0)
+                | (2 if open_mask[k, 1] else 0)
+                | (4 if open_mask[k, 2] else 0)
+                | (8 if open_mask[k, 3] else 0)
+            )
+        else:
+            free = 0
+            for d in range(nd):
+                if open_mask[k, d]:
+                    free |= 1 << d
         explore = epsilon > 0.0 and ur[k, 0] < epsilon
-        ask[k] = choose(q_f, at, free, best_of(q_f, at, free), explore, ur[k, 1], True)
+        best = best_of(q_f, at, free, nd)
+        ask[k] = choose(q_f, at, free, best, explore, ur[k, 1], True, nd)
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def update(q_f, n_f, at0, at1, legal1, reward, gamma):
+def update(q_f, n_f, at0, at1, legal1, reward, gamma, entry, nd):
     """The Q-learning update of one robot, on its tables flat (``q_f`` float64, ``n_f``
     int32): ``Q(s, a) <- Q(s, a) + (1/N) (r + gamma max_{a' legal} Q(s', a') - Q(s,
-    a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+3``, the greatest over the
-    legal moves of s' (``legal1``, a 4-bit mask: :func:`best_of`). Returns
-    ``(max Q(s', .), alpha, Q(s, a) before)``."""
-    top = best_of(q_f, at1, legal1)
+    a))``, ``Q(s, a)`` at ``at0`` and ``Q(s', .)`` at ``at1..at1+D-1`` (D ports:
+    :func:`~qpatrol.engines.compiled.choice.ports_of` ``(entry, nd)``, 4 on a grid,
+    whose ``entry`` is None), the greatest over the legal moves of s' (``legal1``, a
+    mask of ports: :func:`best_of`). Returns ``(max Q(s', .), alpha, Q(s, a) before)``."""
+    top = best_of(q_f, at1, legal1, ports_of(entry, nd))
     target = reward + gamma * top
     q_sa = q_f[at0]
     n_after = n_f[at0] + 1
@@ -142,7 +170,7 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
     :meth:`qpatrol.measures.records.Recorder.updates` wants them. ``p``, ``w``, ``o``:
     the loop's ``Params``, ``Work`` and ``Out`` (:mod:`qpatrol.engines.compiled.bundles`).
     Returns the number of update rows now written."""
-    n_cells = p.nbrs.shape[0]
+    n_cells, nd = p.nbrs.shape[0], ports_of(p.entry, p.nbrs.shape[1])
     for k in range(w.prev_pos.shape[0]):
         if not w.as_asked[k] or not w.choosing[k]:
             continue
@@ -150,12 +178,14 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
         ha = w.prev_head[k] if use_heading else 0
         aa = w.ask[k]
         cb = p.nbrs[ca, aa]
-        hb = aa if use_heading else 0
-        at = ((k * n_cells + ca) * 4 + ha) * 4  # Q(ca, ha, .), flat
-        at1 = ((k * n_cells + cb) * 4 + hb) * 4  # Q(cb, hb, .)
-        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, p.cell_moves[cb], w.reward[k], gamma)
+        hb = heading_of(p.entry, ca, aa) if use_heading else 0  # after the move
+        at = ((k * n_cells + ca) * nd + ha) * nd  # Q(ca, ha, .), flat
+        at1 = ((k * n_cells + cb) * nd + hb) * nd  # Q(cb, hb, .)
+        legal1 = p.cell_moves[cb]
+        reward = w.reward[k]
+        top, alpha, q_sa = update(q_f, n_f, at + aa, at1, legal1, reward, gamma, p.entry, nd)
         if wanted(o, ca):
             ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
             floats = (w.reward[k], alpha, q_sa, q_f[at + aa], gamma * top)
-            n_up = record(o, n_up, ints, floats, q_f[at : at + 4])
+            n_up = record(o, n_up, ints, floats, q_f[at : at + nd])
     return n_up

@@ -1,18 +1,18 @@
 """``qlearning-idleness`` compiled: Q-learning paid the idleness of the cell entered.
 
-The numpy twin is :mod:`qpatrol.strategies.qlearning_idleness` (arithmetic operation
-for operation: state ``(cell, heading, idlest)``, the idlest neighbour first in N, E,
-S, W order; the reward ``min(cap, (t - last) / scale)`` or the dot value; the choice
-greedy over ``r(s, a) + Q(s, a)`` (known reward) or ``Q(s, a)`` among the open moves,
-ties and ``epsilon(t) = epsilon x max(0, 1 - t / explore_steps)`` from the run's
-uniforms; ``Q(s,a) <- Q(s,a) + alpha (paid r + gamma max_{a' legal} [r(s', a') +
-Q(s', a')] - Q(s,a))``, robot by robot in robot order).
+The numpy twin is :mod:`qpatrol.strategies.qlearning_idleness` (arithmetic operation for
+operation: state ``(cell, heading, idlest)``, the idlest neighbour's port, first in port
+order (N, E, S, W on a grid); the reward ``min(cap, (t - last) / scale)`` or the dot
+value; the choice greedy over ``r(s, a) + Q(s, a)`` (known reward) or ``Q(s, a)`` among
+the open moves, ties and ``epsilon(t) = epsilon x max(0, 1 - t / explore_steps)`` from
+the run's uniforms; ``Q(s,a) <- Q(s,a) + alpha (paid r + gamma max_{a' legal} [r(s', a')
++ Q(s', a')] - Q(s,a))``, robot by robot in robot order).
 
 Pack (see :mod:`qpatrol.engines.compiled`):
 
-* ``q`` float64 and ``n`` int32 ``[R, P, C, H * F, 4]``: the strategy's own
-  ``[R, P, C, H, F, 4]`` tables as views (``P`` tables: 1 shared or one per robot; slot
-  ``h * F + f`` for heading ``h`` and idlest direction ``f``);
+* ``q`` float64 and ``n`` int32 ``[R, P, C, H * F, D]``: the strategy's own
+  ``[R, P, C, H, F, D]`` tables as views (``P`` tables: 1 shared or one per robot; slot
+  ``h * F + f`` for heading ``h`` and idlest port ``f``; ``D`` ports, 4 on a grid);
 * ``cell_i`` int64 ``[R, G, C]``: the strategy's own last-visit maps (``last``);
 * ``cell_b`` bool ``[R, G, C]``: the strategy's own dot maps (``dots``);
 * ``robot_i`` int64 ``[R, K, 3]``: per robot, the idlest-neighbour slot at its last
@@ -31,7 +31,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-from qpatrol.engines.compiled.choice import greatest
+from qpatrol.engines.compiled.choice import greatest, heading_of
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 from qpatrol.engines.compiled.updates import record, wanted
 
@@ -40,7 +40,7 @@ EXPLORE_STEPS, DOT, KNOWN, USE_HEADING, USE_IDLE, SHARED, N_FEAT = range(7)
 
 
 def _slots(a: np.ndarray) -> np.ndarray:
-    """A ``[R, P, C, H, F, 4]`` table as the view ``[R, P, C, H * F, 4]``."""
+    """A ``[R, P, C, H, F, D]`` table as the view ``[R, P, C, H * F, D]``."""
     r, p, c, h, f, d = a.shape
     v = a.reshape(r, p, c, h * f, d)
     if not np.shares_memory(v, a):
@@ -88,11 +88,12 @@ def unpack(p: Pack, strategy) -> None:
 
 @njit(cache=True, nogil=True, _nrt=False)
 def _idlest(nbrs, last, r, g, c):
-    """Direction of the non-wall neighbour of ``c`` visited longest ago on map ``g``
-    (``last`` int ``[R, G, C]``), first in N, E, S, W order; 0 without a neighbour."""
+    """Port of the non-wall neighbour of ``c`` visited longest ago on map ``g``
+    (``last`` int ``[R, G, C]``), first in port order (N, E, S, W); 0 without a
+    neighbour."""
     best = np.iinfo(np.int64).max
     f = 0
-    for d in range(4):
+    for d in range(nbrs.shape[1]):
         nb = nbrs[c, d]
         if nb >= 0 and last[r, g, nb] < best:
             best = last[r, g, nb]
@@ -121,12 +122,12 @@ def _score(sp, dot_value, nbrs, r, g, pk, c, slot, d, t):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, t, ur, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp):
+def act(r, t, ur, nbrs, dot_value, communication, pos, head, open_mask, choosing, ask, sp, score_k):
     """``ask[k]`` for every choosing robot of run ``r`` at team step ``t`` (``ur``
     float ``[K, 2]``: the step's uniforms): the open move of greatest ``r(s, a) +
     Q(s, a)`` (ties by ``ur[k, 1]``; with probability ``epsilon(t)`` (``ur[k,
     0]``) any open move), -1 where there is none. Every robot's idlest slot goes to
-    ``robot_i[r, k, 0]``."""
+    ``robot_i[r, k, 0]``. ``score_k`` float64 ``[K, D]``: scratch."""
     feat, ipar = sp.robot_i, sp.ipar
     use_heading = ipar[USE_HEADING] != 0
     use_idle = ipar[USE_IDLE] != 0
@@ -146,12 +147,9 @@ def act(r, t, ur, nbrs, dot_value, communication, pos, head, open_mask, choosing
             continue
         pk = 0 if shared else k
         slot = (head[r, k] if use_heading else 0) * n_feat + f
-        score = (
-            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 0, t),
-            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 1, t),
-            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 2, t),
-            _score(sp, dot_value, nbrs, r, g, pk, c, slot, 3, t),
-        )
+        score = score_k[k]
+        for d in range(nbrs.shape[1]):
+            score[d] = _score(sp, dot_value, nbrs, r, g, pk, c, slot, d, t)
         explore = epsilon > 0.0 and ur[k, 0] < epsilon
         ask[k] = greatest(score, open_mask, k, explore, ur[k, 1])
 
@@ -211,10 +209,10 @@ def learn(r, t, p, s, w, sp, o, n_up):
         aa = ask[k]
         sa = ha * n_feat + feat[r, k, 0]
         cb = pos[r, k]
-        hb = aa if use_heading else 0
+        hb = heading_of(p.entry, ca, aa) if use_heading else 0  # the heading after the move
         sb = hb * n_feat + (_idlest(nbrs, last, r, g, cb) if use_idle else 0)
         top = -np.inf
-        for d in range(4):
+        for d in range(nbrs.shape[1]):
             if wall_legal[cb, d]:
                 v = _score(sp, dot_value, nbrs, r, g, pk, cb, sb, d, t + 1)
                 if v > top:

@@ -24,13 +24,13 @@ def unpack(p: Pack, strategy) -> None:
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(r, ur, nbrs, communication, pos, last, open_mask, choosing, ask):
+def act(r, ur, nbrs, communication, pos, last, open_mask, choosing, ask, score_k):
     """``ask[k]``: each choosing robot's open neighbour of oldest ``last[r, g]`` (``g`` =
-    0 with communication, else k)."""
+    0 with communication, else k; ``score_k`` float64 ``[K, D]``: scratch)."""
     for k in range(choosing.shape[0]):
         if not choosing[k]:
             ask[k] = -1
             continue
         c = pos[r, k]
-        score = at_neighbours(last[r, 0 if communication else k], nbrs, c)
+        score = at_neighbours(score_k[k], last[r, 0 if communication else k], nbrs, c)
         ask[k] = least(score, open_mask, k, ur[k, 1])

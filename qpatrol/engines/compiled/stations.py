@@ -43,18 +43,18 @@ def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
         return -1
     h = station
     if pocket_of[c] == h:
-        for d in range(4):
+        for d in range(nbrs.shape[1]):
             nb = nbrs[c, d]
             if nb >= 0 and (pocket_of[nb] != h or pocket_depth[nb] < pocket_depth[c]):
                 return d
         return -1
     if c != pocket_entry[h]:
         return -1
-    for d in range(4):
+    for d in range(nbrs.shape[1]):
         nb = nbrs[c, d]
         if nb >= 0 and pocket_of[nb] != h and occ_r[nb] < 0:
             return d
-    for d in range(4):
+    for d in range(nbrs.shape[1]):
         nb = nbrs[c, d]
         if nb >= 0 and pocket_of[nb] != h:
             return d
