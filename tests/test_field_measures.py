@@ -58,6 +58,11 @@ e 3 4 1
 e 4 0 1
 """
 WAYPOINT = 5
+# The figure eight with a two-move edge 2-0 too (waypoint 6): loop A = 0-1-5-2-6-0 (5
+# moves) is then strictly shorter than its out-and-back alternatives (6 moves), so the
+# cyclic walk, which need not walk every edge (only visit every vertex), takes the
+# waypoints: a lap is loop A and loop B = 0-3-4-0 (3 moves), 8 steps.
+EIGHT_LONG = EIGHT.replace("e 2 0 1", "e 2 0 2")
 
 # A 3 x 3 lattice of vertices (the centre 4 has degree 4) with edges of 1 to 3 moves:
 #   0 -- 1 --- 2
@@ -116,44 +121,46 @@ def run(tmp_path: Path, text: str, engine: str, **flat):
 
 @pytest.mark.parametrize("engine", ENGINES)
 def test_one_cyclic_robot_on_a_figure_eight_by_hand(tmp_path, engine):
-    """One cyclic robot walks 0 1 w 2 0 3 4 0 ... (w the waypoint): a lap of 7 steps,
-    loop A (4 moves) then loop B (3). Warm-up 10 laps, then 4 laps (28 steps) measured.
+    """One cyclic robot walks loop A 0 1 5 2 6 (5 and 6 the waypoints) and loop B 0 3 4:
+    a lap of 8 steps. Warm-up 10 laps, then 4 laps (32 steps) measured.
 
-    Targets 1..4 are entered once a lap: 4 window intervals of 7 each; vertex 0 twice,
-    alternately after 4 and 3 steps: 4 intervals of 4 and 4 of 3. So N = 24 intervals,
-    sum 16 x 7 + 4 x 4 + 4 x 3 = 140, sum of squares 16 x 49 + 4 x 16 + 4 x 9 = 884:
-    mean_interval 140/24, qmi sqrt(884/24), std_interval sqrt(24 x 884 - 140^2)/24 =
-    sqrt(1616)/24. The waypoint counts in none: with it the mean would be 168/28 = 6.
-    Averages by target: 3.5 (vertex 0), 7, 7, 7, 7: worst 7, mean 31.5/5 = 6.3, median
-    7, population std sqrt(((3.5-6.3)^2 + 4 x 0.7^2)/5) = sqrt(1.96) = 1.4.
-    Window visits 8, 4, 4, 4, 4 in 28 steps: freq_std = sqrt(5 x 128 - 24^2)/(5 x 28)
-    = 8/140. Cycles: from any step of the lap every target is entered within 7 steps,
-    and after the first cover each takes one lap: 4 covers in 28 steps. One robot is
+    Targets 1..4 are entered once a lap: 4 window intervals of 8 each; vertex 0 twice,
+    alternately after 5 and 3 steps: 4 intervals of 5 and 4 of 3. So N = 24 intervals,
+    sum 16 x 8 + 4 x 5 + 4 x 3 = 160, sum of squares 16 x 64 + 4 x 25 + 4 x 9 = 1160:
+    mean_interval 160/24, qmi sqrt(1160/24), std_interval sqrt(24 x 1160 - 160^2)/24 =
+    sqrt(2240)/24. The waypoints count in none: with them the mean would be 224/32 = 7.
+    Averages by target: 4 (vertex 0), 8, 8, 8, 8: worst 8, mean 36/5 = 7.2, median 8,
+    population std sqrt(((4-7.2)^2 + 4 x 0.8^2)/5) = sqrt(2.56) = 1.6.
+    Window visits 8, 4, 4, 4, 4 in 32 steps: freq_std = sqrt(5 x 128 - 24^2)/(5 x 32)
+    = 8/160. Cycles: from any step of the lap every target is entered within 8 steps,
+    and after the first cover each takes one lap: 4 covers in 32 steps. One robot is
     never blocked: no interference.
 
-    Today's measures over the 5 targets: idleness summed over a lap is 0+...+6 = 21
-    for each of 1..4 and 0+1+2+3+0+1+2 = 9 for vertex 0: avg_idleness 4 x 93 / (5 x
-    28); worst 6 (a target of 1..4 just before its visit).
+    Today's measures over the 5 targets: idleness summed over a lap is 0+...+7 = 28
+    for each of 1..4 and 0+1+2+3+4+0+1+2 = 13 for vertex 0: avg_idleness 4 x 125 / (5 x
+    32); worst 7 (a target of 1..4 just before its visit).
     """
-    r = run(tmp_path, EIGHT, engine, agents=1, policy="cyclic", **{"record.warmup": 70}, steps=98)
+    r = run(
+        tmp_path, EIGHT_LONG, engine, agents=1, policy="cyclic", **{"record.warmup": 80}, steps=112
+    )
     s = r.summary[0]
-    assert r.map.n_targets == 5 and not r.map.target[WAYPOINT]
-    assert s["mean_interval"] == 140 / 24 and s["max_interval"] == 7
-    assert s["qmi"] == math.sqrt(884 / 24)
-    assert s["std_interval"] == math.sqrt(1616) / 24
-    assert s["worst_avg_idleness"] == 7.0
-    assert s["mean_avg_idleness"] == pytest.approx(6.3, rel=1e-15)
-    assert s["median_idleness"] == 7.0
-    assert s["std_idleness"] == pytest.approx(1.4, rel=1e-15)
-    assert s["freq_std"] == 8 / 140
+    assert r.map.n_targets == 5 and not r.map.target[5:].any()
+    assert s["mean_interval"] == 160 / 24 and s["max_interval"] == 8
+    assert s["qmi"] == math.sqrt(1160 / 24)
+    assert s["std_interval"] == math.sqrt(2240) / 24
+    assert s["worst_avg_idleness"] == 8.0
+    assert s["mean_avg_idleness"] == pytest.approx(7.2, rel=1e-15)
+    assert s["median_idleness"] == 8.0
+    assert s["std_idleness"] == pytest.approx(1.6, rel=1e-15)
+    assert s["freq_std"] == 8 / 160
     assert s["cycles"] == 4
     assert s["interferences"] == 0
-    assert s["avg_idleness"] == 4 * 93 / (5 * 28)
-    assert s["worst_idleness"] == 6
+    assert s["avg_idleness"] == 4 * 125 / (5 * 32)
+    assert s["worst_idleness"] == 7
     assert s["coverage"] == 1.0
-    assert r.measures.window_visits[0, 0].tolist() == [8, 4, 4, 4, 4, 0]  # no waypoint
-    assert r.measures.visits[0, 0, WAYPOINT] == 14  # but the robot did pass it
-    assert r.measures.last[0, WAYPOINT] == 0
+    assert r.measures.window_visits[0, 0].tolist() == [8, 4, 4, 4, 4, 0, 0]  # no waypoint
+    assert r.measures.visits[0, 0, 5:].tolist() == [14, 14]  # but the robot did pass them
+    assert r.measures.last[0, 5:].tolist() == [0, 0]
 
 
 @pytest.mark.parametrize("engine", ENGINES)
