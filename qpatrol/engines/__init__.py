@@ -44,6 +44,8 @@ COMPILED_POLICIES = (
     "cc",
     "gbs",
     "sebs",
+    "dta-greedy",
+    "dta-ssi",
 )
 
 

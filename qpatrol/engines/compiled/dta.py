@@ -1,0 +1,156 @@
+"""``dta-greedy`` and ``dta-ssi`` compiled: goal followers whose goal may be any target.
+
+The numpy twin is :class:`qpatrol.strategies.dta.DTA` (:class:`~qpatrol.strategies.dta.Greedy`,
+:class:`~qpatrol.strategies.dta.SSI`), operation for operation: per robot in robot order,
+drop a goal in another robot's held pocket, choose a goal where needed (utilities in
+float64 in the twin's order, the allowed candidates of greatest utility, else every
+candidate's, ties by ``u[k, 1]``), then travel as :mod:`~qpatrol.engines.compiled.goals`.
+
+Pack: ``ipar = [kind (GREEDY, SSI)]``; ``fpar = [theta_idleness, theta_navigation,
+theta_origin]``; ``robot_i`` int64 ``[R, K, 2]`` each robot's goal (copied, and back by
+:func:`unpack`) and start cell; ``row_i`` int64 ``[C]`` the targets (0/1); ``dist`` int64
+``[C, C]``; ``row_f`` float64 ``[R, C]`` scratch, each run's candidates' utilities
+(written and read within one choice).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+from numba import njit
+
+from qpatrol.engines.compiled import goals
+from qpatrol.engines.compiled.pack import Pack, dummy_pack
+
+GREEDY, SSI = 0, 1
+KINDS = {"dta-greedy": GREEDY, "dta-ssi": SSI}
+
+
+def pack(strategy) -> Pack:
+    """The strategy's weights, targets, distances, goals and start cells."""
+    robot = np.stack([strategy.goal, strategy.origin], axis=2)
+    return dummy_pack(
+        ipar=np.array([KINDS[strategy.name]], dtype=np.int64),
+        fpar=strategy.theta.astype(np.float64),
+        robot_i=np.ascontiguousarray(robot, dtype=np.int64),
+        row_i=strategy.is_target.astype(np.int64),
+        dist=np.ascontiguousarray(strategy.dist, dtype=np.int64),
+        row_f=np.zeros((strategy.n_runs, strategy.is_target.size)),
+    )
+
+
+def unpack(p: Pack, strategy) -> None:
+    """Copy the goals back."""
+    strategy.goal = p.robot_i[..., 0].copy()
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _utility(r, k, t, c, x, communication, last, robot, dist, fpar):
+    """Robot k's utility of target x from cell c (greater is better)."""
+    idle = t - last[r, 0 if communication else k, x]
+    u = fpar[0] * np.float64(idle) + fpar[1] * np.float64(dist[c, x])
+    if fpar[2] != 0.0:
+        u = u + fpar[2] * np.float64(dist[robot[r, k, 1], x])
+    return u
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _allowed(kind, r, k, c, x, pos, robot, dist):
+    """``dta-greedy``: no other robot has x as its goal; ``dta-ssi``: robot k wins x's
+    auction (no other robot bids less than its ``dist[c, x]``)."""
+    n_agents = robot.shape[1]
+    if kind == GREEDY:
+        for j in range(n_agents):
+            if j != k and robot[r, j, 0] == x:
+                return False
+        return True
+    mine = dist[c, x]
+    for j in range(n_agents):
+        if j == k:
+            continue
+        g = robot[r, j, 0]
+        pj = pos[r, j]
+        if g == x:
+            b = 0
+        elif g >= 0:
+            b = dist[pj, g] + dist[g, x]
+        else:
+            b = dist[pj, x]
+        if b < mine:
+            return False
+    return True
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, score):
+    """Robot k's new goal from cell c (``score`` float64 ``[C]``: scratch, the run's own
+    row); -1 without a candidate."""
+    pos = s.pos
+    exchange = p.communication and robot.shape[1] > 1
+    best_c = -np.inf
+    n_cand = 0
+    best_a = -np.inf
+    n_allowed = 0
+    for x in range(is_target.shape[0]):
+        if not is_target[x] or x == c:
+            continue
+        if battery and goals._held_by_other(r, k, x, p.pocket_of, s.reserved):
+            continue
+        sc = _utility(r, k, t, c, x, p.communication, s.last, robot, dist, fpar)
+        score[x] = sc
+        n_cand += 1
+        if sc > best_c:
+            best_c = sc
+        if exchange and _allowed(kind, r, k, c, x, pos, robot, dist):
+            n_allowed += 1
+            if sc > best_a:
+                best_a = sc
+    if n_cand == 0:
+        return -1
+    use_allowed = n_allowed > 0
+    best = best_a if use_allowed else best_c
+    count = 0
+    for x in range(is_target.shape[0]):
+        if not is_target[x] or x == c:
+            continue
+        if battery and goals._held_by_other(r, k, x, p.pocket_of, s.reserved):
+            continue
+        if score[x] != best:
+            continue
+        if use_allowed and not _allowed(kind, r, k, c, x, pos, robot, dist):
+            continue
+        count += 1
+    j = min(np.int64(uu * count), count - 1)
+    for x in range(is_target.shape[0]):
+        if not is_target[x] or x == c:
+            continue
+        if battery and goals._held_by_other(r, k, x, p.pocket_of, s.reserved):
+            continue
+        if score[x] != best:
+            continue
+        if use_allowed and not _allowed(kind, r, k, c, x, pos, robot, dist):
+            continue
+        if j == 0:
+            return x
+        j -= 1
+    return -1
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def act(r, t, ur, battery, p, s, w, ipar, fpar, robot, is_target, dist, scratch):
+    """``w.ask[k]`` for each robot of run ``r`` at step ``t``: goals chosen robot by
+    robot, then the move towards the goal; -1 for robots not choosing."""
+    kind = ipar[0]
+    pos, open_mask, choosing, ask = s.pos, w.open_mask, w.choosing, w.ask
+    for k in range(choosing.shape[0]):
+        if not choosing[k]:
+            ask[k] = -1
+            continue
+        c = pos[r, k]
+        g = robot[r, k, 0]
+        if battery and goals._held_by_other(r, k, g, p.pocket_of, s.reserved):
+            g = -1
+        if g < 0 or g == c:
+            g = _choose(kind, r, k, t, ur[k, 1], c, battery, p, s, robot, is_target, dist, fpar,
+                        scratch[r])  # fmt: skip
+        robot[r, k, 0] = g
+        ask[k] = goals._travel(r, k, c, g, battery, p, s, open_mask, dist)
