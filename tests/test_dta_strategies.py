@@ -58,6 +58,11 @@ def test_dta_greedy_weighs_idleness_navigation_and_origin():
         idle_all(s, 50, {0: 0, 1: 0, 2: 24, 3: 10, 4: 0, 5: 24, 6: 0})
         decide(p, s, strat, 50, 0.0)
         assert strat.goal[0, 0] == want, origin
+    # its own cell is never a candidate, however idle its record
+    strat.goal[0, 0] = -1
+    idle_all(s, 50, {0: 0, 1: 90, 2: 24, 3: 10, 4: 0, 5: 24, 6: 0})
+    decide(p, s, strat, 50, 0.0)
+    assert strat.goal[0, 0] == 5
     # on its goal's way it keeps it, and moves towards it
     strat.goal[0, 0] = 6
     assert decide(p, s, strat, 50, 0.0)[0] == 2 and strat.goal[0, 0] == 6
