@@ -90,6 +90,7 @@ POLICIES: tuple[str, ...] = (
     "sebs",
     "dta-greedy",
     "dta-ssi",
+    "dta-ssi-part",
 )
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
@@ -273,11 +274,10 @@ SCHEMA: tuple[Field, ...] = (
         "dta.theta_idleness",
         "float",
         1.0,
-        "dta-greedy/dta-ssi: the utility's weight of a target's idleness "
-        "(patrolling_sim's theta_idleness)",
+        "dta-*: the utility's weight of a target's idleness (patrolling_sim's theta_idleness)",
         low=-1000.0,
         high=1000.0,
-        used_by=("dta-greedy", "dta-ssi"),
+        used_by=("dta-greedy", "dta-ssi", "dta-ssi-part"),
     ),
     F(
         "dta.greedy_navigation",
@@ -303,11 +303,11 @@ SCHEMA: tuple[Field, ...] = (
         "dta.ssi_navigation",
         "float",
         0.0,
-        "dta-ssi: the utility's weight of the moves to a target "
+        "dta-ssi, dta-ssi-part: the utility's weight of the moves to a target "
         "(patrolling_sim's theta_navigation)",
         low=-1000.0,
         high=1000.0,
-        used_by=("dta-ssi",),
+        used_by=("dta-ssi", "dta-ssi-part"),
     ),
     F(
         "qidle.gamma",

@@ -1,4 +1,5 @@
-"""The dynamic task assignment strategies of patrolling_sim: ``dta-greedy``, ``dta-ssi``.
+"""The dynamic task assignment strategies of patrolling_sim: ``dta-greedy``, ``dta-ssi``,
+``dta-ssi-part``.
 
 One decision of each, computed by hand on the small patrol graph of
 ``tests/test_field_strategies.py`` (hub 1 with four edges, D = 4); the two engines to the
@@ -17,7 +18,7 @@ from qpatrol import world
 from qpatrol.maps import get_map, parse_map
 from qpatrol.strategies import dta
 
-DTA = ("dta-greedy", "dta-ssi")
+DTA = ("dta-greedy", "dta-ssi", "dta-ssi-part")
 
 # The graph's targets are its vertices 0..6 (the station 4 too). Moves between them:
 # from 0: 1:2 2:5 3:3 4:4 5:2 6:6; from 1: 0:2 2:3 3:1 4:2 5:3 6:4;
@@ -122,6 +123,45 @@ def test_dta_ssi_navigation_weighs_the_moves():
     idle_all(s, 50, {0: 0, 1: 0, 2: 0, 3: 0, 4: 0, 5: 25, 6: 28})
     decide(p, s, strat, 50, 0.0)
     assert strat.goal[0, 0] == 6
+
+
+def test_dta_ssi_part_bids_from_the_center_times_the_tasks():
+    """Robot 0 on 1 (center 0, no tasks) auctions; robot 1 on 6 heads for 3, center 6.
+    Idleness: 2 (30), 6 (28), 5 (25), the rest less."""
+    m = parse_map(GRAPH)
+    idle = {0: 0, 1: 0, 2: 30, 3: 10, 4: 0, 5: 25, 6: 28}
+    # robot 1 owns 2: it bids 2 moves x 2 = 4 < 5 (robot 0: 5 moves x 1) and keeps it;
+    # for 6 it bids 0 x 3 (owning 2) < 6: it wins 6; for 5, 5 x 3 = 15 > 2: robot 0 wins
+    p, s, strat = setup(m, "dta-ssi-part", [1, 6])
+    strat.goal[0], strat.center[0] = [-1, 3], [0, 6]
+    strat.owner[0, 2] = 1
+    idle_all(s, 50, idle)
+    only_robot_0(p, s, strat, 50, 0.0)
+    assert strat.goal[0, 0] == 5
+    assert strat.owner[0, [2, 5, 6]].tolist() == [1, 0, 1]
+    # centers: robot 0's its one task, 5; robot 1's stays on its cell 6 (sum 2 to {2, 6},
+    # as from 2: its cell first on a tie)
+    assert strat.center[0].tolist() == [5, 6]
+    # robot 1 owning 2, 0 and 4 bids 2 x 4 = 8 > 5 for 2: robot 0 wins 2; robot 1's
+    # center moves to 0 (sums to {0, 4}: 0 from 0: 4, from 6: 12; 4 ties 0)
+    p, s, strat = setup(m, "dta-ssi-part", [1, 6])
+    strat.goal[0], strat.center[0] = [-1, 3], [0, 6]
+    strat.owner[0, [0, 2, 4]] = 1
+    idle_all(s, 50, idle)
+    only_robot_0(p, s, strat, 50, 0.0)
+    assert strat.goal[0, 0] == 2
+    assert strat.owner[0, [0, 2, 4]].tolist() == [1, 0, 1]
+    assert strat.center[0].tolist() == [2, 0]
+    # alone: no auction, the idlest target; equal utilities in cell order from floor(u C)
+    p, s, strat = setup(m, "dta-ssi-part", [1, 6], **{"team.communication": False})
+    strat.goal[0] = [-1, 3]
+    strat.owner[0, [0, 2, 4]] = 1
+    idle_all(s, 50, {**idle, 5: 30})
+    for u, want in ((0.0, 2), (0.25, 5)):  # C = 16 cells: o = 0, then 4 (5 before 2)
+        strat.goal[0, 0] = -1
+        only_robot_0(p, s, strat, 50, u)
+        assert strat.goal[0, 0] == want, u
+    assert strat.owner[0, [0, 2, 4]].tolist() == [1, 1, 1]
 
 
 #: (map, agents, battery, communication)

@@ -46,6 +46,7 @@ COMPILED_POLICIES = (
     "sebs",
     "dta-greedy",
     "dta-ssi",
+    "dta-ssi-part",
 )
 
 

@@ -138,3 +138,93 @@ class SSI(DTA):
         b = bids(self.dist, obs.state.pos[rows], self.goal[rows], k, c)
         others = np.delete(b, k, axis=1).min(axis=1)  # [B, C]
         return b[:, k] <= others
+
+
+def center_of(dist: np.ndarray, here: int, tasks: np.ndarray) -> int:
+    """The cell among ``here`` and ``tasks`` (int ``[T]``, in cell order) of least sum of
+    moves to the tasks (``here`` first, then the first in cell order, on a tie)."""
+    best, best_sum = here, int(dist[here, tasks].sum())
+    if tasks.size:
+        sums = dist[np.ix_(tasks, tasks)].sum(axis=1)
+        i = int(np.argmin(sums))
+        if sums[i] < best_sum:
+            best = int(tasks[i])
+    return best
+
+
+class PartSSI(DTA):
+    """``dta-ssi-part``: auctions with bids from each robot's region.
+
+    Attributes:
+        owner: int ``[R, C]``, the robot whose bid for a target won its last auction
+            (-1: never auctioned); a robot's *tasks* are the targets it owns.
+        center: int ``[R, K]``, each robot's center (its start cell at first).
+    """
+
+    name = "dta-ssi-part"
+
+    def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
+        super().__init__(cfg, m, p, start_cells)
+        self.owner = np.full((self.n_runs, self.is_target.size), -1, dtype=np.int64)
+        self.center = np.array(start_cells, dtype=np.int64)
+
+    def weights(self, cfg: Config) -> tuple[float, float, float]:
+        return (float(cfg["dta.theta_idleness"]), float(cfg["dta.ssi_navigation"]), 0.0)
+
+    def part_bids(self, r: int, x: int) -> np.ndarray:
+        """int ``[K]``: each robot's bid for target x in run r: 0 for its goal, else the
+        moves from its center to x times one more than its tasks."""
+        tasks = np.bincount(np.maximum(self.owner[r], 0), self.owner[r] >= 0, self.n_agents)
+        b = self.dist[self.center[r], x] * (tasks.astype(np.int64) + 1)
+        return np.where(self.goal[r] == x, 0, b)
+
+    def award(self, r: int, x: int, winner: int, pos: np.ndarray) -> None:
+        """Target x of run r goes to ``winner``; the centers of the robots whose tasks
+        changed (the winner, the previous owner) are computed again."""
+        before = int(self.owner[r, x])
+        self.owner[r, x] = winner
+        if before == winner:
+            return
+        for j in (winner, before) if before >= 0 else (winner,):
+            tasks = np.flatnonzero(self.owner[r] == j)
+            self.center[r, j] = center_of(self.dist, int(pos[j]), tasks)
+
+    def choose(
+        self,
+        obs: Observation,
+        k: int,
+        rows: np.ndarray,
+        mask: np.ndarray,
+        closed: np.ndarray,
+        u: np.ndarray,
+    ) -> np.ndarray:
+        s = obs.state
+        c = s.pos[rows, k]
+        n_cells = self.is_target.size
+        cells = np.broadcast_to(np.arange(n_cells), (rows.size, n_cells))
+        cand = self.is_target[None, :] & (cells != c[:, None])
+        if obs.params.battery:
+            cand &= ~self.held_by_other(s, obs.params, rows, k, cells)
+        util = self.utility(obs, k, rows, c)
+        auction = obs.params.communication and self.n_agents > 1
+        out = np.full(rows.size, -1, dtype=np.int64)
+        for b, r in enumerate(rows.tolist()):
+            xs = np.flatnonzero(cand[b])
+            if not xs.size:
+                continue
+            o = min(int(u[b] * n_cells), n_cells - 1)
+            order = xs[np.lexsort(((xs - o) % n_cells, -util[b, xs]))]
+            out[b] = order[0]
+            if not auction:
+                continue
+            pos = s.pos[r]
+            for x in order.tolist():
+                bid = self.part_bids(r, x)
+                others = np.delete(bid, k)
+                winner = k if bid[k] <= others.min() else int(np.argmin(np.where(
+                    np.arange(self.n_agents) == k, np.iinfo(np.int64).max, bid)))  # fmt: skip
+                self.award(r, x, winner, pos)
+                if winner == k:
+                    out[b] = x
+                    break
+        return out

@@ -38,7 +38,7 @@ QLEARNING = 0
 QLEARNING_IDLENESS = 1
 RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 5, 6, 7
 HCR, CC, GBS, SEBS = 8, 9, 10, 11  # the goal followers (compiled/goals.py)
-DTA_GREEDY, DTA_SSI = 12, 13  # goal followers with any target (compiled/dta.py)
+DTA_GREEDY, DTA_SSI, DTA_SSI_PART = 12, 13, 14  # goal followers with any target (compiled/dta.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -56,6 +56,7 @@ MODULES = {
     "sebs": (SEBS, goals),
     "dta-greedy": (DTA_GREEDY, dta),
     "dta-ssi": (DTA_SSI, dta),
+    "dta-ssi-part": (DTA_SSI_PART, dta),
 }
 
 
@@ -146,10 +147,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
             sp.dist, sp.cell_i, sp.row_f,
         )  # fmt: skip
-    elif code == DTA_GREEDY or code == DTA_SSI:
+    elif code >= DTA_GREEDY and code <= DTA_SSI_PART:
         dta.act(
-            r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.row_i, sp.dist, sp.row_f
-        )
+            r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.row_i,
+            sp.dist, sp.row_f,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

@@ -6,11 +6,13 @@ drop a goal in another robot's held pocket, choose a goal where needed (utilitie
 float64 in the twin's order, the allowed candidates of greatest utility, else every
 candidate's, ties by ``u[k, 1]``), then travel as :mod:`~qpatrol.engines.compiled.goals`.
 
-Pack: ``ipar = [kind (GREEDY, SSI)]``; ``fpar = [theta_idleness, theta_navigation,
-theta_origin]``; ``robot_i`` int64 ``[R, K, 2]`` each robot's goal (copied, and back by
-:func:`unpack`) and start cell; ``row_i`` int64 ``[C]`` the targets (0/1); ``dist`` int64
-``[C, C]``; ``row_f`` float64 ``[R, C]`` scratch, each run's candidates' utilities
-(written and read within one choice).
+Pack: ``ipar = [kind (GREEDY, SSI, PART)]``; ``fpar = [theta_idleness,
+theta_navigation, theta_origin]``; ``robot_i`` int64 ``[R, K, 3]`` each robot's goal,
+start cell and (``dta-ssi-part``) center (copied, and back by :func:`unpack`);
+``cell_i`` int64 ``[R, 1, C]`` (``dta-ssi-part``) each target's owner (copied, and
+back); ``row_i`` int64 ``[C]`` the targets (0/1); ``dist`` int64 ``[C, C]``; ``row_f``
+float64 ``[R, C]`` scratch, each run's candidates' utilities (written and read within
+one choice).
 """
 
 from __future__ import annotations
@@ -21,26 +23,35 @@ from numba import njit
 from qpatrol.engines.compiled import goals
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
-GREEDY, SSI = 0, 1
-KINDS = {"dta-greedy": GREEDY, "dta-ssi": SSI}
+GREEDY, SSI, PART = 0, 1, 2
+KINDS = {"dta-greedy": GREEDY, "dta-ssi": SSI, "dta-ssi-part": PART}
 
 
 def pack(strategy) -> Pack:
-    """The strategy's weights, targets, distances, goals and start cells."""
-    robot = np.stack([strategy.goal, strategy.origin], axis=2)
-    return dummy_pack(
-        ipar=np.array([KINDS[strategy.name]], dtype=np.int64),
-        fpar=strategy.theta.astype(np.float64),
-        robot_i=np.ascontiguousarray(robot, dtype=np.int64),
-        row_i=strategy.is_target.astype(np.int64),
-        dist=np.ascontiguousarray(strategy.dist, dtype=np.int64),
-        row_f=np.zeros((strategy.n_runs, strategy.is_target.size)),
-    )
+    """The strategy's weights, targets, distances, goals and start cells (and
+    ``dta-ssi-part``'s centers and owners)."""
+    kind = KINDS[strategy.name]
+    center = strategy.center if kind == PART else strategy.origin
+    robot = np.stack([strategy.goal, strategy.origin, center], axis=2)
+    fields = {
+        "ipar": np.array([kind], dtype=np.int64),
+        "fpar": strategy.theta.astype(np.float64),
+        "robot_i": np.ascontiguousarray(robot, dtype=np.int64),
+        "row_i": strategy.is_target.astype(np.int64),
+        "dist": np.ascontiguousarray(strategy.dist, dtype=np.int64),
+        "row_f": np.zeros((strategy.n_runs, strategy.is_target.size)),
+    }
+    if kind == PART:
+        fields["cell_i"] = np.ascontiguousarray(strategy.owner[:, None, :], dtype=np.int64)
+    return dummy_pack(**fields)
 
 
 def unpack(p: Pack, strategy) -> None:
-    """Copy the goals back."""
+    """Copy the goals back (and ``dta-ssi-part``'s centers and owners)."""
     strategy.goal = p.robot_i[..., 0].copy()
+    if strategy.name == "dta-ssi-part":
+        strategy.center = p.robot_i[..., 2].copy()
+        strategy.owner = p.cell_i[:, 0, :].copy()
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -136,7 +147,103 @@ def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, s
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def act(r, t, ur, battery, p, s, w, ipar, fpar, robot, is_target, dist, scratch):
+def _center(r, j, here, owner, dist):
+    """Robot j's center: the cell among ``here`` and its tasks (the targets it owns) of
+    least sum of moves to its tasks (``here``, then the first in cell order, on a tie)."""
+    n_cells = owner.shape[2]
+    best = here
+    best_sum = 0
+    for i in range(n_cells):
+        if owner[r, 0, i] == j:
+            best_sum += dist[here, i]
+    for x in range(n_cells):
+        if owner[r, 0, x] != j:
+            continue
+        total = 0
+        for i in range(n_cells):
+            if owner[r, 0, i] == j:
+                total += dist[x, i]
+        if total < best_sum:
+            best_sum = total
+            best = x
+    return best
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _auction(r, k, x, pos, robot, owner, dist):
+    """Target x auctioned by robot k (``dta-ssi-part``): the winner (k on a tie, else
+    the lowest bidder of least index) becomes its owner, and the centers of the robots
+    whose tasks changed are computed again. Returns the winner."""
+    n_agents = robot.shape[1]
+    n_cells = owner.shape[2]
+    mine = 0
+    best = -1
+    best_bid = 0
+    for j in range(n_agents):
+        if robot[r, j, 0] == x:
+            b = 0
+        else:
+            tasks = 0
+            for i in range(n_cells):
+                if owner[r, 0, i] == j:
+                    tasks += 1
+            b = dist[robot[r, j, 2], x] * (tasks + 1)
+        if j == k:
+            mine = b
+        elif best < 0 or b < best_bid:
+            best = j
+            best_bid = b
+    winner = k if mine <= best_bid else best
+    before = owner[r, 0, x]
+    owner[r, 0, x] = winner
+    if before != winner:
+        robot[r, winner, 2] = _center(r, winner, pos[r, winner], owner, dist)
+        if before >= 0:
+            robot[r, before, 2] = _center(r, before, pos[r, before], owner, dist)
+    return winner
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def _choose_part(r, k, t, uu, c, battery, p, s, robot, owner, is_target, dist, fpar, score):
+    """``dta-ssi-part``: robot k auctions its candidates by decreasing utility (equal
+    utilities in cell order from ``floor(u C)``, wrapping) until it wins one; the first
+    candidate when it wins none (or without communication); -1 without a candidate."""
+    n_cells = is_target.shape[0]
+    n_cand = 0
+    for x in range(n_cells):
+        score[x] = -np.inf
+        if not is_target[x] or x == c:
+            continue
+        if battery and goals._held_by_other(r, k, x, p.pocket_of, s.reserved):
+            continue
+        score[x] = _utility(r, k, t, c, x, p.communication, s.last, robot, dist, fpar)
+        n_cand += 1
+    if n_cand == 0:
+        return -1
+    o = min(np.int64(uu * n_cells), n_cells - 1)
+    auction = p.communication and robot.shape[1] > 1
+    first = -1
+    for _ in range(n_cand):
+        x = -1
+        for y in range(n_cells):
+            if score[y] == -np.inf:
+                continue
+            if x < 0 or score[y] > score[x]:
+                x = y
+            elif score[y] == score[x] and (y - o + n_cells) % n_cells < (x - o + n_cells) % n_cells:
+                x = y
+        if first < 0:
+            first = x
+            if not auction:
+                return x
+        if _auction(r, k, x, s.pos, robot, owner, dist) == k:
+            return x
+        score[x] = -np.inf
+    return first
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def act(r, t, ur, battery, p, s, w, ipar, fpar, robot, owner, is_target, dist, scratch):
     """``w.ask[k]`` for each robot of run ``r`` at step ``t``: goals chosen robot by
     robot, then the move towards the goal; -1 for robots not choosing."""
     kind = ipar[0]
@@ -149,7 +256,10 @@ def act(r, t, ur, battery, p, s, w, ipar, fpar, robot, is_target, dist, scratch)
         g = robot[r, k, 0]
         if battery and goals._held_by_other(r, k, g, p.pocket_of, s.reserved):
             g = -1
-        if g < 0 or g == c:
+        if (g < 0 or g == c) and kind == PART:
+            g = _choose_part(r, k, t, ur[k, 1], c, battery, p, s, robot, owner, is_target,
+                             dist, fpar, scratch[r])  # fmt: skip
+        elif g < 0 or g == c:
             g = _choose(kind, r, k, t, ur[k, 1], c, battery, p, s, robot, is_target, dist, fpar,
                         scratch[r])  # fmt: skip
         robot[r, k, 0] = g
