@@ -152,6 +152,12 @@ def test_dta_ssi_part_bids_from_the_center_times_the_tasks():
     assert strat.goal[0, 0] == 2
     assert strat.owner[0, [0, 2, 4]].tolist() == [1, 0, 1]
     assert strat.center[0].tolist() == [2, 0]
+    # a tie of bids stays with the auctioneer: for 3, 3 moves x 1 from either center
+    p, s, strat = setup(m, "dta-ssi-part", [1, 6])
+    strat.goal[0], strat.center[0] = [-1, 4], [0, 6]
+    idle_all(s, 50, {**idle, 3: 40})
+    only_robot_0(p, s, strat, 50, 0.0)
+    assert strat.goal[0, 0] == 3 and strat.owner[0, 3] == 0
     # alone: no auction, the idlest target; equal utilities in cell order from floor(u C)
     p, s, strat = setup(m, "dta-ssi-part", [1, 6], **{"team.communication": False})
     strat.goal[0] = [-1, 3]

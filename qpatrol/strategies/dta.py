@@ -1,5 +1,5 @@
-"""Dynamic task assignment (Farinelli, Iocchi, Nardi et al. 2017): ``dta-greedy`` and
-``dta-ssi``, goal followers whose goal may be any target.
+"""Dynamic task assignment (Farinelli, Iocchi, Nardi et al. 2017): ``dta-greedy``,
+``dta-ssi`` and ``dta-ssi-part``, goal followers whose goal may be any target.
 
 A robot chooses a goal when it has none or stands on it (:mod:`qpatrol.strategies.goals`
 for travel and held pockets). Its candidates are the targets other than its own cell,
@@ -23,6 +23,9 @@ allowed), ties to the j-th tied target in cell order, ``j = floor(u x ties)``:
   ``L(p_j, g_j) + L(g_j, x)`` (``L(p_j, x)`` without one). The auctioneer wins when no
   other robot bids less (it keeps ties). Going down the candidates by utility and
   taking the first one won is the same as taking the best won one.
+
+- ``dta-ssi-part`` (``DTASSIPart_Agent``): :class:`PartSSI`, auctions whose bids come
+  from each robot's region (its won targets and their center).
 
 With communication off every candidate is allowed: each robot is alone.
 """
