@@ -91,6 +91,7 @@ POLICIES: tuple[str, ...] = (
     "dta-greedy",
     "dta-ssi",
     "dta-ssi-part",
+    "cbls",
 )
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)

@@ -47,6 +47,7 @@ COMPILED_POLICIES = (
     "dta-greedy",
     "dta-ssi",
     "dta-ssi-part",
+    "cbls",
 )
 
 
