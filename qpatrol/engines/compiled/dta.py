@@ -1,18 +1,22 @@
-"""``dta-greedy`` and ``dta-ssi`` compiled: goal followers whose goal may be any target.
+"""``dta-greedy``, ``dta-ssi`` and ``dta-ssi-part`` compiled: goal followers whose goal
+may be any target.
 
 The numpy twin is :class:`qpatrol.strategies.dta.DTA` (:class:`~qpatrol.strategies.dta.Greedy`,
-:class:`~qpatrol.strategies.dta.SSI`), operation for operation: per robot in robot order,
-drop a goal in another robot's held pocket, choose a goal where needed (utilities in
-float64 in the twin's order, the allowed candidates of greatest utility, else every
-candidate's, ties by ``u[k, 1]``), then travel as :mod:`~qpatrol.engines.compiled.goals`.
+:class:`~qpatrol.strategies.dta.SSI`, :class:`~qpatrol.strategies.dta.PartSSI`),
+operation for operation: per robot in robot order, drop a goal in another robot's held
+pocket, choose a goal where needed (utilities in float64 in the twin's order; the
+allowed candidates of greatest utility, else every candidate's, ties by ``u[k, 1]``;
+``dta-ssi-part``: auctions in decreasing utility, :func:`_choose_part`), then travel as
+:mod:`~qpatrol.engines.compiled.goals`.
 
 Pack: ``ipar = [kind (GREEDY, SSI, PART)]``; ``fpar = [theta_idleness,
-theta_navigation, theta_origin]``; ``robot_i`` int64 ``[R, K, 3]`` each robot's goal,
-start cell and (``dta-ssi-part``) center (copied, and back by :func:`unpack`);
-``cell_i`` int64 ``[R, 1, C]`` (``dta-ssi-part``) each target's owner (copied, and
-back); ``row_i`` int64 ``[C]`` the targets (0/1); ``dist`` int64 ``[C, C]``; ``row_f``
-float64 ``[R, C]`` scratch, each run's candidates' utilities (written and read within
-one choice).
+theta_navigation, theta_origin]``; ``robot_i`` int64 ``[R, K, 4]`` each robot's goal,
+start cell and (``dta-ssi-part``) center and number of tasks (copied; goals and centers
+back by :func:`unpack`); ``cell_i`` int64 ``[R, 2, C]`` (``dta-ssi-part``) each
+target's owner (copied, and back), then a scratch row (a robot's tasks, listed);
+``row_i`` int64 ``[C]`` the targets (0/1); ``dist`` int64 ``[C, C]``; ``row_f`` float64
+``[R, C]`` scratch, each run's candidates' utilities (written and read within one
+choice).
 """
 
 from __future__ import annotations
@@ -32,7 +36,10 @@ def pack(strategy) -> Pack:
     ``dta-ssi-part``'s centers and owners)."""
     kind = KINDS[strategy.name]
     center = strategy.center if kind == PART else strategy.origin
-    robot = np.stack([strategy.goal, strategy.origin, center], axis=2)
+    tasks = np.zeros_like(strategy.goal)
+    if kind == PART:
+        tasks = (strategy.owner[:, None, :] == np.arange(strategy.n_agents)[None, :, None]).sum(2)
+    robot = np.stack([strategy.goal, strategy.origin, center, tasks], axis=2)
     fields = {
         "ipar": np.array([kind], dtype=np.int64),
         "fpar": strategy.theta.astype(np.float64),
@@ -42,7 +49,8 @@ def pack(strategy) -> Pack:
         "row_f": np.zeros((strategy.n_runs, strategy.is_target.size)),
     }
     if kind == PART:
-        fields["cell_i"] = np.ascontiguousarray(strategy.owner[:, None, :], dtype=np.int64)
+        owner = np.stack([strategy.owner, np.zeros_like(strategy.owner)], axis=1)
+        fields["cell_i"] = np.ascontiguousarray(owner, dtype=np.int64)
     return dummy_pack(**fields)
 
 
@@ -149,20 +157,23 @@ def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, s
 @njit(cache=True, nogil=True, _nrt=False)
 def _center(r, j, here, owner, dist):
     """Robot j's center: the cell among ``here`` and its tasks (the targets it owns) of
-    least sum of moves to its tasks (``here``, then the first in cell order, on a tie)."""
+    least sum of moves to its tasks (``here``, then the first in cell order, on a tie).
+    Lists the tasks in ``owner[r, 1]`` (scratch) first."""
     n_cells = owner.shape[2]
-    best = here
-    best_sum = 0
+    n_tasks = 0
     for i in range(n_cells):
         if owner[r, 0, i] == j:
-            best_sum += dist[here, i]
-    for x in range(n_cells):
-        if owner[r, 0, x] != j:
-            continue
+            owner[r, 1, n_tasks] = i
+            n_tasks += 1
+    best = here
+    best_sum = 0
+    for a in range(n_tasks):
+        best_sum += dist[here, owner[r, 1, a]]
+    for a in range(n_tasks):
+        x = owner[r, 1, a]
         total = 0
-        for i in range(n_cells):
-            if owner[r, 0, i] == j:
-                total += dist[x, i]
+        for b in range(n_tasks):
+            total += dist[x, owner[r, 1, b]]
         if total < best_sum:
             best_sum = total
             best = x
@@ -175,7 +186,6 @@ def _auction(r, k, x, pos, robot, owner, dist):
     the lowest bidder of least index) becomes its owner, and the centers of the robots
     whose tasks changed are computed again. Returns the winner."""
     n_agents = robot.shape[1]
-    n_cells = owner.shape[2]
     mine = 0
     best = -1
     best_bid = 0
@@ -183,11 +193,7 @@ def _auction(r, k, x, pos, robot, owner, dist):
         if robot[r, j, 0] == x:
             b = 0
         else:
-            tasks = 0
-            for i in range(n_cells):
-                if owner[r, 0, i] == j:
-                    tasks += 1
-            b = dist[robot[r, j, 2], x] * (tasks + 1)
+            b = dist[robot[r, j, 2], x] * (robot[r, j, 3] + 1)
         if j == k:
             mine = b
         elif best < 0 or b < best_bid:
@@ -197,8 +203,10 @@ def _auction(r, k, x, pos, robot, owner, dist):
     before = owner[r, 0, x]
     owner[r, 0, x] = winner
     if before != winner:
+        robot[r, winner, 3] += 1
         robot[r, winner, 2] = _center(r, winner, pos[r, winner], owner, dist)
         if before >= 0:
+            robot[r, before, 3] -= 1
             robot[r, before, 2] = _center(r, before, pos[r, before], owner, dist)
     return winner
 
