@@ -112,8 +112,8 @@ def test_dta_ssi_bids_and_auctions():
 
 
 def test_dta_ssi_navigation_weighs_the_moves():
-    """``dta.ssi_navigation = -2``: from 1, 5 (idleness 25, 3 moves: 19) beats 6 (28, 4
-    moves: 20)? No: 6 scores 20 > 19; 3 (idleness 24, 1 move: 22) beats both."""
+    """``dta.ssi_navigation = -2``, from 1: 3 (idleness 24, 1 move: 22) beats 6 (28, 4
+    moves: 20) and 5 (25, 3 moves: 19); without 3's idleness, 6 beats 5."""
     m = parse_map(GRAPH)
     p, s, strat = setup(m, "dta-ssi", [1], **{"dta.ssi_navigation": -2.0})
     idle_all(s, 50, {0: 0, 1: 0, 2: 0, 3: 24, 4: 0, 5: 25, 6: 28})
