@@ -88,6 +88,10 @@ POLICIES: tuple[str, ...] = (
     "cc",
     "gbs",
     "sebs",
+    "dta-greedy",
+    "dta-ssi",
+    "dta-ssi-part",
+    "cbls",
 )
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
@@ -267,6 +271,45 @@ SCHEMA: tuple[Field, ...] = (
         low=0.0,
         low_open=True,
         used_by=("gbs", "sebs"),
+    ),
+    F(
+        "dta.theta_idleness",
+        "float",
+        1.0,
+        "dta-*: the utility's weight of a target's idleness (patrolling_sim's theta_idleness)",
+        low=-1000.0,
+        high=1000.0,
+        used_by=("dta-greedy", "dta-ssi", "dta-ssi-part"),
+    ),
+    F(
+        "dta.greedy_navigation",
+        "float",
+        -0.5,
+        "dta-greedy: the utility's weight of the moves to a target "
+        "(patrolling_sim's theta_navigation)",
+        low=-1000.0,
+        high=1000.0,
+        used_by=("dta-greedy",),
+    ),
+    F(
+        "dta.greedy_origin",
+        "float",
+        -2.0,
+        "dta-greedy: the utility's weight of a target's moves from the robot's start cell "
+        "(patrolling_sim's theta_distance_from_origin)",
+        low=-1000.0,
+        high=1000.0,
+        used_by=("dta-greedy",),
+    ),
+    F(
+        "dta.ssi_navigation",
+        "float",
+        0.0,
+        "dta-ssi, dta-ssi-part: the utility's weight of the moves to a target "
+        "(patrolling_sim's theta_navigation)",
+        low=-1000.0,
+        high=1000.0,
+        used_by=("dta-ssi", "dta-ssi-part"),
     ),
     F(
         "qidle.gamma",

@@ -44,6 +44,10 @@ COMPILED_POLICIES = (
     "cc",
     "gbs",
     "sebs",
+    "dta-greedy",
+    "dta-ssi",
+    "dta-ssi-part",
+    "cbls",
 )
 
 

@@ -18,7 +18,9 @@ from numba import njit
 
 from qpatrol.engines import cachelock
 from qpatrol.engines.compiled import (
+    cbls,
     conscientious,
+    dta,
     evap,
     follow,
     goals,
@@ -38,6 +40,8 @@ QLEARNING = 0
 QLEARNING_IDLENESS = 1
 RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 5, 6, 7
 HCR, CC, GBS, SEBS = 8, 9, 10, 11  # the goal followers (compiled/goals.py)
+DTA_GREEDY, DTA_SSI, DTA_SSI_PART = 12, 13, 14  # goal followers with any target (compiled/dta.py)
+CBLS = 15  # the learning goal follower (compiled/cbls.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -53,6 +57,10 @@ MODULES = {
     "cc": (CC, goals),
     "gbs": (GBS, goals),
     "sebs": (SEBS, goals),
+    "dta-greedy": (DTA_GREEDY, dta),
+    "dta-ssi": (DTA_SSI, dta),
+    "dta-ssi-part": (DTA_SSI_PART, dta),
+    "cbls": (CBLS, cbls),
 }
 
 
@@ -147,6 +155,16 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
             sp.dist, sp.cell_i, sp.row_f,
         )  # fmt: skip
+    elif code >= DTA_GREEDY and code <= DTA_SSI_PART:
+        dta.act(
+            r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.row_i,
+            sp.dist, sp.row_f,
+        )  # fmt: skip
+    elif code == CBLS:
+        cbls.act(
+            r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,
+            sp.table_i, sp.row_i, sp.dist,
+        )  # fmt: skip
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -174,4 +192,6 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
         follow.learn(r, w.blocked_by, sp.robot_i)
     elif code >= HCR and code <= SEBS:
         goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
+    elif code == CBLS:
+        cbls.learn(r, t, p.communication, s.pos, w.moved, sp.row_i, sp.cell_i, sp.cell_f)
     return n_up
