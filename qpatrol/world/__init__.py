@@ -379,8 +379,8 @@ def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
     """int ``[K]``: start cells of one run's robots.
 
     Robot k < (number of start digits) starts on its digit. Each further robot goes to
-    the free cell farthest (shortest path) from every robot placed so far, ties broken
-    by ``rng``, which spreads the team over the map.
+    the target cell (any cell of a grid, a graph's vertex) farthest (shortest path) from
+    every robot placed so far, ties broken by ``rng``, which spreads the team over the map.
     """
     k = p.n_agents
     placed = list(p.starts[:k])
@@ -392,6 +392,7 @@ def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
             else:
                 far = np.ones(p.n_cells, dtype=np.int64)
             far[placed] = -1
+            far[~p.target] = -1  # a graph's robots start on vertices, not inside edges
             best = np.flatnonzero(far == far.max())
             placed.append(int(best[rng.integers(best.size)]))
     return np.array(placed, dtype=np.int64)
