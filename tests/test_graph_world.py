@@ -360,3 +360,23 @@ def test_plain_python_reference_loop_gives_the_cores_q_table_on_a_graph(tmp_path
     np.testing.assert_array_equal(n, core.strategy.n[0])
     assert np.array_equal(q, core.strategy.q[0])
     assert ref.pos == core.state.pos[0].tolist()
+
+
+def test_watch_is_refused_on_a_graph_without_four_ports(tmp_path):
+    """watch.csv has a grid cell's four Q-value columns: a D = 2 graph refuses record.watch
+    at load, naming the key (one line, a ConfigError)."""
+    from qpatrol.config import ConfigError, from_flat
+    from qpatrol.maps import load_map
+    from qpatrol.world import make_params
+
+    path = tmp_path / "tri.txt"
+    path.write_text("; kind: graph\nv 0 0 0\nv 1 1 0\nv 2 0 1\ne 0 1 1\ne 1 2 2\ne 2 0 1\n")
+    m = load_map(path)
+    assert m.n_ports == 2  # a triangle: every cell has two ports
+    cfg = from_flat({"map": str(path), "battery.enabled": False, "agents": 1})
+    make_params(cfg, m)  # accepted without a watched cell
+    watched = from_flat(
+        {"map": str(path), "battery.enabled": False, "agents": 1, "record.watch": [0]}
+    )
+    with pytest.raises(ConfigError, match=r"^record\.watch: .*2 ports"):
+        make_params(watched, m)

@@ -111,6 +111,11 @@ def make_params(cfg: Config, m: Map) -> Params:
         )
     if k > c:
         raise ConfigError(f"agents: {k} agents do not fit on map {m.name} ({c} free cells)")
+    if cfg["record.watch"] and m.n_ports != 4:
+        raise ConfigError(
+            f"record.watch: watch.csv holds a cell's four Q-values (q_north..q_west), and map "
+            f"{m.name} has {m.n_ports} ports per cell; allowed here: [] (no watched cell)"
+        )
     dot_value = np.zeros(c)
     dot_value[m.dot_kind == SMALL_DOT] = cfg["reward.dot_value"]
     dot_value[m.dot_kind == BIG] = cfg["reward.big_dot_value"]
