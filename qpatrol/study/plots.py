@@ -826,7 +826,7 @@ STRATEGY_STYLE = {
     "cc": ("tab:pink", "<"),
     "gbs": ("navy", ">"),
     "sebs": ("darkgoldenrod", "p"),
-    "cbls": ("crimson", "8"),
+    "cbls": ("k", "+"),
     "dta-greedy": ("teal", "d"),
     "dta-ssi": ("slategray", "X"),
     "dta-ssi-part": ("darkgreen", "1"),

@@ -593,6 +593,8 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
         row = [f"| {m} | {int(k)} "]
         for col, _ in FIELD_RANKED:
             ok = d[d[f"{col}_mean"].notna()]
+            if col == "qmi":  # intervals that ended only: a vertex never entered adds none
+                ok = ok[ok["coverage_mean"] >= 1]
             if not len(ok):
                 row.append("| - ")
                 continue
@@ -608,7 +610,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             )
         else:
             row.append("| - ")
-        ps = d[d["policy"].isin(PATROLLING_SIM)]
+        ps = d[d["policy"].isin(PATROLLING_SIM) & (d["coverage_mean"] >= 1)]
         if len(ps):
             b = ps.sort_values("qmi_mean", kind="stable").iloc[0]
             row.append(f"| {_fmt(b.qmi_mean)} ({b.policy}) ")
@@ -617,8 +619,8 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
         rows.append("".join(row) + "|")
     table = "\n".join(
         [
-            "| graph | K | best average idleness | best worst average idleness | best QMI "
-            "| cyclic: average / worst average / QMI | best patrolling_sim QMI |",
+            "| graph | K | best average idleness | best worst average idleness | best QMI* "
+            "| cyclic: average / worst average / QMI | best patrolling_sim QMI* |",
             "|---|---|---|---|---|---|---|",
             *rows,
         ]
@@ -650,6 +652,36 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "coverage below 1): " + "; ".join(parts) + "."
         )
     interf = fig.sort_values("interferences_mean", kind="stable").iloc[-1]
+    jams = ""
+    if res is not None and len(res) and "interferences" in res.columns:
+        r = res.copy()
+        steps = pd.to_numeric(r["steps"]) - pd.to_numeric(r["record.warmup"])
+        share = pd.to_numeric(r["interferences"]) / (pd.to_numeric(r["agents"]) * steps)
+        cov = pd.to_numeric(r["coverage"])
+        bad = r[(share > 0.5) | (cov < 1)]
+        if len(bad):
+            parts = []
+            for name, g in bad.groupby("policy", sort=False):
+                gs = share[g.index]
+                parts.append(f"{name} {len(g)} ({int((gs > 0.5).sum())} blocked)")
+            jams = (
+                f" Runs that left a vertex unvisited for the whole window or whose robots "
+                f"were blocked in more than half of their robot steps: {len(bad)} of "
+                f"{len(r)}: " + ", ".join(parts) + ". Blocking is congestion in dense teams "
+                "or a livelock of robots that insist on their path (docs/model.md, goal "
+                "followers): two robots whose goals lie past each other in a one-wide edge "
+                "or dead end push each other back and forth, each move refused or undone, "
+                "and no wait ever reaches `wait_bound`, so `live` does not see it (seen "
+                "step by step: `cc`, ps_cumberland, K = 2, two robots shuttling by a dead "
+                "end for the whole run)."
+            )
+    episodes = ""
+    if res is not None and "mean_steps_per_episode" in res.columns:
+        empty = int(res["mean_steps_per_episode"].isna().sum())
+        episodes = (
+            f" {empty} of {len(res)} runs ended no dot episode in the window (no measure "
+            "here uses episodes)."
+        )
     return Section(
         "Beyond the paper: the field's benchmark on patrolling_sim's graphs",
         ["figures/field.png"],
@@ -665,7 +697,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "warm-up, at the vertices only (waypoints inside edges are in transit). L/K: K "
             "robots evenly spaced on the closed walk of length L through every vertex.",
             f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`), "
-            f"{missing} without an idleness value.{uncovered}{_no_episode(res)} Most "
+            f"{missing} without an idleness value.{uncovered}{jams}{episodes} Most "
             f"interferences: {interf.policy} on {interf['map']} with K = "
             f"{int(interf.agents)} ({_fmt(interf.interferences_mean)} per run).",
             "Cells give the mean over runs and the strategy that reaches it. Every measure "
@@ -673,6 +705,9 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "average idleness, visit-frequency spread, complete cycles, interferences): "
             "`figures/field.csv`.",
             table,
+            "*QMI only among strategies whose every run entered every vertex in the window: "
+            "QMI averages the intervals that ended, so a vertex never entered adds none and "
+            "a strategy that neglects vertices can score low.",
             *tallies,
         ],
         "no paper numbers to compare with; mean over runs.",
