@@ -41,12 +41,7 @@ class Strategy(goals.GoalFollower):
         closed: np.ndarray,
         u: np.ndarray,
     ) -> np.ndarray:
-        c = obs.state.pos[rows, k]
-        n_cells = self.is_target.size
-        cells = np.broadcast_to(np.arange(n_cells), (rows.size, n_cells))
-        cand = self.is_target[None, :] & (cells != c[:, None])
-        if obs.params.battery:
-            cand &= ~self.held_by_other(obs.state, obs.params, rows, k, cells)
+        c, cells, cand = self.any_target(obs, k, rows)
         seen = np.where(cand, self.memory[rows, k], np.iinfo(np.int64).max)
         best = cand & (seen == seen.min(axis=1, keepdims=True))
         has = cand.any(axis=1)

@@ -82,12 +82,7 @@ class DTA(goals.GoalFollower):
         closed: np.ndarray,
         u: np.ndarray,
     ) -> np.ndarray:
-        c = obs.state.pos[rows, k]
-        n_cells = self.is_target.size
-        cells = np.broadcast_to(np.arange(n_cells), (rows.size, n_cells))
-        cand = self.is_target[None, :] & (cells != c[:, None])
-        if obs.params.battery:
-            cand &= ~self.held_by_other(obs.state, obs.params, rows, k, cells)
+        c, cells, cand = self.any_target(obs, k, rows)
         ok = cand
         if obs.params.communication and self.n_agents > 1:
             ok = cand & self.allowed(obs, k, rows, c)
@@ -202,12 +197,8 @@ class PartSSI(DTA):
         u: np.ndarray,
     ) -> np.ndarray:
         s = obs.state
-        c = s.pos[rows, k]
+        c, cells, cand = self.any_target(obs, k, rows)
         n_cells = self.is_target.size
-        cells = np.broadcast_to(np.arange(n_cells), (rows.size, n_cells))
-        cand = self.is_target[None, :] & (cells != c[:, None])
-        if obs.params.battery:
-            cand &= ~self.held_by_other(s, obs.params, rows, k, cells)
         util = self.utility(obs, k, rows, c)
         auction = obs.params.communication and self.n_agents > 1
         out = np.full(rows.size, -1, dtype=np.int64)

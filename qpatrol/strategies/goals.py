@@ -123,6 +123,18 @@ class GoalFollower(base.Strategy):
             ask[:, k] = np.where(ch, self.travel(c, g, ports[:, k], mask[:, k], closed[:, k]), -1)
         return ask
 
+    def any_target(self, obs: Observation, k: int, rows: np.ndarray) -> tuple:
+        """The goals robot k may take anywhere (``cc`` and the task-assignment strategies):
+        ``(cell [B], cells [B, C], cand bool [B, C])``, ``cand`` every target but the
+        robot's own cell and, with the battery, those in a pocket another robot holds."""
+        c = obs.state.pos[rows, k]
+        n_cells = self.is_target.size
+        cells = np.broadcast_to(np.arange(n_cells), (rows.size, n_cells))
+        cand = self.is_target[None, :] & (cells != c[:, None])
+        if obs.params.battery:
+            cand &= ~self.held_by_other(obs.state, obs.params, rows, k, cells)
+        return c, cells, cand
+
     def held_by_other(
         self, s: object, p: Params, rows: np.ndarray, k: int, cells: np.ndarray
     ) -> np.ndarray:
