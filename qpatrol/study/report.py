@@ -342,6 +342,36 @@ def _no_episode(res: pd.DataFrame | None) -> str:
     )
 
 
+def _wide_spread(res: pd.DataFrame | None) -> str:
+    """A sentence naming the points (``res``: a study's per-run ``results.csv``) whose
+    runs' average idleness spreads wider than its mean (standard deviation over runs above
+    the mean), with the mean and the worst run; "" when there are none."""
+    if res is None or not len(res) or "avg_idleness" not in res:
+        return ""
+    keys = [c for c in ("map", "policy", "agents") if c in res]
+    idle = pd.to_numeric(res["avg_idleness"])
+    stats = idle.groupby([res[c] for c in keys], sort=False).agg(["mean", "std", "max"])
+    wide = stats[stats["std"] > stats["mean"]]
+    if not len(wide):
+        return ""
+    parts = []
+    for key, row in wide.iterrows():
+        key = key if isinstance(key, tuple) else (key,)
+        named = dict(zip(keys, key, strict=True))
+        where = " ".join(
+            f"K = {int(v)}" if c == "agents" else str(v) for c, v in named.items() if c != "policy"
+        )
+        parts.append(
+            f"{named.get('policy', '')} at {where} (mean {_fmt(row['mean'])}, worst run "
+            f"{_fmt(row['max'])})"
+        )
+    return (
+        f" Points whose runs spread wider than their mean (average idleness: standard "
+        f"deviation over runs above the mean; a run that neglected part of the map): "
+        f"{len(wide)}: " + "; ".join(parts) + "."
+    )
+
+
 def strategies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     """The strategies study's section; ``res``: its per-run results (to name the runs in
     which no dot episode ended)."""
@@ -379,7 +409,7 @@ def strategies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
         "measured",
         [
             f"map A, {runs} runs per point, battery and collision rules as in training, "
-            f"measures after the warm-up.{_no_episode(res)}",
+            f"measures after the warm-up.{_no_episode(res)}{_wide_spread(res)}",
             (
                 f"The cyclic strategy's closed walk through all 185 cells has L = "
                 f"{int(walk.iloc[0])} moves; no closed walk through every cell is shorter than "
@@ -560,7 +590,8 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "cell.",
             f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`, "
             "(K - 1)(D + 1) + 1 without battery), "
-            f"{missing} without an idleness value.{uncovered}{_no_episode(res)}",
+            f"{missing} without an idleness value.{uncovered}{_no_episode(res)}"
+            f"{_wide_spread(res)}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
             "(not learning) on that map and team size. Full table with 95% t-intervals: "
             "`figures/policies.csv`.",
@@ -678,9 +709,10 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     episodes = ""
     if res is not None and "mean_steps_per_episode" in res.columns:
         empty = int(res["mean_steps_per_episode"].isna().sum())
+        cut = int((pd.to_numeric(res["episodes_truncated"]) > 0).sum())
         episodes = (
-            f" {empty} of {len(res)} runs ended no dot episode in the window (no measure "
-            "here uses episodes)."
+            f" {empty} of {len(res)} runs ended no dot episode in the window and {cut} had "
+            "one cut at max_episode_steps (no measure here uses episodes)."
         )
     return Section(
         "Beyond the paper: the field's benchmark on patrolling_sim's graphs",
@@ -697,7 +729,8 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "warm-up, at the vertices only (waypoints inside edges are in transit). L/K: K "
             "robots evenly spaced on the closed walk of length L through every vertex.",
             f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`), "
-            f"{missing} without an idleness value.{uncovered}{jams}{episodes} Most "
+            f"{missing} without an idleness value.{uncovered}{jams}{episodes}"
+            f"{_wide_spread(res)} Most "
             f"interferences: {interf.policy} on {interf['map']} with K = "
             f"{int(interf.agents)} ({_fmt(interf.interferences_mean)} per run).",
             "Cells give the mean over runs and the strategy that reaches it. Every measure "
