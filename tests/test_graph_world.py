@@ -380,3 +380,21 @@ def test_watch_is_refused_on_a_graph_without_four_ports(tmp_path):
     )
     with pytest.raises(ConfigError, match=r"^record\.watch: .*2 ports"):
         make_params(watched, m)
+
+
+def test_robots_beyond_the_starts_are_placed_on_vertices(tmp_path):
+    """A path of three vertices with edges of 4 moves (6 waypoints) and no start: the
+    first robot goes to any vertex (all tie), each next one to the vertex farthest from
+    those placed, so the three always take the three vertices; placed over every cell the
+    first could land on a waypoint."""
+    from qpatrol.config import from_flat
+    from qpatrol.maps import load_map
+    from qpatrol.world import make_params, place_agents
+
+    path = tmp_path / "path.txt"
+    path.write_text("; kind: graph\nv 0 0 0\nv 1 4 0\nv 2 8 0\ne 0 1 4\ne 1 2 4\n")
+    m = load_map(path)
+    p = make_params(from_flat({"map": str(path), "battery.enabled": False, "agents": 3}), m)
+    for seed in range(5):
+        cells = place_agents(p, m, np.random.default_rng(seed))
+        assert sorted(cells.tolist()) == [0, 1, 2], cells
