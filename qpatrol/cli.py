@@ -293,7 +293,7 @@ def train(
     **command(
         examples=(
             "qpatrol sweep gamma                      (a named sweep: gamma, multiplier, "
-            "team-size, strategies, policies, learning, field)",
+            "team-size, strategies, policies, learning, field, security)",
             "qpatrol sweep learning.gamma --values 0.1,0.5,0.9 configs/paper.yaml --runs 16",
             "qpatrol sweep --grid agents=1,2,4 --grid team.communication=on,off "
             "configs/team_size.yaml --jobs 2",
@@ -307,7 +307,7 @@ def sweep(
         typer.Argument(
             metavar="[NAME|PARAM] [CONFIG]",
             help="A named sweep (gamma, multiplier, team-size, strategies, policies, learning, "
-            "field) with an optional "
+            "field, security) with an optional "
             "CONFIG, or a config key PARAM with --values and a CONFIG, or just CONFIG with --grid.",
         ),
     ] = None,
@@ -460,7 +460,7 @@ def plot(
         typer.Argument(
             metavar="FIGURE",
             help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6, team-size, "
-            "strategies, policies, learning or field.",
+            "strategies, policies, learning, field, security or security-failures.",
         ),
     ],
     from_: Annotated[

@@ -33,7 +33,7 @@ class Field:
     """One config key: its type, default, allowed values and help text."""
 
     key: str
-    kind: str  # "int", "float", "bool", "str", "choice", "cells"
+    kind: str  # "int", "float", "bool", "str", "choice", "cells", "durations"
     default: Any
     help: str
     low: float | None = None
@@ -52,6 +52,8 @@ class Field:
             text = "true or false (on/off)"
         elif self.kind == "cells":
             text = "a list of state numbers (ints >= 0)"
+        elif self.kind == "durations":
+            text = "auto, or a list of team steps (ints >= 1)"
         elif self.kind == "str":
             text = "a string"
         else:
@@ -418,6 +420,14 @@ SCHEMA: tuple[Field, ...] = (
         low=0,
     ),
     F(
+        "security.attack_steps",
+        "durations",
+        "auto",
+        "durations D (team steps) of the intruder measures capture_random and "
+        "capture_observer; auto: T/8, T/4, T/2, T and 2T for a map of T targets, rounded "
+        "up; [] turns them off",
+    ),
+    F(
         "engine",
         "choice",
         "auto",
@@ -529,6 +539,16 @@ def check_value(key: str, value: Any) -> Any:
             value = [value]
         if isinstance(value, list) and all(
             isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
+        ):
+            return sorted(set(value))
+        raise bad()
+    if f.kind == "durations":
+        if value == "auto":
+            return value
+        if isinstance(value, int) and not isinstance(value, bool):
+            value = [value]
+        if isinstance(value, list) and all(
+            isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value
         ):
             return sorted(set(value))
         raise bad()

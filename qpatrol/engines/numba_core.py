@@ -135,6 +135,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     weights = (p.reward_w[r, 0], p.reward_w[r, 1], p.reward_w[r, 2])
     nbrs, cell_moves, warmup = p.nbrs, p.cell_moves, m.warmup
     nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
+    intruders = m.attack.shape[0] > 0
     warm = _touch_tables(q_f, n_f)
     for cc in range(s.last.shape[2]):
         warm += s.last[r, 0, cc] + m.last[r, cc]
@@ -192,6 +193,12 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             )
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
             sums = observe.visit(c1, t, warmup, p, rows_r, visits_r, window_visits_r, sums)
+            if intruders:  # the arrival, then the departure (a lone robot)
+                if p.target[c1]:
+                    observe.close(r, c1, m.empty_since[r, c1], t, m)
+                    m.empty_since[r, c1] = -1
+                m.occupants[r, c1] += 1
+                observe.leave(r, c, t, p.target, m)
             c = c1
             h = a
         if t > warmup:
@@ -335,7 +342,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                 moved[k] = as_asked[k] = c1 >= 0
                 if c1 < 0:
                     continue
-                c0 = pos_r[k]
+                c0 = w.prev_pos[k] = pos_r[k]
                 moves.step_into(k, c1, avoid, occ_r, pos_r)
                 ha = head_r[k]
                 head_r[k], sums = _team_enters(
@@ -357,6 +364,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                     head_r[k], sums = _team_enters(
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
                     )
+        observe.intruders(r, t, w.prev_pos, pos_r, moved, p.target, m)
         waiting, longest = moves.waits(r, False, s, w, unchanged)
         if avoid:
             tok, held = moves.pass_token(
@@ -499,6 +507,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 if w.moved[k]:
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
                     sums = observe.visit(c, t, m.warmup, p, rows_r, vk, wk, sums)
+            observe.intruders(r, t, w.prev_pos, s.pos[r], w.moved, p.target, m)
             if spec == SPEC_ANY and tl_window > 0:
                 n_tl = observe.timeline(
                     r, t, tl_window, s.pos[r], w.moved, p.target, p.n_targets, o, n_tl
@@ -604,7 +613,8 @@ class Loop:
             m.last, m.last_sum, m.visits, m.window_visits, m.idle_total, m.worst, m.measured,
             m.gap_sum, m.gap_count, m.gap_max, m.max_wait, m.wait_total, m.warmup,
             m.min_charge, m.gap_sq, m.target_gap_sum, m.target_gap_count, m.cycle_start,
-            m.cycle_seen, m.cycles, m.interferences,
+            m.cycle_seen, m.cycles, m.interferences, m.attack, np.int64(m.horizon),
+            m.occupants, m.empty_since, m.random_missed, m.departures, m.departures_missed,
         )  # fmt: skip
         tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
         ups = (np.empty((rows, UP_INT), np.int64), np.empty((rows, UP_FLOAT), np.float64))

@@ -126,7 +126,14 @@ class Sim:
         self.starts = starts
         self.state = world.init_state(p, starts)
         self.measures = measures.Measures(
-            1, p.n_agents, p.n_cells, int(self.cfg["record.warmup"]), p.target
+            1,
+            p.n_agents,
+            p.n_cells,
+            int(self.cfg["record.warmup"]),
+            p.target,
+            measures.attack_steps(self.cfg["security.attack_steps"], p.n_targets),
+            self.max_steps,
+            self.state.pos,
         )
         self.recorder = Recorder(np.array([self.run]))
         self.outcome = None

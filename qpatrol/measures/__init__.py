@@ -91,6 +91,16 @@ class Measures:
         max_wait: int ``[R]``, longest wait reached in the window.
         wait_total: int ``[R]``, robot-steps spent waiting in the window.
         min_charge: int ``[R]``, lowest battery charge seen.
+        attack: int ``[A]``, the attack durations D of the intruder measures
+            (``security.attack_steps``; none: the measures are off and the arrays
+            below are empty); horizon: the steps a run is configured to take.
+        occupants: int ``[R, C]``, robots standing on each cell after the last step.
+        empty_since: int ``[R, C]``, the step at whose end a target became empty (a
+            departure), 0 if it has been empty since the start, -1 while occupied.
+        random_missed: int ``[R, A]``, intruder pairs (target, step) that no robot
+            caught within D steps, over the empty stretches closed so far.
+        departures, departures_missed: int ``[R, C, A]``, each target's departures that
+            the observer counts for D, and those of them not caught within D steps.
     """
 
     def __init__(
@@ -100,6 +110,9 @@ class Measures:
         n_cells: int,
         warmup: int,
         target: np.ndarray | None = None,
+        attack_steps: tuple[int, ...] | list[int] = (),
+        horizon: int = 0,
+        start: np.ndarray | None = None,
     ):
         r, k, c = n_runs, n_agents, n_cells
         self.warmup = warmup
@@ -128,6 +141,28 @@ class Measures:
         self.max_wait = np.zeros(r, dtype=np.int64)
         self.wait_total = np.zeros(r, dtype=np.int64)
         self.min_charge = np.full(r, np.iinfo(np.int64).max, dtype=np.int64)
+        # the intruder measures (docs/model.md, "Intruders"): who stands where, when
+        # each target became empty, and the intruders missed so far, per duration D
+        self._attack = (np.asarray(sorted(set(attack_steps)), dtype=np.int64),)
+        self.horizon = int(horizon)
+        a = self.attack.size
+        cc = c if a else 0
+        self.occupants = np.zeros((r, cc), dtype=np.int64)
+        self.empty_since = np.full((r, cc), -1, dtype=np.int64)
+        self.random_missed = np.zeros((r, a), dtype=np.int64)
+        self.departures = np.zeros((r, cc, a), dtype=np.int64)
+        self.departures_missed = np.zeros((r, cc, a), dtype=np.int64)
+        if a:
+            if start is None:
+                raise ValueError("Measures: the intruder measures need the robots' start cells")
+            rows = np.repeat(np.arange(r), np.asarray(start).shape[1])
+            np.add.at(self.occupants, (rows, np.asarray(start).ravel()), 1)
+            self.empty_since[self.occupants == 0] = 0
+
+    @property
+    def attack(self) -> np.ndarray:
+        """int ``[A]``: the attack durations D, ascending (empty: intruder measures off)."""
+        return self._attack[0]
 
     @property
     def target(self) -> np.ndarray:
@@ -177,6 +212,51 @@ class Measures:
             self.wait_total[act] += (wait[act] > 0).sum(axis=1)
             blocked = (out.ask[act] >= 0) & ~out.as_asked[act]
             self.interferences[act] += blocked.sum(axis=1)
+        self.intruders(out)
+
+    def intruders(self, out: Outcome) -> None:
+        """Take in the step's arrivals and departures for the intruder measures (off
+        without attack durations): a target entered while empty closes an empty stretch
+        (:meth:`_close`); a target left empty by the step is a departure at ``out.t``.
+        Arrivals are counted before departures, so a cell a robot leaves while another
+        enters it stays occupied."""
+        if not self.attack.size:
+            return
+        t = out.t
+        target = self.target
+        for k in range(out.moved.shape[1]):  # arrivals
+            rows = np.flatnonzero(out.moved[:, k])
+            if rows.size == 0:
+                continue
+            c = out.pos[rows, k]
+            arrived = (self.occupants[rows, c] == 0) & target[c]
+            self.occupants[rows, c] += 1
+            if arrived.any():
+                rr, cc = rows[arrived], c[arrived]
+                self._close(rr, cc, self.empty_since[rr, cc], t)
+                self.empty_since[rr, cc] = -1
+        for k in range(out.moved.shape[1]):  # departures
+            rows = np.flatnonzero(out.moved[:, k])
+            if rows.size:
+                self.leave(rows, out.prev_pos[rows, k], t)
+
+    def leave(self, rows: np.ndarray, cells: np.ndarray, t: int) -> None:
+        """A robot of each run ``rows`` (int ``[B]``, distinct) left ``cells`` (int
+        ``[B]``) in step ``t``: a target left empty is a departure at ``t``."""
+        if not self.attack.size:
+            return
+        self.occupants[rows, cells] -= 1
+        gone = (self.occupants[rows, cells] == 0) & self.target[cells]
+        self.empty_since[rows[gone], cells[gone]] = t
+
+    def _close(self, rows: np.ndarray, cells: np.ndarray, e: np.ndarray, b: int) -> None:
+        """Target ``cells`` of runs ``rows`` (int ``[B]``, distinct runs), empty from the
+        end of step ``e`` (int ``[B]``) on, are entered in step ``b``
+        (:func:`empty_stretch`)."""
+        rand, counted, missed = empty_stretch(self.attack, self.warmup, self.horizon, e, b)
+        self.random_missed[rows] += rand
+        self.departures[rows, cells] += counted
+        self.departures_missed[rows, cells] += missed
 
     def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
         """int ``[R]``: worst idleness in the window, open gaps at the end included."""
@@ -243,6 +323,7 @@ def summarize(
     coverage = (per_target > 0).mean(axis=1)
     worst = m.worst_idleness(steps_done)
     field = field_measures(m, per_target, steps_done)
+    intruder = intruder_measures(m, steps_done)
     ids = np.asarray(run_ids)
     n = ids.size
     # episodes per batch row, without a DataFrame filter per run (O(runs x episodes))
@@ -309,8 +390,93 @@ def summarize(
                 "live": bool(mwait <= bound),
                 "min_charge": None if charge == never else charge,
                 **{key: values[i] for key, values in field.items()},
+                **{key: values[i] for key, values in intruder.items()},
             }
         )
+    return out
+
+
+def empty_stretch(
+    attack: np.ndarray, warmup: int, horizon: int, e: np.ndarray, b: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """What one empty stretch of a target does to the intruder measures, per stretch and
+    attack duration D (int ``[B, A]`` each; ``attack`` int ``[A]``): the target is empty
+    at the end of steps ``e`` (int ``[B]``; 0: since the start) to ``b - 1`` and
+    occupied at the end of step ``b`` (``horizon + 1`` for a stretch still open at the
+    end). Returns the random intruders it hides (strike at the end of step ``a``, with
+    ``warmup <= a <= horizon - D``, all of ``a + 1 .. a + D`` inside the stretch:
+    ``max(0, b - D - max(e - 1, warmup))``), whether its departure counts for D (``e >=
+    1``, ``warmup <= e <= horizon - D``) and whether that departure was missed (``b - e >
+    D``)."""
+    d = attack[None, :]
+    e2 = np.asarray(e)[:, None]
+    rand = np.maximum(0, b - d - np.maximum(e2 - 1, warmup))
+    counted = (e2 >= 1) & (e2 >= warmup) & (e2 <= horizon - d)
+    return rand, counted, counted & (b - e2 > d)
+
+
+def attack_steps(setting: str | list[int], n_targets: int) -> tuple[int, ...]:
+    """The attack durations of config key ``security.attack_steps`` on a map of
+    ``n_targets`` targets: the list given, or for ``auto`` T/8, T/4, T/2, T and 2T
+    rounded up (short attacks, that a team catches only where it stands near, to long
+    ones, that outlast a walk of every target)."""
+    if setting == "auto":
+        t = n_targets
+        return tuple(sorted({-(-t // 8), -(-t // 4), -(-t // 2), t, 2 * t}))
+    return tuple(sorted(set(setting)))
+
+
+def attack_names(d: int) -> tuple[str, str, str]:
+    """The summary keys of the intruder measures for attacks of ``d`` steps."""
+    return f"capture_random_d{d}", f"capture_observer_d{d}", f"capture_observer_cell_d{d}"
+
+
+def intruder_measures(m: Measures, steps_done: np.ndarray) -> dict[str, list[Any]]:
+    """``capture_random``, ``capture_observer`` and ``capture_observer_cell`` for each
+    attack duration D of ``m`` (keys :func:`attack_names`), per run (a list ``[R]``;
+    None where no intruder fits in the window, or for a run that stopped before its
+    horizon); definitions in ``docs/model.md``, "Intruders". The empty stretches still
+    open at the end are closed at the horizon + 1; integers are exact, then one float
+    division per value."""
+    out: dict[str, list[Any]] = {}
+    attack = m.attack
+    if not attack.size:
+        return out
+    s, w = m.horizon, m.warmup
+    # the stretches still open at the end close at the horizon + 1 (added to copies: the
+    # accumulators stay as they are, so a checkpointed run goes on from them)
+    rows, cells = np.nonzero((m.empty_since >= 0) & m.target[None, :])
+    rand, counted, miss = empty_stretch(attack, w, s, m.empty_since[rows, cells], s + 1)
+    random_missed = m.random_missed.copy()
+    np.add.at(random_missed, rows, rand)
+    departures, departures_missed = m.departures.copy(), m.departures_missed.copy()
+    departures[rows, cells] += counted
+    departures_missed[rows, cells] += miss
+    done = np.asarray(steps_done) == s
+    n_t = m.n_targets
+    tgt = m.target
+    for j, d in enumerate(attack.tolist()):
+        k_rand, k_obs, k_cell = attack_names(d)
+        pairs = n_t * (s - d - w + 1)
+        missed = random_missed[:, j].tolist()
+        dep = departures[:, tgt, j]  # [R, T]
+        caught = dep - departures_missed[:, tgt, j]
+        cell_ids = np.flatnonzero(tgt)
+        rand, obs, where = [], [], []
+        for i in range(m.random_missed.shape[0]):
+            ok = bool(done[i]) and pairs > 0
+            rand.append((pairs - missed[i]) / pairs if ok else None)
+            has = dep[i] > 0
+            if not ok or not has.any():
+                obs.append(None)
+                where.append(None)
+                continue
+            frac = np.full(dep.shape[1], np.inf)
+            np.divide(caught[i], dep[i], out=frac, where=has)
+            worst = int(np.argmin(frac))  # the lowest cell among ties
+            obs.append(float(frac[worst]))
+            where.append(int(cell_ids[worst]))
+        out[k_rand], out[k_obs], out[k_cell] = rand, obs, where
     return out
 
 

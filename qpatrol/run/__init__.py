@@ -215,7 +215,14 @@ def _batch(
         if values:
             strategy.use_run_values(values)
         watch = measures.Measures(
-            state.n_runs, p.n_agents, p.n_cells, cfg["record.warmup"], p.target
+            state.n_runs,
+            p.n_agents,
+            p.n_cells,
+            cfg["record.warmup"],
+            p.target,
+            measures.attack_steps(cfg["security.attack_steps"], p.n_targets),
+            cfg["steps"],
+            state.pos,
         )
         rec = Recorder(run_ids, transitions=cfg["record.transitions"], watch=cfg["record.watch"])
         tail = Tail(cfg["record.trajectory"], state)

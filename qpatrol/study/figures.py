@@ -785,3 +785,170 @@ def trajectory(
     )
     df["map"] = cfg["map"]
     return df
+
+
+# --- the security study -------------------------------------------------------------
+
+#: The intruders of the security figure: summary key stem -> label.
+INTRUDERS = {"capture_random": "random", "capture_observer": "observer"}
+#: A run's worst idleness after a failure has settled from the first timeline window
+#: after which no window's worst idleness exceeds this factor times the largest of the
+#: run's last half (:func:`settle_steps`).
+SETTLE_FACTOR = 1.1
+
+
+def _security_points(sweep_dir: Path) -> pd.DataFrame:
+    """The security sweep's points with map name, policy, team size, robots failing,
+    failure step (the warm-up plus :data:`SECURITY_FAIL_AFTER` for a point without
+    failure: where its robots would have failed), warm-up and steps."""
+    from qpatrol.study.sweep import SECURITY_FAIL_AFTER
+
+    sw = read_sweep(sweep_dir)
+    rows = []
+    for idx, path, cfg in zip(sw["index"], sw["path"], sw["config"], strict=True):
+        failed = int(cfg["failures.robots"])
+        warm = int(cfg["record.warmup"])
+        rows.append(
+            {
+                "point": int(idx),
+                "path": Path(path),
+                "map": folder_map(path, cfg).name,
+                "policy": cfg["policy"],
+                "agents": int(cfg["agents"]),
+                "failures": failed,
+                "at": int(cfg["failures.at"]) if failed else warm + SECURITY_FAIL_AFTER,
+                "warmup": warm,
+                "steps": int(cfg["steps"]),
+            }
+        )
+    return pd.DataFrame(rows)
+
+
+def _order_rows(df: pd.DataFrame, maps: list[str]) -> pd.DataFrame:
+    order = {m: i for i, m in enumerate(maps)}
+    names = {n: i for i, n in enumerate(strategies.NAMES)}
+    df["_m"] = [order.get(m, len(order)) for m in df["map"]]
+    df["_p"] = [names.get(p, len(names)) for p in df["policy"]]
+    keys = ["_m", "agents", "_p", *[c for c in ("intruder", "attack_steps") if c in df]]
+    df = df.sort_values(keys, kind="stable")
+    return df.drop(columns=["_m", "_p"]).reset_index(drop=True)
+
+
+def security_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
+    """How often each strategy catches an intruder (the security sweep's points without
+    failure): one row per map, team size, strategy, intruder (``random``: any target at
+    any step; ``observer``: strikes as a robot leaves, at the target where that works
+    best) and attack duration ``attack_steps`` D, with D over the map's targets
+    (``d_over_targets``), the mean and 95% t-interval over runs of the share caught
+    (``capture_mean/_lo/_hi``, ``runs``), the worst run's share (``capture_min``) and,
+    for the observer, the target of the worst run (``cell_of_min``)."""
+    d = Path(sweep_dir)
+    pts = _security_points(d)
+    res = _read_csv(d / "results.csv", "per-run results of the sweep")
+    rows = []
+    for p in pts[pts["failures"] == 0].itertuples():
+        runs = res[res["point"] == p.point]
+        n_targets = folder_map(p.path).n_targets
+        durations = sorted(
+            int(c.rsplit("_d", 1)[1])
+            for c in runs.columns
+            if c.startswith("capture_random_d") and runs[c].notna().any()
+        )
+        for stem, label in INTRUDERS.items():
+            for dur in durations:
+                vals = pd.to_numeric(runs[f"{stem}_d{dur}"], errors="coerce")
+                ci = mean_ci(vals, level)
+                row = {
+                    "map": p.map,
+                    "agents": p.agents,
+                    "policy": p.policy,
+                    "intruder": label,
+                    "attack_steps": dur,
+                    "d_over_targets": dur / n_targets,
+                    "capture_mean": ci["mean"],
+                    "capture_lo": ci["lo"],
+                    "capture_hi": ci["hi"],
+                    "runs": ci["n"],
+                    "capture_min": float(vals.min()),
+                    "cell_of_min": None,
+                }
+                if label == "observer" and vals.notna().any():
+                    worst = runs.loc[vals.idxmin(), f"capture_observer_cell_d{dur}"]
+                    row["cell_of_min"] = int(worst)
+                rows.append(row)
+    return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(pts["map"])))
+
+
+def settle_steps(first: np.ndarray, worst: np.ndarray, at: int) -> int:
+    """Team steps after the failure at step ``at`` until a run's worst idleness has
+    settled: the timeline's windows that start after ``at`` (``first`` their first
+    steps, ``worst`` their worst idleness, in order) have settled from the first window
+    after which none exceeds :data:`SETTLE_FACTOR` times the largest worst idleness of
+    the last half of them; the value is that window's first step minus ``at + 1`` (0:
+    settled at once)."""
+    after = first > at
+    f, w = first[after], worst[after]
+    if f.size == 0:
+        return 0
+    level = SETTLE_FACTOR * w[f.size // 2 :].max()
+    above = np.flatnonzero(w > level)
+    start = 0 if above.size == 0 else int(above[-1]) + 1
+    return int(f[min(start, f.size - 1)] - (at + 1))
+
+
+def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
+    """Idleness around the failure (the timeline of every security point): one row per
+    map, team size, strategy, robots failing (0: the same team, no failure) and
+    timeline window from the end of the warm-up on: ``since_failure`` (the window's last
+    step minus the failure step), the mean and 95% t-interval over runs of its
+    ``avg_idleness`` and ``worst_idleness``; and per point (repeated on its rows) the
+    runs' average and worst idleness over the windows before the failure
+    (``avg_before``, ``worst_before``: means over runs), after it (``avg_after``,
+    ``worst_after``: the summary's, whose window starts at the failure), the median and
+    largest :func:`settle_steps` and ``unrecovered``, the runs that left a target
+    unvisited for the whole window after the failure (``coverage`` < 1)."""
+    d = Path(sweep_dir)
+    pts = _security_points(d)
+    res = _read_csv(d / "results.csv", "per-run results of the sweep")
+    rows = []
+    for p in pts.itertuples():
+        tl_path = p.path / "timeline.csv"
+        if not tl_path.is_file():
+            raise FileNotFoundError(f"{tl_path}: missing; the security study needs record.timeline")
+        tl = _read_csv(tl_path, "idleness in windows")
+        tl = tl[tl["first_step"] > p.warmup]
+        runs = res[res["point"] == p.point]
+        before = tl[tl["last_step"] <= p.at].groupby("run")
+        settle = [
+            settle_steps(g["first_step"].to_numpy(), g["worst_idleness"].to_numpy(), p.at)
+            for _, g in tl.groupby("run", sort=True)
+        ]
+        per_point = {
+            "avg_before": float(before["avg_idleness"].mean().mean()),
+            "worst_before": float(before["worst_idleness"].max().mean()),
+            "avg_after": float(pd.to_numeric(runs["avg_idleness"]).mean()),
+            "worst_after": float(pd.to_numeric(runs["worst_idleness"]).mean()),
+            "settle_median": float(np.median(settle)),
+            "settle_max": int(max(settle)),
+            "unrecovered": int((pd.to_numeric(runs["coverage"]) < 1).sum()),
+            "not_live": int((~runs["live"].astype(bool)).sum()),
+            "point_runs": len(runs),
+        }
+        for (w, first, last), g in tl.groupby(["window", "first_step", "last_step"], sort=True):
+            row: dict[str, Any] = {
+                "map": p.map,
+                "agents": p.agents,
+                "policy": p.policy,
+                "failures": p.failures,
+                "window": int(w),
+                "first_step": int(first),
+                "last_step": int(last),
+                "since_failure": int(last) - p.at,
+            }
+            for col in ("avg_idleness", "worst_idleness"):
+                ci = mean_ci(pd.to_numeric(g[col]), level)
+                row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi")})
+            row.update(per_point)
+            rows.append(row)
+    # (rows are in point order, failures and windows ascending: a stable sort keeps it)
+    return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(pts["map"])))

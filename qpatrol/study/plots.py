@@ -1089,3 +1089,120 @@ def learning(csv: str | Path, out: str | Path) -> Path:
     )
     fig.tight_layout()
     return _save(fig, out)
+
+
+# --- the security study ------------------------------------------------------------------
+
+
+def _strategy_legend(fig, names: list[str], rows_scale: float) -> int:
+    """A figure-wide legend of the strategies above the panels; returns its rows."""
+    handles = [
+        plt.Line2D([], [], color=_style(n, i)[0], marker=_style(n, i)[1], ms=5, label=n)
+        for i, n in enumerate(names)
+    ]
+    fig.legend(
+        handles=handles,
+        loc="upper center",
+        ncol=min(len(names), 8),
+        fontsize=9,
+        bbox_to_anchor=(0.5, 1.0),
+        frameon=False,
+    )
+    return -(-len(names) // 8)
+
+
+def security(csv: str | Path, out: str | Path) -> Path:
+    """Share of intruders caught against the attack's duration D, one line per strategy:
+    a row per intruder (random, observer), a column per map and team size."""
+    df = _read(
+        csv,
+        ["map", "agents", "policy", "intruder", "attack_steps", "capture_mean", "capture_min"],
+    )
+    cases = list(dict.fromkeys(zip(df["map"], df["agents"], strict=True)))
+    intruders = list(dict.fromkeys(df["intruder"]))
+    names = _policy_order(set(df["policy"]))
+    fig, axes = plt.subplots(
+        len(intruders), len(cases), figsize=(3.6 * len(cases), 3.2 * len(intruders)), squeeze=False
+    )
+    titles = {
+        "random": "random intruder: share of (target, step) caught",
+        "observer": "observer: share caught at its best target",
+    }
+    for r, who in enumerate(intruders):
+        for c, (mname, k) in enumerate(cases):
+            ax = axes[r][c]
+            d = df[(df["intruder"] == who) & (df["map"] == mname) & (df["agents"] == k)]
+            for i, name in enumerate(names):
+                s = d[d["policy"] == name].sort_values("attack_steps")
+                colour, marker = _style(name, i)
+                lw = 1.6 if name.startswith("qlearning") else 0.9
+                ax.plot(
+                    s["attack_steps"], s["capture_mean"], color=colour, marker=marker, ms=4, lw=lw
+                )
+            ds = sorted(d["attack_steps"].unique())
+            ax.set_xscale("log", base=2)
+            ax.set_xticks(ds, [str(x) for x in ds])
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.set_ylim(-0.03, 1.03)
+            ax.grid(alpha=0.3, lw=0.4, which="both")
+            ax.set_title(f"{mname}, K = {k}", fontsize=10)
+            if c == 0:
+                ax.set_ylabel(titles.get(who, who), fontsize=8)
+            if r == len(intruders) - 1:
+                ax.set_xlabel("attack duration D (team steps)")
+    rows = _strategy_legend(fig, names, 1.0)
+    runs = int(df["runs"].min()) if "runs" in df.columns else 0
+    fig.suptitle(
+        f"Intruders caught (mean over {runs} runs; battery on; D from T/8 to 2T, T the map's "
+        "targets)",
+        fontsize=10,
+        y=1.0 + 0.03 * rows,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.03 * rows * 3.2 * 2 / fig.get_figheight()))
+    return _save(fig, out)
+
+
+def security_failures(csv: str | Path, out: str | Path) -> Path:
+    """Worst idleness in the timeline's windows around the failure of 2 robots (solid;
+    the same team without failure, thin and faint), one line per strategy, a panel per
+    map and team size."""
+    df = _read(
+        csv,
+        ["map", "agents", "policy", "failures", "since_failure", "worst_idleness_mean"],
+    )
+    most = int(df["failures"].max())
+    cases = list(dict.fromkeys(zip(df["map"], df["agents"], strict=True)))
+    names = _policy_order(set(df["policy"]))
+    n = len(cases)
+    cols = min(n, 2)
+    rows_p = -(-n // cols)
+    fig, axes = plt.subplots(rows_p, cols, figsize=(6.2 * cols, 3.8 * rows_p), squeeze=False)
+    for j, (mname, k) in enumerate(cases):
+        ax = axes[j // cols][j % cols]
+        d = df[(df["map"] == mname) & (df["agents"] == k)]
+        for i, name in enumerate(names):
+            colour, _ = _style(name, i)
+            s = d[d["policy"] == name]
+            base = s[s["failures"] == 0].sort_values("since_failure")
+            hit = s[s["failures"] == most].sort_values("since_failure")
+            ax.plot(base["since_failure"], base["worst_idleness_mean"], color=colour, lw=0.6,
+                    alpha=0.35)  # fmt: skip
+            lw = 1.6 if name.startswith("qlearning") else 1.0
+            ax.plot(hit["since_failure"], hit["worst_idleness_mean"], color=colour, lw=lw)
+        ax.axvline(0, color="k", lw=0.8, ls="--")
+        _log_y(ax, "worst idleness in a window (team steps)")
+        ax.grid(alpha=0.3, lw=0.4, which="both")
+        ax.set_title(f"{mname}, K = {k}: {most} of {k} robots fail at step 0", fontsize=10)
+        ax.set_xlabel("team steps since the failure (end of each 100-step window)")
+    for j in range(n, rows_p * cols):
+        axes[j // cols][j % cols].set_visible(False)
+    rows = _strategy_legend(fig, names, 1.0)
+    runs = int(df["point_runs"].min()) if "point_runs" in df.columns else 0
+    fig.suptitle(
+        f"Worst idleness around a failure (mean over {runs} runs; faint: the same team "
+        "without failure)",
+        fontsize=10,
+        y=1.0 + 0.025 * rows,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.8 * 2 / fig.get_figheight()))
+    return _save(fig, out)

@@ -747,6 +747,138 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     )
 
 
+def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+    """The security study: intruders caught, and a team after robots fail."""
+    # --- intruders: the best protector of each map, team size and intruder -------------
+    idle = {}
+    if res is not None and len(res):
+        ok = res[pd.to_numeric(res["failures.robots"]) == 0]
+        means = (
+            pd.to_numeric(ok["avg_idleness"])
+            .groupby([ok["map"], pd.to_numeric(ok["agents"]), ok["policy"]], sort=False)
+            .mean()
+        )
+        for (m, k), g in means.groupby(level=[0, 1], sort=False):
+            idle[(m, int(k))] = g.idxmin()[2]
+    rows, same, cells = [], 0, 0
+    best_count: dict[tuple[str, str], int] = {}
+    for (m, k, who), d in cap.groupby(["map", "agents", "intruder"], sort=False):
+        cells += 1
+        by = d.groupby("policy", sort=False)["capture_mean"].mean()
+        best = by.idxmax()
+        best_count[(who, best)] = best_count.get((who, best), 0) + 1
+        durations = sorted(d["attack_steps"].unique())
+
+        def curve(name: str, d=d, durations=durations) -> str:
+            c = d[d["policy"] == name].set_index("attack_steps")["capture_mean"]
+            return " / ".join(_fmt(c.get(x, np.nan), 2) for x in durations)
+
+        winner = idle.get((m, int(k)))
+        same += winner == best
+        rows.append(
+            f"| {m} | {int(k)} | {who} | {' / '.join(str(int(x)) for x in durations)} "
+            f"| {best}: {curve(best)} | {curve('cyclic')} "
+            f"| {winner}: {curve(winner) if winner else '-'} |"
+        )
+    table = "\n".join(
+        [
+            "| map | K | intruder | D (team steps) | best protector (mean over D): share "
+            "caught at each D | cyclic | idleness winner* |",
+            "|---|---|---|---|---|---|---|",
+            *rows,
+        ]
+    )
+    tally = []
+    for who in dict.fromkeys(cap["intruder"]):
+        names = sorted(
+            ((n, c) for (w, n), c in best_count.items() if w == who), key=lambda x: (-x[1], x[0])
+        )
+        tally.append(f"{who}: " + ", ".join(f"{n} in {c}" for n, c in names))
+    # --- failures: worst idleness before and after, settling, and who never recovers ----
+    pts = fails.drop_duplicates(["map", "agents", "policy", "failures"])
+    cases = list(dict.fromkeys(zip(pts["map"], pts["agents"], strict=True)))
+    most = int(pts["failures"].max())
+    frows = []
+    never: dict[int, list[str]] = {}
+    for name in dict.fromkeys(pts["policy"]):
+        cellsf = []
+        for m, k in cases:
+            p = pts[(pts["map"] == m) & (pts["agents"] == k) & (pts["policy"] == name)]
+            hit = p[p["failures"] == most]
+            if not len(hit):
+                cellsf.append("-")
+                continue
+            h = hit.iloc[0]
+            ratio = h.worst_after / h.worst_before if h.worst_before else np.nan
+            text = f"{_fmt(h.worst_before)} -> {_fmt(h.worst_after)} (x{_fmt(ratio, 2)})"
+            if h.unrecovered:
+                text += f", {int(h.unrecovered)}/{int(h.point_runs)} never"
+            else:
+                text += f", settles {_fmt(h.settle_median)}"
+            cellsf.append(text)
+        frows.append(f"| {name} | " + " | ".join(cellsf) + " |")
+        for f in sorted(set(pts["failures"]) - {0}):
+            p = pts[(pts["policy"] == name) & (pts["failures"] == f)]
+            if len(p) and (p["unrecovered"] == p["point_runs"]).any():
+                never.setdefault(int(f), []).append(
+                    f"{name} ("
+                    + ", ".join(
+                        f"{r['map']} K = {int(r.agents)}"
+                        for _, r in p[p["unrecovered"] == p["point_runs"]].iterrows()
+                    )
+                    + ")"
+                )
+    ftable = "\n".join(
+        [
+            f"| strategy | {' | '.join(f'{m}, K = {int(k)}' for m, k in cases)} |",
+            "|---|" + "---|" * len(cases),
+            *frows,
+        ]
+    )
+    never_text = " ".join(
+        f"With {f} robot{'s' * (f != 1)} failed, every run left a target unvisited for the "
+        f"rest of the window for: {'; '.join(v)}."
+        for f, v in sorted(never.items())
+    )
+    frozen = int(pts["not_live"].sum())
+    runs = int(cap["runs"].min())
+    return Section(
+        "Beyond the paper: security, measured",
+        ["figures/security.png", "figures/security-failures.png"],
+        "The paper's purpose is infrastructure security, which it measures by idleness "
+        "only. Here: how often an intruder who needs D team steps at a target is caught, "
+        "and what a team does when robots fail for good.",
+        "measured",
+        [
+            f"{runs} runs per point on map A and the facility with 4 and 8 robots, battery "
+            "on, collisions avoided, communication on; each point measures after the policies "
+            "study's warm-up. A random intruder strikes at any target and step; an observer "
+            "strikes as a robot leaves a target, and the value is its share caught at the "
+            'target where it does best (docs/model.md, "Intruders"). D runs from T/8 to '
+            "2T, T the map's targets.",
+            table,
+            "*The idleness winner: the strategy with the lowest average idleness at that "
+            f"map and team size. The best protector is the idleness winner in {same} of "
+            f"{cells} cells. Best protector, by intruder: " + "; ".join(tally) + ".",
+            f"Failures: {most} of the K robots leave the map for good 1,000 steps into the "
+            "window; the measures after it use the window that starts there. Worst idleness "
+            "before (the 100-step timeline windows between warm-up and failure, worst per "
+            "run, mean over runs) -> after (the window after the failure), the ratio, and the "
+            "median steps until the worst idleness settles (the first timeline window after "
+            "which none exceeds 1.1 times the largest of the run's last half); 'never': runs "
+            "that left a target unvisited for the whole window after the failure.",
+            ftable,
+            (never_text or "Every strategy visited every target again after the failure.")
+            + f" Runs that froze (a wait longer than `wait_bound`): {frozen}."
+            + _wide_spread(res),
+            "Every number with its 95% t-interval: `figures/security.csv` (capture by D) "
+            "and `figures/security-failures.csv` (idleness in windows around the failure, "
+            "before and after, settling).",
+        ],
+        "no paper numbers to compare with; mean over runs.",
+    )
+
+
 def learning(fig: pd.DataFrame) -> Section:
     """Idleness in windows along a long run: do the learners approach the others?"""
     lines = []
@@ -853,6 +985,7 @@ def build(
         lambda: policies(f("policies"), d("policies")),
         lambda: learning(f("learning")),
         lambda: field(f("field"), d("field")),
+        lambda: security(f("security"), f("security-failures"), d("security")),
     ]
     sections = [m() for m in makers]
     quick = mode == "quick"

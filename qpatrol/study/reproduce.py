@@ -97,6 +97,7 @@ EXPERIMENTS: tuple[Experiment, ...] = (
     Experiment("policies", "configs/policies.yaml", "policies", ("runs=2",)),
     Experiment("learning", "configs/learning.yaml", "learning", ("record.timeline=1000",)),
     Experiment("field", "configs/field.yaml", "field", ("runs=2",)),
+    Experiment("security", "configs/security.yaml", "security", ("runs=2",)),
     Experiment("multiplier", "configs/multiplier.yaml", "multiplier", ("runs=1", "steps=2500")),
     Experiment("figure-3", "configs/figure3.yaml", None, ("runs=1", "steps=3000")),
     Experiment("figure-4", "configs/figure4.yaml", None, ("runs=1", "steps=2500")),
@@ -300,6 +301,14 @@ def _figures() -> dict[str, Figure]:
             Figure("policies", "policies", fd.policies_data, plots.policies, sweep_key="policy"),
             Figure("learning", "learning", fd.learning_data, plots.learning, sweep_key="policy"),
             Figure("field", "field", fd.field_data, plots.field, sweep_key="policy"),
+            Figure("security", "security", fd.security_data, plots.security, sweep_key="policy"),
+            Figure(
+                "security-failures",
+                "security",
+                fd.security_failures_data,
+                plots.security_failures,
+                sweep_key="policy",
+            ),
         )
     }
 
@@ -316,6 +325,8 @@ FIGURE_NAMES = (
     "policies",
     "learning",
     "field",
+    "security",
+    "security-failures",
 )
 
 

@@ -297,6 +297,47 @@ def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
     return points
 
 
+#: The security study (``qpatrol sweep security``): its maps, team sizes and failures,
+#: the steps it measures after the warm-up, and when robots fail (after the warm-up).
+SECURITY_MAPS = ("map_a", "facility")
+SECURITY_TEAMS = (4, 8)
+SECURITY_FAILURES = (0, 1, 2)
+SECURITY_WINDOW = 4_000
+SECURITY_FAIL_AFTER = 1_000
+
+
+def security_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy x map x team size x robots failing (0, 1, 2), each with the
+    policies study's warm-up; robots fail :data:`SECURITY_FAIL_AFTER` steps into the
+    window of :data:`SECURITY_WINDOW` steps (the intruder measures come from the points
+    without failure).
+
+    ``quick``: map_a only, K = 4, and short runs (a smoke test, not a result).
+    """
+    from qpatrol.strategies import learns
+
+    maps, teams = (("map_a",), (4,)) if quick else (SECURITY_MAPS, SECURITY_TEAMS)
+    window, fail_after = (1000, 300) if quick else (SECURITY_WINDOW, SECURITY_FAIL_AFTER)
+    points = []
+    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
+        warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
+        for m in maps:
+            for k in teams:
+                for failed in SECURITY_FAILURES:
+                    point = {
+                        "map": m,
+                        "policy": name,
+                        "agents": k,
+                        "steps": warm + window,
+                        "record.warmup": warm,
+                        "failures.robots": failed,
+                    }
+                    if failed:
+                        point["failures.at"] = warm + fail_after
+                    points.append(point)
+    return points
+
+
 def learning_overrides(quick: bool = False) -> list[dict[str, Any]]:
     """Every strategy but ``random``: learners for a long run, the others shorter.
 
@@ -329,6 +370,7 @@ NAMED_SWEEPS: dict[str, NamedSweep] = {
     ),
     "policies": NamedSweep("configs/policies.yaml", policies_overrides, None),
     "field": NamedSweep("configs/field.yaml", field_overrides, None),
+    "security": NamedSweep("configs/security.yaml", security_overrides, None),
     "learning": NamedSweep("configs/learning.yaml", learning_overrides, None),
 }
 

@@ -37,8 +37,8 @@ class Estimate:
 def bytes_per_run(cfg: Config, m: Map) -> int:
     """Estimated bytes one run adds to a batch of ``cfg`` on ``m``: the world state, the
     strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, cells, D,
-    D]``, D = 4 on a grid), the measures and the recorders (trajectory ring, timeline,
-    Q-update rows)."""
+    D]``, D = 4 on a grid), the measures (the intruder measures' per-cell counts among
+    them) and the recorders (trajectory ring, timeline, Q-update rows)."""
     k, c, d = cfg["agents"], m.n_cells, m.n_ports
     g = 1 if cfg["team.communication"] else k
     policy = cfg["policy"]
@@ -51,6 +51,7 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         "qlearning-idleness": k * c * d**3 * (8 + 4) + g * c * 9,
     }.get(policy, 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
+    intruders = intruder_bytes(cfg, m)
     timeline = 0
     if cfg["record.timeline"]:  # one row per window, and the window's accumulators
         timeline = (cfg["steps"] // cfg["record.timeline"] + 1) * 6 * 8 + c * 8
@@ -64,8 +65,17 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         + 512 * k * 2 * 8  # block of uniforms
         + cfg["record.trajectory"] * k * 8
         + timeline
+        + intruders
         + rows * ROW_BYTES
     )
+
+
+def intruder_bytes(cfg: Config, m: Map) -> int:
+    """Bytes of one run's intruder measures: per cell, the robots on it and when it
+    emptied, and for each attack duration (``auto``: 5) its departures and misses."""
+    setting = cfg["security.attack_steps"]
+    a = 5 if setting == "auto" else len(setting)
+    return (2 * m.n_cells * a + 2 * m.n_cells + a) * 8 if a else 0
 
 
 def batch_bytes(cfg: Config, m: Map) -> int:
@@ -91,11 +101,13 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
         "qlearning-idleness": k * c * d**3 * (8 + 4 + 8),
     }.get(cfg["policy"], 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
+    intruders = intruder_bytes(cfg, m)
     windows = cfg["steps"] // cfg["record.timeline"] + 1 if cfg["record.timeline"] else 0
     return (
         tables
         + k * c * 8  # visits
         + 2 * c * 8  # the measures' interval sums and counts by target
+        + intruders
         + cfg["record.trajectory"] * k * 6 * 8
         + windows * 6 * 8
         + rows * ROW_BYTES

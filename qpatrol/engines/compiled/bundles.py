@@ -98,7 +98,9 @@ class Meas(NamedTuple):
     ``gap_max``, ``max_wait``, ``wait_total``, ``min_charge``; ``warmup`` (steps); the
     field's measures: per run ``gap_sq``, ``cycle_start``, ``cycle_seen``, ``cycles``,
     ``interferences`` ``[R]`` and per target ``target_gap_sum``, ``target_gap_count``
-    ``[R, C]``."""
+    ``[R, C]``; the intruder measures' ``attack`` ``[A]`` (durations; empty: off),
+    ``horizon`` (steps), ``occupants``, ``empty_since`` ``[R, C]``, ``random_missed``
+    ``[R, A]``, ``departures`` and ``departures_missed`` ``[R, C, A]``."""
 
     last: np.ndarray
     last_sum: np.ndarray
@@ -121,6 +123,13 @@ class Meas(NamedTuple):
     cycle_seen: np.ndarray
     cycles: np.ndarray
     interferences: np.ndarray
+    attack: np.ndarray
+    horizon: int
+    occupants: np.ndarray
+    empty_since: np.ndarray
+    random_missed: np.ndarray
+    departures: np.ndarray
+    departures_missed: np.ndarray
 
 
 class Out(NamedTuple):

@@ -45,6 +45,47 @@ def visit(c, t, warmup, p, rows_r, visits_k, window_visits_k, sums):
     return last_sum, gap_sum, gap_count, gap_max, worst, gap_sq, c_start, c_seen, cycles
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def intruders(r, t, prev_pos, pos_r, moved, target, m):
+    """Measures.intruders: the step's arrivals, then its departures (robots ``[K]``:
+    cells before ``prev_pos`` and after ``pos_r``, ``moved``), for the intruder
+    measures of ``m`` (off without attack durations)."""
+    if m.attack.shape[0] == 0:
+        return
+    occupants, since = m.occupants[r], m.empty_since[r]
+    for k in range(moved.shape[0]):  # arrivals, before any departure
+        if moved[k]:
+            c = pos_r[k]
+            if occupants[c] == 0 and target[c]:
+                close(r, c, since[c], t, m)
+                since[c] = -1
+            occupants[c] += 1
+    for k in range(moved.shape[0]):
+        if moved[k]:
+            leave(r, prev_pos[k], t, target, m)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def leave(r, c, t, target, m):
+    """Measures.leave: a robot of run ``r`` left cell ``c`` in step ``t``."""
+    m.occupants[r, c] -= 1
+    if m.occupants[r, c] == 0 and target[c]:
+        m.empty_since[r, c] = t
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def close(r, c, e, b, m):
+    """Measures._close (:func:`qpatrol.measures.empty_stretch`): target ``c`` of run
+    ``r``, empty from the end of step ``e`` on, is entered in step ``b``."""
+    for j in range(m.attack.shape[0]):
+        d = m.attack[j]
+        m.random_missed[r, j] += max(0, b - d - max(e - 1, m.warmup))
+        if e >= 1 and e >= m.warmup and e <= m.horizon - d:
+            m.departures[r, c, j] += 1
+            if b - e > d:
+                m.departures_missed[r, c, j] += 1
+
+
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def rows_of(m, r):
     """Run ``r``'s rows ``[C]`` of the measures ``m`` that :func:`visit` writes: last
