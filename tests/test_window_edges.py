@@ -23,33 +23,38 @@ The maps (their walks are asserted first, :func:`test_the_walks_the_hand_values_
 * ``PAIR``, a corridor of 7 cells with two cyclic robots at its ends: robot 1 waits
   one step at steps 4 and 10 and at no other step up to 10.
 
-Each window edge broken on purpose, in the numpy code and then in the compiled code
-(one break at a time, reverted after), and the tests that failed:
+Each window edge broken on purpose, one at a time in a scratch copy (numpy breaks run
+with the numpy tests, compiled ones with the numba tests; the shared code with both),
+and the tests that then failed (the rest passed):
 
-=====================================================  ===================================
-break                                                  caught by
-=====================================================  ===================================
-numpy ``Measures.observe``: ``in_window = t >= warmup``  coverage, intervals, idleness,
-                                                       target averages, dol, waits, shuttles
-numpy ``observe``: ``if t - 1 >= self.warmup`` (worst)   worst_idleness (issue case 13 vs 9)
-numpy ``observe``: cycle ``(t >= start - 1)``            cycles
-numpy ``Measures.__init__``: ``cycle_start = warmup``    cycles
-numpy ``worst_idleness``: open gaps ``steps_done - 1``   worst_idleness (last step)
-numpy ``target_averages``: open gap ``steps_done - 1``   target averages (last step)
-numpy ``summarize``: ``start_step >= m.warmup``          steps_per_episode
-numpy ``Timeline.observe``: ``t - 1 >= start - 1``       timeline (window 13)
-numpy ``Timeline.observe``: ``t - 1 > start``            timeline (window 12)
-compiled ``observe.visit``: ``t >= warmup``              coverage, intervals, target averages,
-                                                       dol, shuttles (numba)
-compiled ``observe.visit``: ``t - 1 >= warmup``          worst_idleness (numba)
-compiled ``observe.visit``: cycle ``t >= c_start - 1``   cycles (numba)
-compiled ``observe.step_measures``: ``t >= m.warmup``    idleness, waits (numba)
-compiled ``run_block``: interferences ``t >= m.warmup``  waits (numba)
-compiled ``observe.timeline``: ``t - 1 >= start - 1``    timeline (numba)
-compiled ``episodes.end``: start written one early       steps_per_episode (numba)
-compiled ``_solo_qlearning``: ``t >= warmup``            solo shuttle (numba)
-compiled ``_team_qlearning``: ``t >= m.warmup``          team shuttle (numba)
-=====================================================  ===================================
+numpy, ``qpatrol/measures``:
+
+* ``observe``: ``in_window = t >= warmup``: coverage, intervals, idleness, target
+  averages, division of labour, waits, both shuttles; its visit block alone: the same
+  but waits; its step block alone: idleness, waits, shuttles; only ``window_visits`` at
+  ``t == warmup``: coverage, idleness (freq_std), division of labour, shuttles; only
+  ``idle_total``/``measured``: idleness, shuttles; only ``max_wait``, only
+  ``wait_total``, only ``interferences``: waits.
+* ``observe``: worst ``t - 1 >= warmup``: worst idleness (the issue's 13 for 9).
+* ``observe``: cycle ``t > start``; ``cycle_start = warmup``: cycles, shuttles.
+* ``worst_idleness``: open gaps ``steps_done - 1``: worst idleness.
+* ``target_averages``: open gap ``steps_done - 1``: target averages.
+* ``summarize``: ``start_step >= warmup``: steps per episode.
+* ``Timeline.observe``: ``t - 1 >= start - 1``, and ``t - 1 > start``: timeline
+  (windows of 13, of 12); open gaps ``t - 1`` at a window's end (``_close``, and the
+  cut-short last window in ``table``): timeline.
+
+compiled, ``qpatrol/engines``:
+
+* ``observe.visit``: ``t >= warmup``: as numpy's visit block; worst ``t - 1 >=
+  warmup``: worst idleness; cycle ``t > c_start``: cycles, shuttles.
+* ``observe.step_measures``: ``t >= warmup``: idleness, waits; ``run_block``'s
+  interferences ``t >= warmup``: waits.
+* ``observe.timeline``: ``t - 1 >= start - 1``, ``t - 1 > start``, open gaps ``t - 1``
+  at a window's end: timeline.
+* ``episodes.end``: an episode's start written one step early: steps per episode.
+* ``_solo_qlearning``'s ``t >= warmup``: the lone shuttle; ``_team_qlearning``'s: the
+  team shuttle (one condition guards its idleness, waits and interferences).
 
 Not pinned, because no run can show it: ``_solo_qlearning``'s ``t_end > warmup``
 guards ``max(max_wait, 0)``, a no-op (a lone robot never waits); ``worst_idleness``'s
@@ -320,7 +325,10 @@ def test_steps_per_episode_at_both_edges(tmp_path, engine, warmup, steps, per_ep
     ends on entering cell 7 again at 23: 14 steps."""
     r = run(tmp_path, engine, CORRIDOR_B, warmup, steps)
     done = r.episodes[r.episodes.complete == 1]
-    assert list(zip(done.start_step, done.steps)) == [(1, 9), (10, 14)][: 1 + (steps >= 23)]
+    assert (
+        list(zip(done.start_step, done.steps, strict=True))
+        == [(1, 9), (10, 14)][: 1 + (steps >= 23)]
+    )
     assert r.summary[0]["mean_steps_per_episode"] == per_episode
 
 
