@@ -16,7 +16,9 @@ Deliberately broken rules each of these catches, in the numpy engine
 (``qpatrol/measures``) and the compiled one (``engines/compiled/observe.py``): the
 random window one step short (``max(e - 1, w)`` -> ``max(e, w)``: closed forms and
 recount); a departure caught only strictly inside D (``b - e > d`` -> ``>= d``: closed
-form at D = g - 1); departures counted from ``warmup + 1`` (recount); arrivals counted
+form at D = g - 1); departures counted from ``warmup + 1`` (recount); departures counted
+up to ``S - D - 1`` only (recount); random intruders from ``warmup + 1`` (closed forms,
+recount); one pair too few per target (``S - D - w``: closed forms); arrivals counted
 after departures (recount: a robot following another into its cell makes a spurious
 departure).
 """
