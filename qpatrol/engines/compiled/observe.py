@@ -92,12 +92,13 @@ def step_measures(r, t, n_targets, sums_last, waiting, longest, m):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def trail(r, t, pos_r, o):
-    """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells."""
+def trail(r, t, pos_r, mode_r, o):
+    """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells (-1 for a
+    robot that failed: ``mode_r`` ``[K]`` GONE)."""
     if o.tail_n > 0:
         slot = (t - 1) % o.tail_n
         for k in range(pos_r.shape[0]):
-            o.tail_pos[r, slot, k] = pos_r[k]
+            o.tail_pos[r, slot, k] = -1 if mode_r[k] == 4 else pos_r[k]  # 4: GONE
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
