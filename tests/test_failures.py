@@ -41,14 +41,20 @@ def engine(request) -> str:
 
 def both(flat: dict, tmp_path: Path, prepared=None):
     """Run ``flat`` on both engines (the compiled one where installed), compare every
-    file of the run folders byte for byte (meta.json: but the engine); the numpy
-    engine's result. ``prepared``: the map and parameters, if already built."""
+    file of the run folders byte for byte (meta.json: but the engine) and the
+    strategies' arrays; the numpy engine's result. ``prepared``: the map and parameters, if already built."""
     results, folders = {}, {}
     for eng in ("numpy", "numba") if NUMBA else ("numpy",):
         results[eng] = simulate(from_flat({**flat, "engine": eng}), prepared=prepared)
         folders[eng] = write_run(results[eng], tmp_path / eng, replace=True, meta=META)
     if NUMBA:
         assert results["numba"].engine == "numba"
+        # the strategies' arrays too (e.g. a goal no file holds)
+        va, vb = vars(results["numpy"].strategy), vars(results["numba"].strategy)
+        for name, x in va.items():
+            if isinstance(x, np.ndarray):
+                y = vb[name]
+                assert x.dtype == y.dtype and np.array_equal(x, y, equal_nan=True), name
         a, b = folders["numpy"], folders["numba"]
         names = sorted(p.name for p in a.iterdir())
         assert names == sorted(p.name for p in b.iterdir())
@@ -94,6 +100,23 @@ def test_a_qlearning_team_with_failures_runs_the_general_compiled_loop():
     assert engines.compiled_loop(from_flat(flat)) == "qlearning-team"
     cfg = from_flat({**flat, "failures.robots": 1, "failures.at": 5})
     assert engines.compiled_loop(cfg) == "any"
+
+
+def test_a_qlearning_team_without_battery_fails_alike_on_both_engines(rooms_map, tmp_path):
+    """(The compiled engine's Q-learning team loop has no failures: the general loop runs
+    such a team, and the engines agree.)"""
+    flat = {
+        "map": str(rooms_map),
+        "agents": 3,
+        "battery.enabled": False,
+        "runs": 2,
+        "steps": 80,
+        "failures.robots": 1,
+        "failures.at": 20,
+        "record.trajectory": 5,
+    }
+    result = both(flat, tmp_path)
+    assert result.measures.measured.tolist() == [60, 60]
 
 
 # --- which robots fail ------------------------------------------------------------------
@@ -310,6 +333,8 @@ def test_every_strategy_survives_two_failures_on_every_map(tmp_path, name):
             # their last cells are empty, or another robot has walked in since
             assert not np.isin(s.occ[r, s.pos[r, gone]], gone).any()
             assert result.measures.window_visits[r, gone].sum() == 0, (policy, r)
+            if hasattr(result.strategy, "goal"):  # a goal follower: no goal announced
+                assert (result.strategy.goal[r, gone] == -1).all(), (policy, r)
             assert result.measures.measured[r] == steps - at
             run = result.trajectory[result.trajectory["run"] == r]
             cells = run["cell"].to_numpy().reshape(steps, 4)
