@@ -42,7 +42,8 @@ def engine(request) -> str:
 def both(flat: dict, tmp_path: Path, prepared=None):
     """Run ``flat`` on both engines (the compiled one where installed), compare every
     file of the run folders byte for byte (meta.json: but the engine) and the
-    strategies' arrays; the numpy engine's result. ``prepared``: the map and parameters, if already built."""
+    strategies' arrays; the numpy engine's result. ``prepared``: the map and
+    parameters, if already built."""
     results, folders = {}, {}
     for eng in ("numpy", "numba") if NUMBA else ("numpy",):
         results[eng] = simulate(from_flat({**flat, "engine": eng}), prepared=prepared)
@@ -355,3 +356,47 @@ def check_steps(cells: np.ndarray, neighbors: np.ndarray) -> None:
     assert not (swap & ~np.eye(k, dtype=bool)).any(), "two robots swapped cells"
     step = after != before
     assert (neighbors[before] == after[..., None]).any(axis=-1)[step].all(), "a jump"
+
+
+@pytest.mark.parametrize("stop", [10, 30])
+def test_a_run_stopped_before_or_after_the_failure_resumes_to_the_same_files(
+    ring_map, tmp_path, engine, stop, stop_and_resume
+):
+    """A checkpoint before the failure (step 20) and one after it both resume to the
+    uninterrupted run's numbers: the failed robots travel with the state."""
+    flat = {
+        "map": str(ring_map),
+        "agents": 3,
+        "policy": "random",
+        "battery.enabled": False,
+        "runs": 2,
+        "steps": 50,
+        "failures.robots": 1,
+        "failures.at": 20,
+        "record.trajectory": 50,
+        "engine": engine,
+    }
+    cfg = from_flat(flat)
+    whole = simulate(cfg)
+    resumed = stop_and_resume(cfg, tmp_path / "ck", stop)
+    assert resumed.summary == whole.summary
+    assert resumed.trajectory.equals(whole.trajectory)
+    assert (resumed.state.mode == whole.state.mode).all()
+
+
+def test_results_csv_joins_the_failed_robots(tmp_path):
+    """A sweep's results.csv writes a run's list of failed robots as one cell, joined
+    by ``+`` (as a swept list value)."""
+    from qpatrol.study import sweep
+
+    point = sweep.Point(0, {"failures.robots": 2})
+    folder = tmp_path / sweep.POINTS_DIR / point.id
+    folder.mkdir(parents=True)
+    runs = [
+        {"run": 0, "avg_idleness": 1.5, "failed_robots": [0, 2], "failed_at": 5},
+        {"run": 1, "avg_idleness": 2.5, "failed_robots": [1, 3], "failed_at": 5},
+    ]
+    (folder / "summary.json").write_text(json.dumps({"runs": runs}))
+    df = sweep.load_results(sweep.write_results(tmp_path, [point]))
+    assert df["failed_robots"].tolist() == ["0+2", "1+3"]
+    assert df["failed_at"].tolist() == [5, 5]
