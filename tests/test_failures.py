@@ -198,6 +198,7 @@ def test_a_failed_robot_blocks_no_one_on_a_ring(tmp_path):
         "failures.robots": 1,
         "failures.at": 20,
         "record.trajectory": 60,
+        "record.timeline": 10,
     }
     result = both(flat, tmp_path)
     s = result.state
