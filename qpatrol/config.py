@@ -237,6 +237,23 @@ SCHEMA: tuple[Field, ...] = (
         choices=("full", "staggered"),
     ),
     F(
+        "failures.robots",
+        "int",
+        0,
+        "robots that fail at team step `failures.at`, chosen from each run's own stream, and "
+        "leave the map for good (0: none)",
+        low=0,
+        high=63,
+    ),
+    F(
+        "failures.at",
+        "int",
+        0,
+        "the team step at whose end the `failures.robots` robots fail (required when they "
+        "are more than 0; the measures then start there)",
+        low=0,
+    ),
+    F(
         "evap.evaporation",
         "float",
         0.02,
@@ -648,6 +665,17 @@ def check_together(values: Mapping[str, Any]) -> None:
         raise ConfigError(
             f"record.warmup: got {values['record.warmup']}; allowed: less than steps "
             f"({values['steps']}), or no step would be measured"
+        )
+    fail = values["failures.robots"]
+    if fail and fail >= values["agents"]:
+        raise ConfigError(
+            f"failures.robots: got {fail} with {values['agents']} agents; allowed: at most "
+            f"{values['agents'] - 1} (at least one robot must remain)"
+        )
+    if fail and not 1 <= values["failures.at"] < values["steps"]:
+        raise ConfigError(
+            f"failures.at: got {values['failures.at']} with failures.robots {fail}; allowed: "
+            f"a team step in 1..{values['steps'] - 1} (less than steps)"
         )
     mult = values["learning.multiplier"]
     for d in ("north", "east", "south", "west"):

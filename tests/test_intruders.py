@@ -133,6 +133,18 @@ UNSEEN = {
         {"policy": "qlearning", "agents": 3, "battery.enabled": True, "record.warmup": 1},
         ("maze", 4, 5, 33, 0.3),
     ),
+    # two of four robots fail at step 90: they stand nowhere from then on, and the window
+    # starts there
+    "failures": (
+        {
+            "policy": "conscientious",
+            "agents": 4,
+            "record.warmup": 3,
+            "failures.robots": 2,
+            "failures.at": 90,
+        },
+        ("maze", 5, 4, 34, 0.2),
+    ),
     # a patrol graph: waypoints are not targets
     "graph": ({"policy": "cc", "agents": 3, "record.warmup": 5}, ("graph", "maps/ps_example.txt")),
 }
@@ -173,7 +185,7 @@ def test_a_brute_force_recount_from_the_trajectory(tmp_path, engine, case):
     streams = Streams(run_keys(cfg["seed"], cfg["runs"]), res.params.n_agents)
     starts = [world.place_agents(res.params, m, g) for g in streams.generators]
     targets = np.flatnonzero(res.params.target)
-    w = cfg["record.warmup"]
+    w = max(cfg["record.warmup"], cfg["failures.at"])  # the window starts at a failure
     for i, row in enumerate(summary):
         occ = occupancy_from_trajectory(out, row["run"], starts[i], m.n_cells, steps)
         for d in sorted(set(durations)):

@@ -135,6 +135,8 @@ def _loop_of(cfg: Config) -> str:
     """:func:`compiled_loop` of a config the compiled engine runs."""
     if cfg["policy"] != "qlearning" or cfg["battery.enabled"] or cfg["record.timeline"]:
         return "any"
+    if cfg["failures.robots"]:
+        return "any"
     if cfg["record.transitions"] or cfg["record.watch"]:
         return "qlearning"
     return "qlearning-solo" if cfg["agents"] == 1 else "qlearning-team"

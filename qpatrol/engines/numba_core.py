@@ -69,6 +69,7 @@ from qpatrol.engines.compiled import (
     bundles,
     enter,
     episodes,
+    fail,
     moves,
     observe,
     pcg,
@@ -364,7 +365,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                     head_r[k], sums = _team_enters(
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
                     )
-        observe.intruders(r, t, w.prev_pos, pos_r, moved, p.target, m)
+        observe.intruders(r, t, w.prev_pos, pos_r, moved, p.target, m, s.mode[r], False)
         waiting, longest = moves.waits(r, False, s, w, unchanged)
         if avoid:
             tok, held = moves.pass_token(
@@ -382,7 +383,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             wait_sum += waiting
             if not clear:  # (a clear step moves every robot that asked, as asked)
                 m.interferences[r] += observe.blocked(w)
-        observe.trail(r, t, pos_r, o)
+        observe.trail(r, t, pos_r, s.mode[r], o)
         t_end = t
     pcg.store(words[r], s_lo, s_hi, (n_steps - (t_end - t0)) * n_agents * 2)
     s.token[r], s.token_held[r] = tok, held
@@ -502,12 +503,15 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
             else:
                 n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
+            if spec == SPEC_ANY and t == p.fail_at:  # robots fail, before the step is measured
+                waiting, longest = fail.apply(r, s)
             # --- the measures (Measures.observe), the timeline, the trajectory ring ----
             for k in range(n_agents):
                 if w.moved[k]:
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
                     sums = observe.visit(c, t, m.warmup, p, rows_r, vk, wk, sums)
-            observe.intruders(r, t, w.prev_pos, s.pos[r], w.moved, p.target, m)
+            failing = spec == SPEC_ANY and t == p.fail_at
+            observe.intruders(r, t, w.prev_pos, s.pos[r], w.moved, p.target, m, s.mode[r], failing)
             if spec == SPEC_ANY and tl_window > 0:
                 n_tl = observe.timeline(
                     r, t, tl_window, s.pos[r], w.moved, p.target, p.n_targets, o, n_tl
@@ -517,7 +521,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             observe.step_measures(r, t, p.n_targets, sums[0], waiting, longest, m)
             if t > m.warmup:
                 m.interferences[r] += observe.blocked(w)
-            observe.trail(r, t, s.pos[r], o)
+            observe.trail(r, t, s.pos[r], s.mode[r], o)
             t_r = t
         observe.store_sums(m, r, sums)
         # the stream stepped past the draws of the steps the run sat out
@@ -607,6 +611,7 @@ class Loop:
         bp = bundles.Params(
             *consts, np.int64(n_dots), reward_w, *rules, p.episodes, *battery, *pockets,
             p.capacity, p.margin, p.charge_steps, p.target, np.int64(p.n_targets),
+            np.int64(p.failures_at),
         )  # fmt: skip
         bs = bundles.World(*(getattr(s, f) for f in bundles.World._fields))
         bm = bundles.Meas(
@@ -641,7 +646,8 @@ class Loop:
         ]
         self.n_runs = n_runs
         self.spec = SPEC_ANY
-        if self.code == compiled.QLEARNING and not p.battery and self.timeline is None:
+        plain = not p.battery and self.timeline is None and not p.failures_at
+        if self.code == compiled.QLEARNING and plain:
             self.spec = SPEC_QLEARNING
             if not rec.wants_updates:
                 self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM

@@ -17,7 +17,7 @@ import numpy as np
 from qpatrol.measures import Measures
 from qpatrol.measures.records import Recorder, Tail
 from qpatrol.measures.timeline import Timeline
-from qpatrol.world import Outcome, Params, State, begin_step
+from qpatrol.world import Outcome, Params, State, begin_step, failures
 from qpatrol.world import step as world_step
 from qpatrol.world.rng import Streams
 
@@ -50,7 +50,10 @@ def run(
         if quota and not state.active.any():
             break
         out = advance(state, p, strategy, streams.next(), rec)
-        watch.observe(out, state.wait, state.charge if p.battery else None)
+        failing = None
+        if i + 1 == p.failures_at:  # robots fail at the end of the step, before it is measured
+            failing = failures.apply(state, p, np.flatnonzero(out.active))
+        watch.observe(out, state.wait, state.charge if p.battery else None, failing)
         tail.observe(state)
         timeline.observe(out)
         if progress is not None and (i + 1) % every == 0:

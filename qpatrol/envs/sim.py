@@ -25,7 +25,7 @@ from typing import Any
 import numpy as np
 
 from qpatrol import measures, run, world
-from qpatrol.config import Config, from_flat, load_config
+from qpatrol.config import Config, ConfigError, from_flat, load_config
 from qpatrol.maps import Map
 from qpatrol.measures.records import Recorder
 from qpatrol.world.rng import Streams, run_seeds
@@ -93,6 +93,11 @@ class Sim:
             raise TypeError(f"max_steps: expected an int >= 1, got {max_steps!r}")
         if max_steps < 1:
             raise ValueError(f"max_steps: got {max_steps}; allowed: an int >= 1")
+        if cfg["failures.robots"]:
+            raise ConfigError(
+                f"failures.robots: got {cfg['failures.robots']}; allowed here: 0 (the "
+                "environments keep every robot; robot failures are for train and sweeps)"
+            )
         self.cfg = cfg
         self.max_steps = int(max_steps)
         self.map, self.params = run.prepare(cfg)

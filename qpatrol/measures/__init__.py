@@ -169,13 +169,21 @@ class Measures:
         """bool ``[C]``: the cells every measure counts."""
         return self._target[0]
 
-    def observe(self, out: Outcome, wait: np.ndarray, charge: np.ndarray | None) -> None:
+    def observe(
+        self,
+        out: Outcome,
+        wait: np.ndarray,
+        charge: np.ndarray | None,
+        failing: np.ndarray | None = None,
+    ) -> None:
         """Take in one step: visits, intervals, idleness, cycles, waits and charge.
 
         Args:
             out: the step's outcome.
             wait: int ``[R, K]``, the robots' current waits after the step.
             charge: int ``[R, K]``, the charge after the step (None: battery off).
+            failing: bool ``[R, K]``, the robots that left the map at the end of the step
+                (:mod:`qpatrol.world.failures`; None: none).
         """
         t = out.t
         in_window = t > self.warmup
@@ -212,20 +220,25 @@ class Measures:
             self.wait_total[act] += (wait[act] > 0).sum(axis=1)
             blocked = (out.ask[act] >= 0) & ~out.as_asked[act]
             self.interferences[act] += blocked.sum(axis=1)
-        self.intruders(out)
+        self.intruders(out, failing)
 
-    def intruders(self, out: Outcome) -> None:
+    def intruders(self, out: Outcome, failing: np.ndarray | None = None) -> None:
         """Take in the step's arrivals and departures for the intruder measures (off
         without attack durations): a target entered while empty closes an empty stretch
         (:meth:`_close`); a target left empty by the step is a departure at ``out.t``.
         Arrivals are counted before departures, so a cell a robot leaves while another
-        enters it stays occupied."""
+        enters it stays occupied. A robot ``failing`` (bool ``[R, K]``) at the end of the
+        step stands nowhere after it: it leaves the cell it stood on before the step and
+        enters none."""
         if not self.attack.size:
             return
         t = out.t
         target = self.target
+        moved, gone = out.moved, out.moved
+        if failing is not None:
+            moved, gone = out.moved & ~failing, out.moved | failing
         for k in range(out.moved.shape[1]):  # arrivals
-            rows = np.flatnonzero(out.moved[:, k])
+            rows = np.flatnonzero(moved[:, k])
             if rows.size == 0:
                 continue
             c = out.pos[rows, k]
@@ -236,7 +249,7 @@ class Measures:
                 self._close(rr, cc, self.empty_since[rr, cc], t)
                 self.empty_since[rr, cc] = -1
         for k in range(out.moved.shape[1]):  # departures
-            rows = np.flatnonzero(out.moved[:, k])
+            rows = np.flatnonzero(gone[:, k])
             if rows.size:
                 self.leave(rows, out.prev_pos[rows, k], t)
 

@@ -12,7 +12,7 @@ from __future__ import annotations
 import numpy as np
 import pandas as pd
 
-from qpatrol.world import EpisodeEnds, State
+from qpatrol.world import GONE, EpisodeEnds, State
 
 #: Float format of every CSV: None = Python's shortest repr that reads back to the
 #: same float64, so files are exact, deterministic and replayable.
@@ -196,7 +196,8 @@ class Recorder:
 
 
 class Tail:
-    """Every agent's cell over each run's last ``n`` team steps (a ring buffer per run)."""
+    """Every agent's cell over each run's last ``n`` team steps (a ring buffer per run);
+    -1 for a robot that failed (:mod:`qpatrol.world.failures`)."""
 
     def __init__(self, n: int, state: State):
         self.n = n
@@ -207,7 +208,9 @@ class Tail:
         """Call after each step: stores the cells of the runs that took this step."""
         if self.n:
             ran = np.flatnonzero(state.steps_done == state.t)
-            self.pos[ran, (state.t - 1) % self.n] = state.pos[ran]
+            # a robot that failed stands nowhere: cell -1
+            cells = np.where(state.mode[ran] == GONE, -1, state.pos[ran])
+            self.pos[ran, (state.t - 1) % self.n] = cells
 
     def table(self, state: State, run_ids: np.ndarray, coords: np.ndarray) -> pd.DataFrame | None:
         """``trajectory.csv``: run, step, agent, cell, row, col (None when off)."""
@@ -230,8 +233,10 @@ class Tail:
                 )
             )
         df = pd.concat(parts, ignore_index=True)
-        df["row"] = coords[df["cell"].to_numpy(), 0]
-        df["col"] = coords[df["cell"].to_numpy(), 1]
+        cell = df["cell"].to_numpy()
+        here = cell >= 0  # -1: a robot that failed (row and col -1 too)
+        df["row"] = np.where(here, coords[np.maximum(cell, 0), 0], -1)
+        df["col"] = np.where(here, coords[np.maximum(cell, 0), 1], -1)
         return df
 
 

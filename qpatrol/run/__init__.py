@@ -33,7 +33,7 @@ from qpatrol.measures.timeline import Timeline
 from qpatrol.run.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.strategies.base import Strategy
 from qpatrol.util import atomic, provenance
-from qpatrol.world import limits
+from qpatrol.world import failures, limits
 from qpatrol.world.rng import Seed, Streams, run_keys
 
 Progress = Callable[[int, int], None]
@@ -210,15 +210,17 @@ def _batch(
         block = max(1, min(Streams.BLOCK, cfg["steps"]))
         streams = Streams(seeds, p.n_agents, block)
         starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
-        state = world.init_state(p, starts)
+        failed = failures.choose(seeds, p.n_agents, cfg["failures.robots"])
+        state = world.init_state(p, starts, failed)
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
         if values:
             strategy.use_run_values(values)
+        # with failures, every measure's window starts at the failure
         watch = measures.Measures(
             state.n_runs,
             p.n_agents,
             p.n_cells,
-            cfg["record.warmup"],
+            max(cfg["record.warmup"], p.failures_at),
             p.target,
             measures.attack_steps(cfg["security.attack_steps"], p.n_targets),
             cfg["steps"],
@@ -247,6 +249,10 @@ def _batch(
         progress(total, total)
     episodes = rec.episode_table()
     bound = measures.wait_bound(p)
+    summary = measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound)
+    if p.failures_at:
+        for row, facts in zip(summary, failures.describe(state, p), strict=True):
+            row.update(facts)
     return RunResult(
         config=cfg,
         map=m,
@@ -260,7 +266,7 @@ def _batch(
         watch=rec.watch_table(),
         trajectory=tail.table(state, rec.run_ids, m.coords),
         timeline=timeline.table(rec.run_ids, state.steps_done),
-        summary=measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound),
+        summary=summary,
         engine=engine,
         engine_note=note,
         loop=loop,

@@ -21,6 +21,7 @@ import numpy as np
 
 from qpatrol.maps import walks
 from qpatrol.strategies import follow
+from qpatrol.world.battery import GONE
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -46,7 +47,9 @@ class Strategy(follow.WalkFollower):
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         if self.hold.any():
-            gathered = (obs.state.pos == self.goal_cells()).all(axis=1)
+            # the team: the robots that have not failed (qpatrol.world.failures)
+            here = (obs.state.pos == self.goal_cells()) | (obs.state.mode == GONE)
+            gathered = here.all(axis=1)
             if obs.t > self.gather_until:
                 gathered[:] = True
             self.hold[gathered] = False

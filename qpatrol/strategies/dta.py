@@ -37,6 +37,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qpatrol.strategies import goals
+from qpatrol.world.battery import GONE
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -134,6 +135,8 @@ class SSI(DTA):
 
     def allowed(self, obs: Observation, k: int, rows: np.ndarray, c: np.ndarray) -> np.ndarray:
         b = bids(self.dist, obs.state.pos[rows], self.goal[rows], k, c)
+        gone = obs.state.mode[rows] == GONE  # a robot that failed bids nothing
+        b = np.where(gone[:, :, None], np.iinfo(np.int64).max, b)
         others = np.delete(b, k, axis=1).min(axis=1)  # [B, C]
         return b[:, k] <= others
 
@@ -169,12 +172,13 @@ class PartSSI(DTA):
     def weights(self, cfg: Config) -> tuple[float, float, float]:
         return (float(cfg["dta.theta_idleness"]), float(cfg["dta.ssi_navigation"]), 0.0)
 
-    def part_bids(self, r: int, x: int) -> np.ndarray:
+    def part_bids(self, r: int, x: int, gone: np.ndarray) -> np.ndarray:
         """int ``[K]``: each robot's bid for target x in run r: 0 for its goal, else the
-        moves from its center to x times one more than its tasks."""
+        moves from its center to x times one more than its tasks; none (the largest
+        int) from a robot that failed (``gone`` bool ``[K]``)."""
         tasks = np.bincount(np.maximum(self.owner[r], 0), self.owner[r] >= 0, self.n_agents)
         b = self.dist[self.center[r], x] * (tasks.astype(np.int64) + 1)
-        return np.where(self.goal[r] == x, 0, b)
+        return np.where(gone, np.iinfo(np.int64).max, np.where(self.goal[r] == x, 0, b))
 
     def award(self, r: int, x: int, winner: int, pos: np.ndarray) -> None:
         """Target x of run r goes to ``winner``; the centers of the robots whose tasks
@@ -212,8 +216,9 @@ class PartSSI(DTA):
             if not auction:
                 continue
             pos = s.pos[r]
+            gone = s.mode[r] == GONE
             for x in order.tolist():
-                bid = self.part_bids(r, x)
+                bid = self.part_bids(r, x, gone)
                 others = np.delete(bid, k)
                 winner = k if bid[k] <= others.min() else int(np.argmin(np.where(
                     np.arange(self.n_agents) == k, np.iinfo(np.int64).max, bid)))  # fmt: skip

@@ -107,6 +107,8 @@ class GoalFollower(base.Strategy):
             battery.closed_cells(s, p, ports) if p.battery else np.zeros(mask.shape, dtype=bool)
         )
         ask = np.full((n_runs, n_agents), -1, dtype=np.int64)
+        # a robot that failed announces no goal (qpatrol.world.failures)
+        self.goal[s.mode == battery.GONE] = -1
         for k in range(n_agents):
             ch = obs.choosing[:, k]
             c = s.pos[:, k]

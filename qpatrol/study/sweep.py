@@ -817,7 +817,8 @@ def write_results(out: str | Path, points: list[Point]) -> Path:
             measures += [k for k in r if k != "run" and k not in measures]
             row = {"point": p.index, "point_id": p.id}
             row.update({k: _cell(p.overrides.get(k)) for k in swept})
-            row.update(r)
+            # a list measure (summary.json's failed_robots) as one cell: joined by "+"
+            row.update({k: _cell(v) if isinstance(v, list) else v for k, v in r.items()})
             rows.append(row)
     columns = ["point", "point_id", *swept, "run", *measures]
     df = pd.DataFrame(rows, columns=columns)

@@ -44,6 +44,7 @@ from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
 from qpatrol.world import battery, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
+GONE = battery.GONE
 
 
 @dataclass(frozen=True)
@@ -88,6 +89,7 @@ class Params:
     staggered: bool  # battery.initial_charge == "staggered"
     max_episode_steps: int  # 0 = no limit
     episodes: int  # 0 = no limit
+    failures_at: int = 0  # the team step at whose end State.failed robots fail (0: none)
 
     @property
     def n_targets(self) -> int:
@@ -201,6 +203,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         staggered=cfg["battery.initial_charge"] == "staggered",
         max_episode_steps=int(cfg["max_episode_steps"] or 0),
         episodes=int(cfg["episodes"] or 0),
+        failures_at=int(cfg["failures.at"]) if cfg["failures.robots"] else 0,
     )
 
 
@@ -297,6 +300,8 @@ class State:
         token_held: int ``[R]``, consecutive steps the token has been with that robot.
         active: bool ``[R]``, run still going (False once its episode quota is met).
         steps_done: int ``[R]``, team steps the run has taken.
+        failed: int ``[R, F]``, the robots that fail at team step ``Params.failures_at``
+            (:mod:`qpatrol.world.failures`; ``F = 0`` without failures).
     """
 
     t: int
@@ -324,6 +329,7 @@ class State:
     token_held: np.ndarray
     active: np.ndarray
     steps_done: np.ndarray
+    failed: np.ndarray
 
     @property
     def n_runs(self) -> int:
@@ -403,8 +409,9 @@ def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
     return np.array(placed, dtype=np.int64)
 
 
-def init_state(p: Params, start_cells: np.ndarray) -> State:
-    """The world before the first step. ``start_cells``: int ``[R, K]``."""
+def init_state(p: Params, start_cells: np.ndarray, failed: np.ndarray | None = None) -> State:
+    """The world before the first step. ``start_cells``: int ``[R, K]``; ``failed``:
+    int ``[R, F]``, the robots that fail at step ``p.failures_at`` (None: none)."""
     r, k, c, g = start_cells.shape[0], p.n_agents, p.n_cells, p.n_groups
     pos = start_cells.astype(np.int64).copy()
     occ = np.full((r, c), -1, dtype=np.int64)
@@ -437,6 +444,11 @@ def init_state(p: Params, start_cells: np.ndarray) -> State:
         token_held=np.zeros(r, dtype=np.int64),
         active=np.ones(r, dtype=bool),
         steps_done=np.zeros(r, dtype=np.int64),
+        failed=(
+            np.zeros((r, 0), dtype=np.int64)
+            if failed is None
+            else np.array(failed, dtype=np.int64).reshape(r, -1)
+        ),
     )
 
 

@@ -48,7 +48,10 @@ if TYPE_CHECKING:
     from qpatrol.world import Params, State
 
 PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3
-MODE_NAMES = ("patrol", "homing", "queued", "charging")
+#: A robot that failed and left the map for good (:mod:`qpatrol.world.failures`): it
+#: never chooses, asks, waits or holds a station, and stands in no cell.
+GONE = 4
+MODE_NAMES = ("patrol", "homing", "queued", "charging", "gone")
 
 
 def initial_charge(p: Params, pos: np.ndarray) -> np.ndarray:
@@ -154,6 +157,7 @@ def homing_ask(s: State, p: Params) -> tuple[np.ndarray, np.ndarray, np.ndarray]
     # robots other than k in the pocket of k's station, and how deep the deepest is
     pocket_of_others = p.pocket_of[s.pos][:, None, :]  # [R, 1, K]
     same = (pocket_of_others == goal[..., None]) & ~np.eye(K, dtype=bool)[None]
+    same &= (s.mode != GONE)[:, None, :]  # a robot that failed stands nowhere
     depth_others = np.where(same, p.pocket_depth[s.pos][:, None, :], -1).max(axis=-1)  # [R, K]
     occupied = depth_others >= 0
     my_depth = np.where(p.pocket_of[s.pos] == goal, p.pocket_depth[s.pos], 0)

@@ -147,7 +147,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
         )  # fmt: skip
     elif code == CYCLIC or code == PARTITION:
         follow.act(
-            r, t, nbrs, battery, p.pocket_of, pos, s.reserved, choosing, ask, sp.ipar,
+            r, t, nbrs, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask, sp.ipar,
             sp.robot_i, sp.table_i, sp.row_i, sp.dist,
         )  # fmt: skip
     elif code >= HCR and code <= SEBS:

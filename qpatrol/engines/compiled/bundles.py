@@ -47,6 +47,8 @@ class Params(NamedTuple):
             ``nearest`` ``[C]``, ``depart_len`` ``[H]``, pockets ``pocket_of``,
             ``pocket_depth`` ``[C]``, ``pocket_entry`` ``[H]``, and scalars.
         target: bool ``[C]``, the cells the measures count; n_targets: their number.
+        fail_at: the team step at whose end the robots ``failed`` ``[R, F]`` of the
+            world fail (0: none; :mod:`qpatrol.engines.compiled.fail`).
     """
 
     nbrs: np.ndarray
@@ -76,6 +78,7 @@ class Params(NamedTuple):
     charge_steps: int
     target: np.ndarray
     n_targets: int
+    fail_at: int
 
 
 #: The runs' state: the arrays of :class:`qpatrol.world.State` (all its fields but the
@@ -85,7 +88,8 @@ class Params(NamedTuple):
 #: ``ep_start``, ``ep_count`` ``[R, G]``, ``ep_seen`` ``[R, G, C]``, ``ep_seen_state``
 #: ``[R, G, C, D]``; the right of way ``token``, ``token_held``, ``active``,
 #: ``steps_done`` ``[R]``; the battery's ``charge``, ``mode``, ``rest``, ``goal``,
-#: ``queued_since``, ``depart_left`` ``[R, K]`` and ``reserved`` ``[R, H]``.
+#: ``queued_since``, ``depart_left`` ``[R, K]`` and ``reserved`` ``[R, H]``; the robots
+#: that fail, ``failed`` ``[R, F]``.
 World = NamedTuple(  # noqa: UP014 (its fields are State's, not written again here)
     "World", [(f.name, np.ndarray) for f in dataclasses.fields(State) if f.name != "t"]
 )

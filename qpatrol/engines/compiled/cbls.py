@@ -250,6 +250,7 @@ def act(r, t, ur, battery, p, s, w, robot, hist, visits, avg, scratch, table, de
     """``w.ask[k]`` for each robot of run ``r`` at step ``t``: goals chosen robot by
     robot, then the move towards the goal; -1 for robots not choosing."""
     pos, open_mask, choosing, ask = s.pos, w.open_mask, w.choosing, w.ask
+    goals.forget_gone(r, s.mode, robot)
     for k in range(choosing.shape[0]):
         if not choosing[k]:
             ask[k] = -1

@@ -73,9 +73,10 @@ def _utility(r, k, t, c, x, communication, last, robot, dist, fpar):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def _allowed(kind, r, k, c, x, pos, robot, dist):
+def _allowed(kind, r, k, c, x, pos, mode, robot, dist):
     """``dta-greedy``: no other robot has x as its goal; ``dta-ssi``: robot k wins x's
-    auction (no other robot bids less than its ``dist[c, x]``)."""
+    auction (no other robot bids less than its ``dist[c, x]``; a robot that failed,
+    ``mode`` GONE, bids nothing)."""
     n_agents = robot.shape[1]
     if kind == GREEDY:
         for j in range(n_agents):
@@ -84,7 +85,7 @@ def _allowed(kind, r, k, c, x, pos, robot, dist):
         return True
     mine = dist[c, x]
     for j in range(n_agents):
-        if j == k:
+        if j == k or mode[r, j] == goals.GONE:
             continue
         g = robot[r, j, 0]
         pj = pos[r, j]
@@ -119,7 +120,7 @@ def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, s
         n_cand += 1
         if sc > best_c:
             best_c = sc
-        if exchange and _allowed(kind, r, k, c, x, pos, robot, dist):
+        if exchange and _allowed(kind, r, k, c, x, pos, s.mode, robot, dist):
             n_allowed += 1
             if sc > best_a:
                 best_a = sc
@@ -135,7 +136,7 @@ def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, s
             continue
         if score[x] != best:
             continue
-        if use_allowed and not _allowed(kind, r, k, c, x, pos, robot, dist):
+        if use_allowed and not _allowed(kind, r, k, c, x, pos, s.mode, robot, dist):
             continue
         count += 1
     j = min(np.int64(uu * count), count - 1)
@@ -146,7 +147,7 @@ def _choose(kind, r, k, t, uu, c, battery, p, s, robot, is_target, dist, fpar, s
             continue
         if score[x] != best:
             continue
-        if use_allowed and not _allowed(kind, r, k, c, x, pos, robot, dist):
+        if use_allowed and not _allowed(kind, r, k, c, x, pos, s.mode, robot, dist):
             continue
         if j == 0:
             return x
@@ -181,15 +182,18 @@ def _center(r, j, here, owner, dist):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def _auction(r, k, x, pos, robot, owner, dist):
+def _auction(r, k, x, pos, mode, robot, owner, dist):
     """Target x auctioned by robot k (``dta-ssi-part``): the winner (k on a tie, else
-    the lowest bidder of least index) becomes its owner, and the centers of the robots
-    whose tasks changed are computed again. Returns the winner."""
+    the lowest bidder of least index; a robot that failed, ``mode`` GONE, bids nothing)
+    becomes its owner, and the centers of the robots whose tasks changed are computed
+    again. Returns the winner."""
     n_agents = robot.shape[1]
     mine = 0
     best = -1
     best_bid = 0
     for j in range(n_agents):
+        if j != k and mode[r, j] == goals.GONE:
+            continue
         if robot[r, j, 0] == x:
             b = 0
         else:
@@ -199,7 +203,7 @@ def _auction(r, k, x, pos, robot, owner, dist):
         elif best < 0 or b < best_bid:
             best = j
             best_bid = b
-    winner = k if mine <= best_bid else best
+    winner = k if best < 0 or mine <= best_bid else best
     before = owner[r, 0, x]
     owner[r, 0, x] = winner
     if before != winner:
@@ -244,7 +248,7 @@ def _choose_part(r, k, t, uu, c, battery, p, s, robot, owner, is_target, dist, f
             first = x
             if not auction:
                 return x
-        if _auction(r, k, x, s.pos, robot, owner, dist) == k:
+        if _auction(r, k, x, s.pos, s.mode, robot, owner, dist) == k:
             return x
         score[x] = -np.inf
     return first
@@ -256,6 +260,7 @@ def act(r, t, ur, battery, p, s, w, ipar, fpar, robot, owner, is_target, dist, s
     robot, then the move towards the goal; -1 for robots not choosing."""
     kind = ipar[0]
     pos, open_mask, choosing, ask = s.pos, w.open_mask, w.choosing, w.ask
+    goals.forget_gone(r, s.mode, robot)
     for k in range(choosing.shape[0]):
         if not choosing[k]:
             ask[k] = -1

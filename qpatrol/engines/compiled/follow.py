@@ -30,6 +30,7 @@ from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 #: Columns of ``robot_i``.
 WID, TARGET, HOLD, BLOCKED, SPACING, SCRATCH = 0, 1, 2, 3, 4, 5
+GONE = 4  # battery.GONE
 
 
 def pack(strategy) -> Pack:
@@ -83,8 +84,8 @@ def sat_out(strategy, state) -> None:
         return
     strategy.blocked_by[out] = -1
     if strategy.name == "cyclic":
-        gathered = (state.pos == strategy.goal_cells()).all(axis=1)
-        gathered |= state.t > strategy.gather_until
+        here = (state.pos == strategy.goal_cells()) | (state.mode == GONE)
+        gathered = here.all(axis=1) | (state.t > strategy.gather_until)
         strategy.hold[out & gathered & strategy.hold.any(axis=1)] = False
 
 
@@ -163,10 +164,12 @@ def _skip_and_ask(
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def act(
-    r, t, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, robot_i, walk, length, dist
-):
+    r, t, nbrs, battery, pocket_of, pos, reserved, mode, choosing, ask, ipar, robot_i, walk,
+    length, dist,
+):  # fmt: skip
     """``ask[k]`` for every robot of run ``r`` at step ``t``: towards its target, -1 for
-    robots not choosing (or on their target)."""
+    robots not choosing (or on their target). ``mode`` int ``[R, K]``: the robots' modes
+    (a robot that failed, GONE, is not of the team that gathers)."""
     n_agents = choosing.shape[0]
     ri = robot_i[r]
     if ipar[0] != 0:  # cyclic: the team holds until it has gathered on its slots
@@ -176,7 +179,7 @@ def act(
         if held:
             gathered = True
             for k in range(n_agents):
-                if pos[r, k] != walk[ri[k, WID], ri[k, TARGET]]:
+                if pos[r, k] != walk[ri[k, WID], ri[k, TARGET]] and mode[r, k] != GONE:
                     gathered = False
             if gathered or t > ipar[1]:
                 for k in range(n_agents):

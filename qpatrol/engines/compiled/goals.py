@@ -28,6 +28,7 @@ from numba import njit
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 HCR, CC, GBS, SEBS = 0, 1, 2, 3
+GONE = 4  # battery.GONE
 KINDS = {"hcr": HCR, "cc": CC, "gbs": GBS, "sebs": SEBS}
 BIG = np.iinfo(np.int64).max
 
@@ -58,6 +59,15 @@ def pack(strategy) -> Pack:
 def unpack(p: Pack, strategy) -> None:
     """Copy the goals back (``cc``'s ``memory`` is the strategy's own array)."""
     strategy.goal = p.robot_i[..., 0].copy()
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def forget_gone(r, mode, goal):
+    """A robot of run r that failed (``mode`` GONE) announces no goal: ``goal[r, k, 0]``
+    (int ``[R, K, X]``) -1 (:class:`qpatrol.strategies.goals.GoalFollower`)."""
+    for k in range(goal.shape[1]):
+        if mode[r, k] == GONE:
+            goal[r, k, 0] = -1
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -232,6 +242,7 @@ def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, me
     kind = ipar[0]
     neighbour = ipar[1] != 0
     pos, open_mask, choosing, ask = s.pos, w.open_mask, w.choosing, w.ask
+    forget_gone(r, s.mode, goal)
     for k in range(choosing.shape[0]):
         if not choosing[k]:
             ask[k] = -1

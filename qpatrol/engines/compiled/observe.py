@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from numba import njit
 
+GONE = 4  # qpatrol.world.battery.GONE: a robot that failed
+
 
 @njit(cache=True, nogil=True, _nrt=False)
 def visit(c, t, warmup, p, rows_r, visits_k, window_visits_k, sums):
@@ -46,22 +48,24 @@ def visit(c, t, warmup, p, rows_r, visits_k, window_visits_k, sums):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def intruders(r, t, prev_pos, pos_r, moved, target, m):
+def intruders(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing):
     """Measures.intruders: the step's arrivals, then its departures (robots ``[K]``:
     cells before ``prev_pos`` and after ``pos_r``, ``moved``), for the intruder
-    measures of ``m`` (off without attack durations)."""
+    measures of ``m`` (off without attack durations). With ``failing`` (the step at
+    whose end robots fail), a robot whose mode ``mode_r`` ``[K]`` is GONE leaves the
+    cell it stood on before the step and enters none."""
     if m.attack.shape[0] == 0:
         return
     occupants, since = m.occupants[r], m.empty_since[r]
     for k in range(moved.shape[0]):  # arrivals, before any departure
-        if moved[k]:
+        if moved[k] and not (failing and mode_r[k] == GONE):
             c = pos_r[k]
             if occupants[c] == 0 and target[c]:
                 close(r, c, since[c], t, m)
                 since[c] = -1
             occupants[c] += 1
     for k in range(moved.shape[0]):
-        if moved[k]:
+        if moved[k] or (failing and mode_r[k] == GONE):
             leave(r, prev_pos[k], t, target, m)
 
 
@@ -133,12 +137,13 @@ def step_measures(r, t, n_targets, sums_last, waiting, longest, m):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def trail(r, t, pos_r, o):
-    """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells."""
+def trail(r, t, pos_r, mode_r, o):
+    """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells (-1 for a
+    robot that failed: ``mode_r`` ``[K]`` GONE)."""
     if o.tail_n > 0:
         slot = (t - 1) % o.tail_n
         for k in range(pos_r.shape[0]):
-            o.tail_pos[r, slot, k] = pos_r[k]
+            o.tail_pos[r, slot, k] = -1 if mode_r[k] == GONE else pos_r[k]
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")

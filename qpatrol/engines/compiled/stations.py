@@ -13,7 +13,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-PATROL, HOMING, QUEUED, CHARGING = 0, 1, 2, 3  # battery.PATROL ...
+PATROL, HOMING, QUEUED, CHARGING, GONE = 0, 1, 2, 3, 4  # battery.PATROL ...
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -147,7 +147,7 @@ def ask(r, p, s, w):
             if entry >= 0:
                 depth_others = -1
                 for j2 in range(n_agents):
-                    if j2 != k and pocket_of[pos[r, j2]] == gk:
+                    if j2 != k and pocket_of[pos[r, j2]] == gk and s.mode[r, j2] != GONE:
                         depth_others = max(depth_others, pocket_depth[pos[r, j2]])
                 occupied = depth_others >= 0
                 my_depth = pocket_depth[c] if pocket_of[c] == gk else 0
