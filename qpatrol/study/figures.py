@@ -791,18 +791,16 @@ def trajectory(
 
 #: The intruders of the security figure: summary key stem -> label.
 INTRUDERS = {"capture_random": "random", "capture_observer": "observer"}
-#: A run's worst idleness after a failure has settled from the first timeline window
-#: after which no window's worst idleness exceeds this factor times the largest of the
-#: run's last half (:func:`settle_steps`).
-SETTLE_FACTOR = 1.1
+#: A run's worst idleness has settled after a failure once a timeline window's worst
+#: idleness comes within these factors of its level over the last half of the run after
+#: the failure (:func:`settle_steps`).
+SETTLE_BAND = (0.8, 1.25)
 
 
 def _security_points(sweep_dir: Path) -> pd.DataFrame:
     """The security sweep's points with map name, policy, team size, robots failing,
-    failure step (the warm-up plus :data:`SECURITY_FAIL_AFTER` for a point without
-    failure: where its robots would have failed), warm-up and steps."""
-    from qpatrol.study.sweep import SECURITY_FAIL_AFTER
-
+    failure step (``failures.at``; for a point without failure, where its robots would
+    have failed), warm-up and steps."""
     sw = read_sweep(sweep_dir)
     rows = []
     for idx, path, cfg in zip(sw["index"], sw["path"], sw["config"], strict=True):
@@ -816,7 +814,7 @@ def _security_points(sweep_dir: Path) -> pd.DataFrame:
                 "policy": cfg["policy"],
                 "agents": int(cfg["agents"]),
                 "failures": failed,
-                "at": int(cfg["failures.at"]) if failed else warm + SECURITY_FAIL_AFTER,
+                "at": int(cfg["failures.at"]),
                 "warmup": warm,
                 "steps": int(cfg["steps"]),
             }
@@ -879,21 +877,21 @@ def security_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
     return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(pts["map"])))
 
 
-def settle_steps(first: np.ndarray, worst: np.ndarray, at: int) -> int:
-    """Team steps after the failure at step ``at`` until a run's worst idleness has
-    settled: the timeline's windows that start after ``at`` (``first`` their first
-    steps, ``worst`` their worst idleness, in order) have settled from the first window
-    after which none exceeds :data:`SETTLE_FACTOR` times the largest worst idleness of
-    the last half of them; the value is that window's first step minus ``at + 1`` (0:
-    settled at once)."""
+def settle_steps(first: np.ndarray, last: np.ndarray, worst: np.ndarray, at: int) -> int | None:
+    """Team steps after the failure at step ``at`` until a run's worst idleness reaches
+    its new level: of the timeline's windows (``first``, ``last`` their first and last
+    steps, ``worst`` their worst idleness, in order) those that start after ``at``; the
+    level is the median worst idleness of the last half of them, and the value is the
+    last step of the first of them within :data:`SETTLE_BAND` of it, minus ``at``
+    (None: no window starts after ``at``, or none is within the band)."""
     after = first > at
-    f, w = first[after], worst[after]
-    if f.size == 0:
-        return 0
-    level = SETTLE_FACTOR * w[f.size // 2 :].max()
-    above = np.flatnonzero(w > level)
-    start = 0 if above.size == 0 else int(above[-1]) + 1
-    return int(f[min(start, f.size - 1)] - (at + 1))
+    lst, w = last[after], worst[after]
+    if lst.size == 0:
+        return None
+    level = float(np.median(w[lst.size // 2 :]))
+    lo, hi = SETTLE_BAND
+    inside = np.flatnonzero((w >= lo * level) & (w <= hi * level))
+    return int(lst[inside[0]] - at) if inside.size else None
 
 
 def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
@@ -904,9 +902,11 @@ def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.Dat
     ``avg_idleness`` and ``worst_idleness``; and per point (repeated on its rows) the
     runs' average and worst idleness over the windows before the failure
     (``avg_before``, ``worst_before``: means over runs), after it (``avg_after``,
-    ``worst_after``: the summary's, whose window starts at the failure), the median and
-    largest :func:`settle_steps` and ``unrecovered``, the runs that left a target
-    unvisited for the whole window after the failure (``coverage`` < 1)."""
+    ``worst_after``: the summary's, whose window starts at the failure; for the team
+    without failure, at the end of its warm-up), the median and largest of the runs'
+    :func:`settle_steps` (``unsettled``: runs without one), ``uncovered``, the runs that
+    left a target unvisited for the whole measured window (``coverage`` < 1), and
+    ``not_live``, the runs with a wait above ``wait_bound``."""
     d = Path(sweep_dir)
     pts = _security_points(d)
     res = _read_csv(d / "results.csv", "per-run results of the sweep")
@@ -920,17 +920,24 @@ def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.Dat
         runs = res[res["point"] == p.point]
         before = tl[tl["last_step"] <= p.at].groupby("run")
         settle = [
-            settle_steps(g["first_step"].to_numpy(), g["worst_idleness"].to_numpy(), p.at)
+            settle_steps(
+                g["first_step"].to_numpy(),
+                g["last_step"].to_numpy(),
+                g["worst_idleness"].to_numpy(),
+                p.at,
+            )
             for _, g in tl.groupby("run", sort=True)
         ]
+        settled = [x for x in settle if x is not None]
         per_point = {
             "avg_before": float(before["avg_idleness"].mean().mean()),
             "worst_before": float(before["worst_idleness"].max().mean()),
             "avg_after": float(pd.to_numeric(runs["avg_idleness"]).mean()),
             "worst_after": float(pd.to_numeric(runs["worst_idleness"]).mean()),
-            "settle_median": float(np.median(settle)),
-            "settle_max": int(max(settle)),
-            "unrecovered": int((pd.to_numeric(runs["coverage"]) < 1).sum()),
+            "settle_median": float(np.median(settled)) if settled else None,
+            "settle_max": max(settled) if settled else None,
+            "unsettled": len(settle) - len(settled),
+            "uncovered": int((pd.to_numeric(runs["coverage"]) < 1).sum()),
             "not_live": int((~runs["live"].astype(bool)).sum()),
             "point_runs": len(runs),
         }

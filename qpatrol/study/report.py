@@ -811,23 +811,27 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
             h = hit.iloc[0]
             ratio = h.worst_after / h.worst_before if h.worst_before else np.nan
             text = f"{_fmt(h.worst_before)} -> {_fmt(h.worst_after)} (x{_fmt(ratio, 2)})"
-            if h.unrecovered:
-                text += f", {int(h.unrecovered)}/{int(h.point_runs)} never"
-            else:
-                text += f", settles {_fmt(h.settle_median)}"
+            if h.uncovered:
+                text += f", {int(h.uncovered)}/{int(h.point_runs)} never"
+            elif h.settle_median == h.settle_median:  # (NaN: no run settled)
+                text += f", level in {_fmt(h.settle_median)} steps"
             cellsf.append(text)
         frows.append(f"| {name} | " + " | ".join(cellsf) + " |")
         for f in sorted(set(pts["failures"]) - {0}):
             p = pts[(pts["policy"] == name) & (pts["failures"] == f)]
-            if len(p) and (p["unrecovered"] == p["point_runs"]).any():
-                never.setdefault(int(f), []).append(
-                    f"{name} ("
-                    + ", ".join(
-                        f"{r['map']} K = {int(r.agents)}"
-                        for _, r in p[p["unrecovered"] == p["point_runs"]].iterrows()
-                    )
-                    + ")"
+            base = pts[(pts["policy"] == name) & (pts["failures"] == 0)]
+            lost = p[p["uncovered"] == p["point_runs"]]
+            if not len(lost):
+                continue
+            parts = []
+            for _, r in lost.iterrows():
+                b = base[(base["map"] == r["map"]) & (base["agents"] == r.agents)]
+                was = int(b["uncovered"].iloc[0]) if len(b) else 0
+                parts.append(
+                    f"{r['map']} K = {int(r.agents)}"
+                    + (f" (without failure too: {was} of {int(r.point_runs)})" if was else "")
                 )
+            never.setdefault(int(f), []).append(f"{name}: " + ", ".join(parts))
     ftable = "\n".join(
         [
             f"| strategy | {' | '.join(f'{m}, K = {int(k)}' for m, k in cases)} |",
@@ -837,10 +841,13 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
     )
     never_text = " ".join(
         f"With {f} robot{'s' * (f != 1)} failed, every run left a target unvisited for the "
-        f"rest of the window for: {'; '.join(v)}."
+        f"whole window after the failure for {'; '.join(v)}."
         for f, v in sorted(never.items())
     )
     frozen = int(pts["not_live"].sum())
+    no_failure = None
+    if res is not None and "failures.robots" in res:
+        no_failure = res[pd.to_numeric(res["failures.robots"]) == 0]
     runs = int(cap["runs"].min())
     return Section(
         "Beyond the paper: security, measured",
@@ -861,16 +868,17 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
             f"map and team size. The best protector is the idleness winner in {same} of "
             f"{cells} cells. Best protector, by intruder: " + "; ".join(tally) + ".",
             f"Failures: {most} of the K robots leave the map for good 1,000 steps into the "
-            "window; the measures after it use the window that starts there. Worst idleness "
-            "before (the 100-step timeline windows between warm-up and failure, worst per "
-            "run, mean over runs) -> after (the window after the failure), the ratio, and the "
-            "median steps until the worst idleness settles (the first timeline window after "
-            "which none exceeds 1.1 times the largest of the run's last half); 'never': runs "
-            "that left a target unvisited for the whole window after the failure.",
+            "window; the measures after it use the window that starts there. Each cell: "
+            "worst idleness before (the 100-step timeline windows between warm-up and "
+            "failure, worst per run, mean over runs) -> after (the window after the failure), "
+            "the ratio, and the median team steps until the worst idleness reaches its new "
+            "level (the end of the first timeline window within 0.8 to 1.25 times the median "
+            "of the last half of the windows after the failure); 'never': runs that left a "
+            "target unvisited for the whole window after the failure.",
             ftable,
             (never_text or "Every strategy visited every target again after the failure.")
             + f" Runs that froze (a wait longer than `wait_bound`): {frozen}."
-            + _wide_spread(res),
+            + _wide_spread(no_failure),
             "Every number with its 95% t-interval: `figures/security.csv` (capture by D) "
             "and `figures/security-failures.csv` (idleness in windows around the failure, "
             "before and after, settling).",
