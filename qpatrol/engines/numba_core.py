@@ -195,10 +195,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             known = True  # the next choice's best: Q(c1, hb, .) over c1's legal moves
             sums = observe.visit(c1, t, warmup, p, rows_r, visits_r, window_visits_r, sums)
             if intruders:  # the arrival, then the departure (a lone robot)
-                if p.target[c1]:
-                    observe.close(r, c1, m.empty_since[r, c1], t, m)
-                    m.empty_since[r, c1] = -1
-                m.occupants[r, c1] += 1
+                observe.arrive(r, c1, t, p.target, m)
                 observe.leave(r, c, t, p.target, m)
             c = c1
             h = a
@@ -619,7 +616,7 @@ class Loop:
             m.gap_sum, m.gap_count, m.gap_max, m.max_wait, m.wait_total, m.warmup,
             m.min_charge, m.gap_sq, m.target_gap_sum, m.target_gap_count, m.cycle_start,
             m.cycle_seen, m.cycles, m.interferences, m.attack, np.int64(m.horizon),
-            m.occupants, m.empty_since, m.random_missed, m.departures, m.departures_missed,
+            m.empty_since, m.random_missed, m.gaps, m.tail_departures, m.tail_missed,
         )  # fmt: skip
         tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
         ups = (np.empty((rows, UP_INT), np.int64), np.empty((rows, UP_FLOAT), np.float64))

@@ -94,13 +94,19 @@ class Measures:
         attack: int ``[A]``, the attack durations D of the intruder measures
             (``security.attack_steps``; none: the measures are off and the arrays
             below are empty); horizon: the steps a run is configured to take.
-        occupants: int ``[R, C]``, robots standing on each cell after the last step.
-        empty_since: int ``[R, C]``, the step at whose end a target became empty (a
-            departure), 0 if it has been empty since the start, -1 while occupied.
+        empty_since: int ``[R, C]``, for each target the step at whose end it became
+            empty (a departure; 0: empty since the start), or, while robots stand on
+            it, minus their number.
         random_missed: int ``[R, A]``, intruder pairs (target, step) that no robot
             caught within D steps, over the empty stretches closed so far.
-        departures, departures_missed: int ``[R, C, A]``, each target's departures that
-            the observer counts for D, and those of them not caught within D steps.
+        gaps: int32 ``[R, C, A + 1]``, each target's departures that the observer counts
+            for every D (made at least the longest D before the horizon), by the bucket
+            of their gap until the next arrival: bucket j holds the gaps longer than the
+            j shortest durations and no longer than the next (a departure is missed for
+            the i-th D when its bucket is above i).
+        tail_departures, tail_missed: int32 ``[R, C, A]``, the departures made within
+            the longest D of the horizon, each counted for the durations it is early
+            enough for, and those of them missed.
     """
 
     def __init__(
@@ -147,17 +153,16 @@ class Measures:
         self.horizon = int(horizon)
         a = self.attack.size
         cc = c if a else 0
-        self.occupants = np.zeros((r, cc), dtype=np.int64)
-        self.empty_since = np.full((r, cc), -1, dtype=np.int64)
+        self.empty_since = np.zeros((r, cc), dtype=np.int64)
         self.random_missed = np.zeros((r, a), dtype=np.int64)
-        self.departures = np.zeros((r, cc, a), dtype=np.int64)
-        self.departures_missed = np.zeros((r, cc, a), dtype=np.int64)
+        self.gaps = np.zeros((r, cc, a + 1 if a else 0), dtype=np.int32)
+        self.tail_departures = np.zeros((r, cc, a), dtype=np.int32)
+        self.tail_missed = np.zeros((r, cc, a), dtype=np.int32)
         if a:
             if start is None:
                 raise ValueError("Measures: the intruder measures need the robots' start cells")
             rows = np.repeat(np.arange(r), np.asarray(start).shape[1])
-            np.add.at(self.occupants, (rows, np.asarray(start).ravel()), 1)
-            self.empty_since[self.occupants == 0] = 0
+            np.add.at(self.empty_since, (rows, np.asarray(start).ravel()), -1)
 
     @property
     def attack(self) -> np.ndarray:
@@ -239,37 +244,37 @@ class Measures:
             moved, gone = out.moved & ~failing, out.moved | failing
         for k in range(out.moved.shape[1]):  # arrivals
             rows = np.flatnonzero(moved[:, k])
+            c = out.pos[rows, k]
+            rows, c = rows[target[c]], c[target[c]]
             if rows.size == 0:
                 continue
-            c = out.pos[rows, k]
-            arrived = (self.occupants[rows, c] == 0) & target[c]
-            self.occupants[rows, c] += 1
-            if arrived.any():
-                rr, cc = rows[arrived], c[arrived]
-                self._close(rr, cc, self.empty_since[rr, cc], t)
-                self.empty_since[rr, cc] = -1
+            v = self.empty_since[rows, c]
+            empty = v >= 0
+            if empty.any():
+                self._close(rows[empty], c[empty], v[empty], t)
+            self.empty_since[rows, c] = np.where(empty, -1, v - 1)
         for k in range(out.moved.shape[1]):  # departures
             rows = np.flatnonzero(gone[:, k])
-            if rows.size:
-                self.leave(rows, out.prev_pos[rows, k], t)
-
-    def leave(self, rows: np.ndarray, cells: np.ndarray, t: int) -> None:
-        """A robot of each run ``rows`` (int ``[B]``, distinct) left ``cells`` (int
-        ``[B]``) in step ``t``: a target left empty is a departure at ``t``."""
-        if not self.attack.size:
-            return
-        self.occupants[rows, cells] -= 1
-        gone = (self.occupants[rows, cells] == 0) & self.target[cells]
-        self.empty_since[rows[gone], cells[gone]] = t
+            c = out.prev_pos[rows, k]
+            rows, c = rows[target[c]], c[target[c]]
+            v = self.empty_since[rows, c] + 1
+            self.empty_since[rows, c] = np.where(v == 0, t, v)
 
     def _close(self, rows: np.ndarray, cells: np.ndarray, e: np.ndarray, b: int) -> None:
         """Target ``cells`` of runs ``rows`` (int ``[B]``, distinct runs), empty from the
         end of step ``e`` (int ``[B]``) on, are entered in step ``b``
-        (:func:`empty_stretch`)."""
+        (:func:`empty_stretch`): the random intruders it hid, and its departure by the
+        bucket of its gap (or, near the horizon, per duration)."""
         rand, counted, missed = empty_stretch(self.attack, self.warmup, self.horizon, e, b)
         self.random_missed[rows] += rand
-        self.departures[rows, cells] += counted
-        self.departures_missed[rows, cells] += missed
+        every = counted.all(axis=1)  # counted for every D: by the bucket of its gap
+        if every.any():
+            bucket = np.searchsorted(self.attack, b - e[every], side="left")
+            self.gaps[rows[every], cells[every], bucket] += 1
+        some = counted.any(axis=1) & ~every  # near the horizon: for the shorter D only
+        if some.any():
+            self.tail_departures[rows[some], cells[some]] += counted[some]
+            self.tail_missed[rows[some], cells[some]] += missed[some]
 
     def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
         """int ``[R]``: worst idleness in the window, open gaps at the end included."""
@@ -456,40 +461,38 @@ def intruder_measures(m: Measures, steps_done: np.ndarray) -> dict[str, list[Any
     if not attack.size:
         return out
     s, w = m.horizon, m.warmup
+    tgt = m.target
     # the stretches still open at the end close at the horizon + 1 (added to copies: the
     # accumulators stay as they are, so a checkpointed run goes on from them)
-    rows, cells = np.nonzero((m.empty_since >= 0) & m.target[None, :])
-    rand, counted, miss = empty_stretch(attack, w, s, m.empty_since[rows, cells], s + 1)
+    since = m.empty_since[:, tgt]  # [R, T]
+    rows, cols = np.nonzero(since >= 0)
+    rand, counted, miss = empty_stretch(attack, w, s, since[rows, cols], s + 1)
     random_missed = m.random_missed.copy()
     np.add.at(random_missed, rows, rand)
-    departures, departures_missed = m.departures.copy(), m.departures_missed.copy()
-    departures[rows, cells] += counted
-    departures_missed[rows, cells] += miss
+    gaps = m.gaps[:, tgt].astype(np.int64)  # [R, T, A + 1]
+    departures = gaps.sum(axis=2)[..., None] + m.tail_departures[:, tgt]  # [R, T, A]
+    # missed for the i-th D: the buckets above i
+    above = np.cumsum(gaps[..., ::-1], axis=2)[..., ::-1][..., 1:]
+    missed = above + m.tail_missed[:, tgt]
+    departures[rows, cols] += counted
+    missed[rows, cols] += miss
     done = np.asarray(steps_done) == s
-    n_t = m.n_targets
-    tgt = m.target
+    cell_ids = np.flatnonzero(tgt)
     for j, d in enumerate(attack.tolist()):
         k_rand, k_obs, k_cell = attack_names(d)
-        pairs = n_t * (s - d - w + 1)
-        missed = random_missed[:, j].tolist()
-        dep = departures[:, tgt, j]  # [R, T]
-        caught = dep - departures_missed[:, tgt, j]
-        cell_ids = np.flatnonzero(tgt)
-        rand, obs, where = [], [], []
-        for i in range(m.random_missed.shape[0]):
-            ok = bool(done[i]) and pairs > 0
-            rand.append((pairs - missed[i]) / pairs if ok else None)
-            has = dep[i] > 0
-            if not ok or not has.any():
-                obs.append(None)
-                where.append(None)
-                continue
-            frac = np.full(dep.shape[1], np.inf)
-            np.divide(caught[i], dep[i], out=frac, where=has)
-            worst = int(np.argmin(frac))  # the lowest cell among ties
-            obs.append(float(frac[worst]))
-            where.append(int(cell_ids[worst]))
-        out[k_rand], out[k_obs], out[k_cell] = rand, obs, where
+        pairs = m.n_targets * (s - d - w + 1)
+        ok = done & (pairs > 0)
+        dep = departures[..., j]
+        frac = np.full(dep.shape, np.inf)
+        np.divide(dep - missed[..., j], dep, out=frac, where=dep > 0)
+        worst = np.argmin(frac, axis=1)  # the lowest cell among ties
+        value = frac[np.arange(frac.shape[0]), worst]
+        has = ok & np.isfinite(value)
+        with np.errstate(divide="ignore", invalid="ignore"):
+            rand_j = (pairs - random_missed[:, j]) / pairs
+        out[k_rand] = [float(x) if o else None for x, o in zip(rand_j, ok, strict=True)]
+        out[k_obs] = [float(x) if h else None for x, h in zip(value, has, strict=True)]
+        out[k_cell] = [int(cell_ids[x]) if h else None for x, h in zip(worst, has, strict=True)]
     return out
 
 

@@ -894,30 +894,61 @@ def settle_steps(first: np.ndarray, last: np.ndarray, worst: np.ndarray, at: int
     return int(lst[inside[0]] - at) if inside.size else None
 
 
-def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
-    """Idleness around the failure (the timeline of every security point): one row per
-    map, team size, strategy, robots failing (0: the same team, no failure) and
-    timeline window from the end of the warm-up on: ``since_failure`` (the window's last
-    step minus the failure step), the mean and 95% t-interval over runs of its
-    ``avg_idleness`` and ``worst_idleness``; and per point (repeated on its rows) the
-    runs' average and worst idleness over the windows before the failure
-    (``avg_before``, ``worst_before``: means over runs), after it (``avg_after``,
-    ``worst_after``: the summary's, whose window starts at the failure; for the team
-    without failure, at the end of its warm-up), the median and largest of the runs'
-    :func:`settle_steps` (``unsettled``: runs without one), ``uncovered``, the runs that
-    left a target unvisited for the whole measured window (``coverage`` < 1), and
-    ``not_live``, the runs with a wait above ``wait_bound``."""
-    d = Path(sweep_dir)
-    pts = _security_points(d)
-    res = _read_csv(d / "results.csv", "per-run results of the sweep")
-    rows = []
+def _security_timelines(sweep_dir: Path):
+    """Each security point (:func:`_security_points`) with its per-run results and its
+    timeline from the end of the warm-up on."""
+    pts = _security_points(sweep_dir)
+    res = _read_csv(sweep_dir / "results.csv", "per-run results of the sweep")
     for p in pts.itertuples():
         tl_path = p.path / "timeline.csv"
         if not tl_path.is_file():
             raise FileNotFoundError(f"{tl_path}: missing; the security study needs record.timeline")
         tl = _read_csv(tl_path, "idleness in windows")
-        tl = tl[tl["first_step"] > p.warmup]
-        runs = res[res["point"] == p.point]
+        yield p, res[res["point"] == p.point], tl[tl["first_step"] > p.warmup]
+
+
+def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
+    """Worst idleness around the failure (the timeline of every security point): one row
+    per map, team size, strategy, robots failing (0: the same team without failure) and
+    timeline window from the end of the warm-up on: ``since_failure`` (the window's last
+    step minus the failure step; without failure, where it would have been) and the mean
+    and 95% t-interval over ``runs`` of the window's ``worst_idleness``."""
+    rows = []
+    maps = []
+    for p, _, tl in _security_timelines(Path(sweep_dir)):
+        maps.append(p.map)
+        for last, g in tl.groupby("last_step", sort=True):
+            ci = mean_ci(pd.to_numeric(g["worst_idleness"]), level)
+            rows.append(
+                {
+                    "map": p.map,
+                    "agents": p.agents,
+                    "policy": p.policy,
+                    "failures": p.failures,
+                    "since_failure": int(last) - p.at,
+                    **{f"worst_idleness_{k}": ci[k] for k in ("mean", "lo", "hi")},
+                    "runs": ci["n"],
+                }
+            )
+    # (rows are in point order, failures and windows ascending: a stable sort keeps it)
+    return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(maps)))
+
+
+def security_recovery_data(sweep_dir: str | Path) -> pd.DataFrame:
+    """How each team takes a failure: one row per map, team size, strategy and robots
+    failing (0: the same team without failure), with the runs' average and worst
+    idleness before the failure (``avg_before``, ``worst_before``: over the timeline's
+    windows between the warm-up and the failure, each run's mean and largest, then the
+    mean over runs) and after it (``avg_after``, ``worst_after``: the summary's, whose
+    window starts at the failure; without failure, at the end of the warm-up), their
+    ratio ``worst_ratio``, the median and largest of the runs' :func:`settle_steps`
+    (``unsettled``: runs without one), ``uncovered``, the runs that left a target
+    unvisited for the whole measured window (``coverage`` < 1), ``not_live``, the runs
+    with a wait above ``wait_bound``, and ``runs``."""
+    rows = []
+    maps = []
+    for p, runs, tl in _security_timelines(Path(sweep_dir)):
+        maps.append(p.map)
         before = tl[tl["last_step"] <= p.at].groupby("run")
         settle = [
             settle_steps(
@@ -929,33 +960,26 @@ def security_failures_data(sweep_dir: str | Path, level: float = 0.95) -> pd.Dat
             for _, g in tl.groupby("run", sort=True)
         ]
         settled = [x for x in settle if x is not None]
-        per_point = {
-            "avg_before": float(before["avg_idleness"].mean().mean()),
-            "worst_before": float(before["worst_idleness"].max().mean()),
-            "avg_after": float(pd.to_numeric(runs["avg_idleness"]).mean()),
-            "worst_after": float(pd.to_numeric(runs["worst_idleness"]).mean()),
-            "settle_median": float(np.median(settled)) if settled else None,
-            "settle_max": max(settled) if settled else None,
-            "unsettled": len(settle) - len(settled),
-            "uncovered": int((pd.to_numeric(runs["coverage"]) < 1).sum()),
-            "not_live": int((~runs["live"].astype(bool)).sum()),
-            "point_runs": len(runs),
-        }
-        for (w, first, last), g in tl.groupby(["window", "first_step", "last_step"], sort=True):
-            row: dict[str, Any] = {
+        worst_before = float(before["worst_idleness"].max().mean())
+        worst_after = float(pd.to_numeric(runs["worst_idleness"]).mean())
+        rows.append(
+            {
                 "map": p.map,
                 "agents": p.agents,
                 "policy": p.policy,
                 "failures": p.failures,
-                "window": int(w),
-                "first_step": int(first),
-                "last_step": int(last),
-                "since_failure": int(last) - p.at,
+                "failure_step": p.at,
+                "avg_before": float(before["avg_idleness"].mean().mean()),
+                "worst_before": worst_before,
+                "avg_after": float(pd.to_numeric(runs["avg_idleness"]).mean()),
+                "worst_after": worst_after,
+                "worst_ratio": worst_after / worst_before if worst_before else None,
+                "settle_median": float(np.median(settled)) if settled else None,
+                "settle_max": max(settled) if settled else None,
+                "unsettled": len(settle) - len(settled),
+                "uncovered": int((pd.to_numeric(runs["coverage"]) < 1).sum()),
+                "not_live": int((~runs["live"].astype(bool)).sum()),
+                "runs": len(runs),
             }
-            for col in ("avg_idleness", "worst_idleness"):
-                ci = mean_ci(pd.to_numeric(g[col]), level)
-                row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi")})
-            row.update(per_point)
-            rows.append(row)
-    # (rows are in point order, failures and windows ascending: a stable sort keeps it)
-    return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(pts["map"])))
+        )
+    return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(maps)))

@@ -1159,7 +1159,7 @@ def security(csv: str | Path, out: str | Path) -> Path:
         y=1.0 + 0.03 * rows,
     )
     fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.03 * rows * 3.2 * 2 / fig.get_figheight()))
-    return _save(fig, out)
+    return _save(fig, out, dpi=120)  # (many lines: a smaller file)
 
 
 def security_failures(csv: str | Path, out: str | Path) -> Path:
@@ -1197,7 +1197,7 @@ def security_failures(csv: str | Path, out: str | Path) -> Path:
     for j in range(n, rows_p * cols):
         axes[j // cols][j % cols].set_visible(False)
     rows = _strategy_legend(fig, names, 1.0)
-    runs = int(df["point_runs"].min()) if "point_runs" in df.columns else 0
+    runs = int(df["runs"].min()) if "runs" in df.columns else 0
     fig.suptitle(
         f"Worst idleness around a failure (mean over {runs} runs; faint: the same team "
         "without failure)",
@@ -1205,4 +1205,52 @@ def security_failures(csv: str | Path, out: str | Path) -> Path:
         y=1.0 + 0.025 * rows,
     )
     fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.8 * 2 / fig.get_figheight()))
-    return _save(fig, out)
+    return _save(fig, out, dpi=120)  # (many lines: a smaller file)
+
+
+def security_recovery(csv: str | Path, out: str | Path) -> Path:
+    """Worst idleness after the failure over before it, per strategy, for each number of
+    robots failing (the same team without failure: grey), a panel per map and team size;
+    a run that left a target unvisited for the whole window after the failure marks its
+    bar with a cross ("never" in the report)."""
+    df = _read(csv, ["map", "agents", "policy", "failures", "worst_ratio", "uncovered", "runs"])
+    cases = list(dict.fromkeys(zip(df["map"], df["agents"], strict=True)))
+    names = _policy_order(set(df["policy"]))
+    fails = sorted(df["failures"].unique())
+    colours = {0: "0.75", 1: "tab:blue", 2: "tab:red"}
+    n = len(cases)
+    cols = min(n, 2)
+    rows_p = -(-n // cols)
+    fig, axes = plt.subplots(rows_p, cols, figsize=(7.0 * cols, 3.6 * rows_p), squeeze=False)
+    width = 0.8 / len(fails)
+    x = np.arange(len(names))
+    for j, (mname, k) in enumerate(cases):
+        ax = axes[j // cols][j % cols]
+        d = df[(df["map"] == mname) & (df["agents"] == k)].set_index(["policy", "failures"])
+        for i, f in enumerate(fails):
+            ratio = [d["worst_ratio"].get((nm, f), np.nan) for nm in names]
+            lost = [d["uncovered"].get((nm, f), 0) for nm in names]
+            xs = x + (i - (len(fails) - 1) / 2) * width
+            label = "no failure" if f == 0 else f"{f} failed"
+            ax.bar(xs, ratio, width, color=colours.get(f, f"C{i}"), label=label)
+            for xi, r, lo in zip(xs, ratio, lost, strict=True):
+                if lo and r == r:
+                    ax.plot(xi, r, marker="x", color="k", ms=5)
+        ax.axhline(1, color="k", lw=0.6)
+        ax.set_yscale("log")
+        ax.set_xticks(x, names, rotation=60, ha="right", fontsize=8)
+        ax.set_ylabel("worst idleness after / before", fontsize=9)
+        ax.grid(alpha=0.3, lw=0.4, axis="y", which="both")
+        ax.set_title(f"{mname}, K = {k}", fontsize=10)
+        if j == 0:
+            ax.legend(fontsize=8, loc="upper left")
+    for j in range(n, rows_p * cols):
+        axes[j // cols][j % cols].set_visible(False)
+    runs = int(df["runs"].min())
+    fig.suptitle(
+        f"Worst idleness after the failure over before it (mean over {runs} runs; x: some run "
+        "left a target unvisited for the whole window after it)",
+        fontsize=10,
+    )
+    fig.tight_layout()
+    return _save(fig, out, dpi=120)  # (many lines: a smaller file)

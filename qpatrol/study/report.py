@@ -747,7 +747,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     )
 
 
-def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+def security(cap: pd.DataFrame, recovery: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     """The security study: intruders caught, and a team after robots fail."""
     # --- intruders: the best protector of each map, team size and intruder -------------
     idle = {}
@@ -766,6 +766,8 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
         cells += 1
         by = d.groupby("policy", sort=False)["capture_mean"].mean()
         best = by.idxmax()
+        # strategies within 0.005 of the best (a tie at the table's precision)
+        tied = [n for n in by.index if n != best and by[n] >= by[best] - 0.005]
         best_count[(who, best)] = best_count.get((who, best), 0) + 1
         durations = sorted(d["attack_steps"].unique())
 
@@ -774,10 +776,11 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
             return " / ".join(_fmt(c.get(x, np.nan), 2) for x in durations)
 
         winner = idle.get((m, int(k)))
-        same += winner == best
+        same += winner == best or winner in tied
+        also = f" (tied: {', '.join(tied)})" if tied else ""
         rows.append(
             f"| {m} | {int(k)} | {who} | {' / '.join(str(int(x)) for x in durations)} "
-            f"| {best}: {curve(best)} | {curve('cyclic')} "
+            f"| {best}: {curve(best)}{also} | {curve('cyclic')} "
             f"| {winner}: {curve(winner) if winner else '-'} |"
         )
     table = "\n".join(
@@ -795,7 +798,7 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
         )
         tally.append(f"{who}: " + ", ".join(f"{n} in {c}" for n, c in names))
     # --- failures: worst idleness before and after, settling, and who never recovers ----
-    pts = fails.drop_duplicates(["map", "agents", "policy", "failures"])
+    pts = recovery
     cases = list(dict.fromkeys(zip(pts["map"], pts["agents"], strict=True)))
     most = int(pts["failures"].max())
     frows = []
@@ -809,10 +812,9 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
                 cellsf.append("-")
                 continue
             h = hit.iloc[0]
-            ratio = h.worst_after / h.worst_before if h.worst_before else np.nan
-            text = f"{_fmt(h.worst_before)} -> {_fmt(h.worst_after)} (x{_fmt(ratio, 2)})"
+            text = f"{_fmt(h.worst_before)} -> {_fmt(h.worst_after)} (x{_fmt(h.worst_ratio, 2)})"
             if h.uncovered:
-                text += f", {int(h.uncovered)}/{int(h.point_runs)} never"
+                text += f", {int(h.uncovered)}/{int(h.runs)} never"
             elif h.settle_median == h.settle_median:  # (NaN: no run settled)
                 text += f", level in {_fmt(h.settle_median)} steps"
             cellsf.append(text)
@@ -820,7 +822,7 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
         for f in sorted(set(pts["failures"]) - {0}):
             p = pts[(pts["policy"] == name) & (pts["failures"] == f)]
             base = pts[(pts["policy"] == name) & (pts["failures"] == 0)]
-            lost = p[p["uncovered"] == p["point_runs"]]
+            lost = p[p["uncovered"] == p["runs"]]
             if not len(lost):
                 continue
             parts = []
@@ -829,7 +831,7 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
                 was = int(b["uncovered"].iloc[0]) if len(b) else 0
                 parts.append(
                     f"{r['map']} K = {int(r.agents)}"
-                    + (f" (without failure too: {was} of {int(r.point_runs)})" if was else "")
+                    + (f" (without failure too: {was} of {int(r.runs)})" if was else "")
                 )
             never.setdefault(int(f), []).append(f"{name}: " + ", ".join(parts))
     ftable = "\n".join(
@@ -851,7 +853,7 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
     runs = int(cap["runs"].min())
     return Section(
         "Beyond the paper: security, measured",
-        ["figures/security.png", "figures/security-failures.png"],
+        ["figures/security.png", "figures/security-failures.png", "figures/security-recovery.png"],
         "The paper's purpose is infrastructure security, which it measures by idleness "
         "only. Here: how often an intruder who needs D team steps at a target is caught, "
         "and what a team does when robots fail for good.",
@@ -865,8 +867,10 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
             "2T, T the map's targets.",
             table,
             "*The idleness winner: the strategy with the lowest average idleness at that "
-            f"map and team size. The best protector is the idleness winner in {same} of "
-            f"{cells} cells. Best protector, by intruder: " + "; ".join(tally) + ".",
+            f"map and team size. The best protector is the idleness winner, or ties with it "
+            f"(within 0.005), in {same} of {cells} cells. Best protector, by intruder: "
+            + "; ".join(tally)
+            + ".",
             f"Failures: {most} of the K robots leave the map for good 1,000 steps into the "
             "window; the measures after it use the window that starts there. Each cell: "
             "worst idleness before (the 100-step timeline windows between warm-up and "
@@ -879,9 +883,10 @@ def security(cap: pd.DataFrame, fails: pd.DataFrame, res: pd.DataFrame | None = 
             (never_text or "Every strategy visited every target again after the failure.")
             + f" Runs that froze (a wait longer than `wait_bound`): {frozen}."
             + _wide_spread(no_failure),
-            "Every number with its 95% t-interval: `figures/security.csv` (capture by D) "
-            "and `figures/security-failures.csv` (idleness in windows around the failure, "
-            "before and after, settling).",
+            "Every number: `figures/security.csv` (capture by D, with 95% t-intervals), "
+            "`figures/security-failures.csv` (worst idleness in the windows around the "
+            "failure) and `figures/security-recovery.csv` (before and after, settling, runs "
+            "that never covered the map again).",
         ],
         "no paper numbers to compare with; mean over runs.",
     )
@@ -993,7 +998,7 @@ def build(
         lambda: policies(f("policies"), d("policies")),
         lambda: learning(f("learning")),
         lambda: field(f("field"), d("field")),
-        lambda: security(f("security"), f("security-failures"), d("security")),
+        lambda: security(f("security"), f("security-recovery"), d("security")),
     ]
     sections = [m() for m in makers]
     quick = mode == "quick"

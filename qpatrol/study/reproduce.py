@@ -309,6 +309,13 @@ def _figures() -> dict[str, Figure]:
                 plots.security_failures,
                 sweep_key="policy",
             ),
+            Figure(
+                "security-recovery",
+                "security",
+                fd.security_recovery_data,
+                plots.security_recovery,
+                sweep_key="policy",
+            ),
         )
     }
 
@@ -327,6 +334,7 @@ FIGURE_NAMES = (
     "field",
     "security",
     "security-failures",
+    "security-recovery",
 )
 
 

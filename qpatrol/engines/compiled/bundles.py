@@ -103,8 +103,8 @@ class Meas(NamedTuple):
     field's measures: per run ``gap_sq``, ``cycle_start``, ``cycle_seen``, ``cycles``,
     ``interferences`` ``[R]`` and per target ``target_gap_sum``, ``target_gap_count``
     ``[R, C]``; the intruder measures' ``attack`` ``[A]`` (durations; empty: off),
-    ``horizon`` (steps), ``occupants``, ``empty_since`` ``[R, C]``, ``random_missed``
-    ``[R, A]``, ``departures`` and ``departures_missed`` ``[R, C, A]``."""
+    ``horizon`` (steps), ``empty_since`` ``[R, C]``, ``random_missed`` ``[R, A]``,
+    ``gaps`` ``[R, C, A + 1]``, ``tail_departures`` and ``tail_missed`` ``[R, C, A]``."""
 
     last: np.ndarray
     last_sum: np.ndarray
@@ -129,11 +129,11 @@ class Meas(NamedTuple):
     interferences: np.ndarray
     attack: np.ndarray
     horizon: int
-    occupants: np.ndarray
     empty_since: np.ndarray
     random_missed: np.ndarray
-    departures: np.ndarray
-    departures_missed: np.ndarray
+    gaps: np.ndarray
+    tail_departures: np.ndarray
+    tail_missed: np.ndarray
 
 
 class Out(NamedTuple):

@@ -56,38 +56,67 @@ def intruders(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing):
     cell it stood on before the step and enters none."""
     if m.attack.shape[0] == 0:
         return
-    occupants, since = m.occupants[r], m.empty_since[r]
     for k in range(moved.shape[0]):  # arrivals, before any departure
         if moved[k] and not (failing and mode_r[k] == GONE):
-            c = pos_r[k]
-            if occupants[c] == 0 and target[c]:
-                close(r, c, since[c], t, m)
-                since[c] = -1
-            occupants[c] += 1
+            arrive(r, pos_r[k], t, target, m)
     for k in range(moved.shape[0]):
         if moved[k] or (failing and mode_r[k] == GONE):
             leave(r, prev_pos[k], t, target, m)
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def arrive(r, c, t, target, m):
+    """A robot of run ``r`` entered cell ``c`` in step ``t``: an empty target's empty
+    stretch closes (:func:`close`); ``m.empty_since`` counts the robots on it."""
+    if target[c]:
+        v = m.empty_since[r, c]
+        if v >= 0:
+            close(r, c, v, t, m)
+            m.empty_since[r, c] = -1
+        else:
+            m.empty_since[r, c] = v - 1
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def leave(r, c, t, target, m):
-    """Measures.leave: a robot of run ``r`` left cell ``c`` in step ``t``."""
-    m.occupants[r, c] -= 1
-    if m.occupants[r, c] == 0 and target[c]:
-        m.empty_since[r, c] = t
+    """A robot of run ``r`` left cell ``c`` in step ``t``: a target left empty is a
+    departure at ``t``."""
+    if target[c]:
+        v = m.empty_since[r, c] + 1
+        m.empty_since[r, c] = t if v == 0 else v
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def close(r, c, e, b, m):
     """Measures._close (:func:`qpatrol.measures.empty_stretch`): target ``c`` of run
-    ``r``, empty from the end of step ``e`` on, is entered in step ``b``."""
-    for j in range(m.attack.shape[0]):
-        d = m.attack[j]
-        m.random_missed[r, j] += max(0, b - d - max(e - 1, m.warmup))
-        if e >= 1 and e >= m.warmup and e <= m.horizon - d:
-            m.departures[r, c, j] += 1
-            if b - e > d:
-                m.departures_missed[r, c, j] += 1
+    ``r``, empty from the end of step ``e`` on, is entered in step ``b``. Nothing before
+    the window; the random intruders it hid for each D (the durations ascending: none
+    from the first D that leaves none); its departure by the bucket of its gap, or near
+    the horizon per duration."""
+    w = m.warmup
+    if b <= w:
+        return
+    attack = m.attack
+    n = attack.shape[0]
+    lo = max(e - 1, w)
+    for j in range(n):
+        hid = b - attack[j] - lo
+        if hid <= 0:
+            break
+        m.random_missed[r, j] += hid
+    if e >= 1 and e >= w:
+        gap = b - e
+        if e <= m.horizon - attack[n - 1]:  # counted for every D
+            j = 0
+            while j < n and attack[j] < gap:
+                j += 1
+            m.gaps[r, c, j] += 1
+        else:
+            for j in range(n):
+                if e <= m.horizon - attack[j]:
+                    m.tail_departures[r, c, j] += 1
+                    if gap > attack[j]:
+                        m.tail_missed[r, c, j] += 1
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
