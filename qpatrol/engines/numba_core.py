@@ -616,7 +616,8 @@ class Loop:
             m.gap_sum, m.gap_count, m.gap_max, m.max_wait, m.wait_total, m.warmup,
             m.min_charge, m.gap_sq, m.target_gap_sum, m.target_gap_count, m.cycle_start,
             m.cycle_seen, m.cycles, m.interferences, m.attack, np.int64(m.horizon),
-            m.empty_since, m.random_missed, m.gaps, m.tail_departures, m.tail_missed,
+            m.empty_since, m.random_missed, m.stretch_count, m.stretch_sum, m.stretch_equal,
+            m.gaps, m.tail_departures, m.tail_missed,
         )  # fmt: skip
         tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
         ups = (np.empty((rows, UP_INT), np.int64), np.empty((rows, UP_FLOAT), np.float64))

@@ -98,7 +98,13 @@ class Measures:
             empty (a departure; 0: empty since the start), or, while robots stand on
             it, minus their number.
         random_missed: int ``[R, A]``, intruder pairs (target, step) that no robot
-            caught within D steps, over the empty stretches closed so far.
+            caught within D steps, over the closed empty stretches that began before
+            the window.
+        stretch_count, stretch_sum: int ``[R, A + 1]``, the closed empty stretches that
+            began in the window, and the sum of their lengths (their gaps), by the
+            bucket of their gap (as ``gaps``); stretch_equal: int ``[R, A]``, those whose
+            gap equals the i-th D. A stretch of gap g hides max(0, g + 1 - D) random
+            intruders, so these give each D's (:func:`intruder_measures`).
         gaps: int32 ``[R, C, A + 1]``, each target's departures that the observer counts
             for every D (made at least the longest D before the horizon), by the bucket
             of their gap until the next arrival: bucket j holds the gaps longer than the
@@ -155,6 +161,9 @@ class Measures:
         cc = c if a else 0
         self.empty_since = np.zeros((r, cc), dtype=np.int64)
         self.random_missed = np.zeros((r, a), dtype=np.int64)
+        self.stretch_count = np.zeros((r, a + 1 if a else 0), dtype=np.int64)
+        self.stretch_sum = np.zeros((r, a + 1 if a else 0), dtype=np.int64)
+        self.stretch_equal = np.zeros((r, a), dtype=np.int64)
         self.gaps = np.zeros((r, cc, a + 1 if a else 0), dtype=np.int32)
         self.tail_departures = np.zeros((r, cc, a), dtype=np.int32)
         self.tail_missed = np.zeros((r, cc, a), dtype=np.int32)
@@ -263,18 +272,30 @@ class Measures:
     def _close(self, rows: np.ndarray, cells: np.ndarray, e: np.ndarray, b: int) -> None:
         """Target ``cells`` of runs ``rows`` (int ``[B]``, distinct runs), empty from the
         end of step ``e`` (int ``[B]``) on, are entered in step ``b``
-        (:func:`empty_stretch`): the random intruders it hid, and its departure by the
-        bucket of its gap (or, near the horizon, per duration)."""
-        rand, counted, missed = empty_stretch(self.attack, self.warmup, self.horizon, e, b)
-        self.random_missed[rows] += rand
+        (:func:`empty_stretch`): a stretch that began in the window (``e > warmup``)
+        goes to the bucket of its gap (the random intruders it hid follow from its gap),
+        one that began before it adds the random intruders it hid from the window's
+        start on; its departure goes to the bucket of its gap (or, near the horizon,
+        per duration)."""
+        if b <= self.warmup:  # (nothing before the window)
+            return
+        attack = self.attack
+        gap = b - e
+        bucket = np.searchsorted(attack, gap, side="left")  # durations below the gap
+        inside = e > self.warmup
+        ri, bi = rows[inside], bucket[inside]
+        self.stretch_count[ri, bi] += 1
+        self.stretch_sum[ri, bi] += gap[inside]
+        equal = inside & (bucket < attack.size)
+        equal &= attack[np.minimum(bucket, attack.size - 1)] == gap
+        self.stretch_equal[rows[equal], bucket[equal]] += 1
+        rand, counted, missed = empty_stretch(attack, self.warmup, self.horizon, e, b)
+        self.random_missed[rows[~inside]] += rand[~inside]
         every = counted.all(axis=1)  # counted for every D: by the bucket of its gap
-        if every.any():
-            bucket = np.searchsorted(self.attack, b - e[every], side="left")
-            self.gaps[rows[every], cells[every], bucket] += 1
+        self.gaps[rows[every], cells[every], bucket[every]] += 1
         some = counted.any(axis=1) & ~every  # near the horizon: for the shorter D only
-        if some.any():
-            self.tail_departures[rows[some], cells[some]] += counted[some]
-            self.tail_missed[rows[some], cells[some]] += missed[some]
+        self.tail_departures[rows[some], cells[some]] += counted[some]
+        self.tail_missed[rows[some], cells[some]] += missed[some]
 
     def worst_idleness(self, steps_done: np.ndarray) -> np.ndarray:
         """int ``[R]``: worst idleness in the window, open gaps at the end included."""
@@ -418,19 +439,18 @@ def empty_stretch(
     attack: np.ndarray, warmup: int, horizon: int, e: np.ndarray, b: int
 ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """What one empty stretch of a target does to the intruder measures, per stretch and
-    attack duration D (int ``[B, A]`` each; ``attack`` int ``[A]``): the target is empty
-    at the end of steps ``e`` (int ``[B]``; 0: since the start) to ``b - 1`` and
-    occupied at the end of step ``b`` (``horizon + 1`` for a stretch still open at the
-    end). Returns the random intruders it hides (strike at the end of step ``a``, with
-    ``warmup <= a <= horizon - D``, all of ``a + 1 .. a + D`` inside the stretch:
+    attack duration D (int ``[..., A]`` each; ``attack`` int ``[A]``): the target is
+    empty at the end of steps ``e`` (int ``[...]``; 0: since the start) to ``b - 1``
+    and occupied at the end of step ``b`` (``horizon + 1`` for a stretch still open at
+    the end). Returns the random intruders it hides (strike at the end of step ``a``,
+    with ``warmup <= a <= horizon - D``, all of ``a + 1 .. a + D`` inside the stretch:
     ``max(0, b - D - max(e - 1, warmup))``), whether its departure counts for D (``e >=
     1``, ``warmup <= e <= horizon - D``) and whether that departure was missed (``b - e >
     D``)."""
-    d = attack[None, :]
-    e2 = np.asarray(e)[:, None]
-    rand = np.maximum(0, b - d - np.maximum(e2 - 1, warmup))
-    counted = (e2 >= 1) & (e2 >= warmup) & (e2 <= horizon - d)
-    return rand, counted, counted & (b - e2 > d)
+    e2 = np.asarray(e)[..., None]
+    rand = np.maximum(0, b - attack - np.maximum(e2 - 1, warmup))
+    counted = (e2 >= 1) & (e2 >= warmup) & (e2 <= horizon - attack)
+    return rand, counted, counted & (b - e2 > attack)
 
 
 def attack_steps(setting: str | list[int], n_targets: int) -> tuple[int, ...]:
@@ -461,21 +481,71 @@ def intruder_measures(m: Measures, steps_done: np.ndarray) -> dict[str, list[Any
     if not attack.size:
         return out
     s, w = m.horizon, m.warmup
+    tgt = slice(None) if m.n_targets == m.n_cells else m.target
+    # the stretches still open at the end close at the horizon + 1 (added to copies: the
+    # accumulators stay as they are, so a checkpointed run goes on from them)
+    since = m.empty_since[:, tgt]  # [R, T]
+    # (an occupied target as a stretch from the horizon + 1: it adds nothing)
+    e_end = np.where(since >= 0, since, s + 1)
+    rand, counted, miss = empty_stretch(attack, w, s, e_end, s + 1)  # [R, T, A]
+    random_missed = m.random_missed + rand.sum(axis=1)
+    # the stretches that began in the window: a gap g hides max(0, g + 1 - D); the
+    # buckets above the i-th D hold the gaps longer than it, and equal ones hide 1
+    n_a = attack.size
+    for i, d in enumerate(attack.tolist()):
+        longer = slice(i + 1, n_a + 1)
+        random_missed[:, i] += (
+            m.stretch_sum[:, longer].sum(axis=1)
+            + (1 - d) * m.stretch_count[:, longer].sum(axis=1)
+            + m.stretch_equal[:, i]
+        )
+    gaps = m.gaps[:, tgt].astype(np.int64)  # [R, T, A + 1]
+    below = np.cumsum(gaps, axis=2)  # departures with a gap up to each D, and all of them
+    departures = below[..., -1:] + m.tail_departures[:, tgt] + counted  # [R, T, A]
+    # missed for the i-th D: the buckets above i
+    missed = below[..., -1:] - below[..., :-1] + m.tail_missed[:, tgt] + miss
+    done = np.asarray(steps_done) == s
+    cell_ids = np.flatnonzero(m.target)
+    rows_all = np.arange(departures.shape[0])
+    for j, d in enumerate(attack.tolist()):
+        k_rand, k_obs, k_cell = attack_names(d)
+        pairs = m.n_targets * (s - d - w + 1)
+        ok = (done & (pairs > 0)).tolist()
+        dep = departures[..., j]
+        frac = np.full(dep.shape, np.inf)
+        np.divide(dep - missed[..., j], dep, out=frac, where=dep > 0)
+        worst = np.argmin(frac, axis=1)  # the lowest cell among ties
+        value = frac[rows_all, worst]
+        has = [o and v != math.inf for o, v in zip(ok, value.tolist(), strict=True)]
+        rand_j = ((pairs - random_missed[:, j]) / pairs if pairs > 0 else value).tolist()
+        out[k_rand] = [x if o else None for x, o in zip(rand_j, ok, strict=True)]
+        out[k_obs] = [x if h else None for x, h in zip(value.tolist(), has, strict=True)]
+        out[k_cell] = [x if h else None for x, h in zip(cell_ids[worst].tolist(), has, strict=True)]
+    return out
+    s, w = m.horizon, m.warmup
     tgt = m.target
     # the stretches still open at the end close at the horizon + 1 (added to copies: the
     # accumulators stay as they are, so a checkpointed run goes on from them)
     since = m.empty_since[:, tgt]  # [R, T]
-    rows, cols = np.nonzero(since >= 0)
-    rand, counted, miss = empty_stretch(attack, w, s, since[rows, cols], s + 1)
-    random_missed = m.random_missed.copy()
-    np.add.at(random_missed, rows, rand)
+    # (an occupied target as a stretch from the horizon + 1: it adds nothing)
+    e_end = np.where(since >= 0, since, s + 1)
+    rand, counted, miss = empty_stretch(attack, w, s, e_end, s + 1)  # [R, T, A]
+    random_missed = m.random_missed + rand.sum(axis=1)
+    # the stretches that began in the window: a gap g hides max(0, g + 1 - D); the
+    # buckets above the i-th D hold the gaps longer than it, and equal ones hide 1
+    n_a = attack.size
+    for i, d in enumerate(attack.tolist()):
+        longer = slice(i + 1, n_a + 1)
+        random_missed[:, i] += (
+            m.stretch_sum[:, longer].sum(axis=1)
+            + (1 - d) * m.stretch_count[:, longer].sum(axis=1)
+            + m.stretch_equal[:, i]
+        )
     gaps = m.gaps[:, tgt].astype(np.int64)  # [R, T, A + 1]
-    departures = gaps.sum(axis=2)[..., None] + m.tail_departures[:, tgt]  # [R, T, A]
+    below = np.cumsum(gaps, axis=2)  # departures with a gap up to each D, and all of them
+    departures = below[..., -1:] + m.tail_departures[:, tgt] + counted  # [R, T, A]
     # missed for the i-th D: the buckets above i
-    above = np.cumsum(gaps[..., ::-1], axis=2)[..., ::-1][..., 1:]
-    missed = above + m.tail_missed[:, tgt]
-    departures[rows, cols] += counted
-    missed[rows, cols] += miss
+    missed = below[..., -1:] - below[..., :-1] + m.tail_missed[:, tgt] + miss
     done = np.asarray(steps_done) == s
     cell_ids = np.flatnonzero(tgt)
     for j, d in enumerate(attack.tolist()):

@@ -72,11 +72,12 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
 
 def intruder_bytes(cfg: Config, m: Map) -> int:
     """Bytes of one run's intruder measures: per cell, when it emptied (or the robots
-    on it), its departures by gap bucket and, near the horizon, per duration; per
-    duration the random intruders missed (``auto``: 5 durations)."""
+    on it), its departures by gap bucket and, near the horizon, per duration; per run
+    the empty stretches by gap bucket and the random intruders missed (``auto``: 5
+    durations)."""
     setting = cfg["security.attack_steps"]
     a = 5 if setting == "auto" else len(setting)
-    return (8 * m.n_cells + 4 * m.n_cells * (3 * a + 1) + 8 * a) if a else 0
+    return (8 * m.n_cells + 4 * m.n_cells * (3 * a + 1) + 8 * (4 * a + 2)) if a else 0
 
 
 def batch_bytes(cfg: Config, m: Map) -> int:

@@ -104,6 +104,7 @@ class Meas(NamedTuple):
     ``interferences`` ``[R]`` and per target ``target_gap_sum``, ``target_gap_count``
     ``[R, C]``; the intruder measures' ``attack`` ``[A]`` (durations; empty: off),
     ``horizon`` (steps), ``empty_since`` ``[R, C]``, ``random_missed`` ``[R, A]``,
+    ``stretch_count``, ``stretch_sum`` ``[R, A + 1]``, ``stretch_equal`` ``[R, A]``,
     ``gaps`` ``[R, C, A + 1]``, ``tail_departures`` and ``tail_missed`` ``[R, C, A]``."""
 
     last: np.ndarray
@@ -131,6 +132,9 @@ class Meas(NamedTuple):
     horizon: int
     empty_since: np.ndarray
     random_missed: np.ndarray
+    stretch_count: np.ndarray
+    stretch_sum: np.ndarray
+    stretch_equal: np.ndarray
     gaps: np.ndarray
     tail_departures: np.ndarray
     tail_missed: np.ndarray

@@ -47,7 +47,7 @@ def visit(c, t, warmup, p, rows_r, visits_k, window_visits_k, sums):
     return last_sum, gap_sum, gap_count, gap_max, worst, gap_sq, c_start, c_seen, cycles
 
 
-@njit(cache=True, nogil=True, _nrt=False)
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def intruders(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing):
     """Measures.intruders: the step's arrivals, then its departures (robots ``[K]``:
     cells before ``prev_pos`` and after ``pos_r``, ``moved``), for the intruder
@@ -90,33 +90,39 @@ def leave(r, c, t, target, m):
 def close(r, c, e, b, m):
     """Measures._close (:func:`qpatrol.measures.empty_stretch`): target ``c`` of run
     ``r``, empty from the end of step ``e`` on, is entered in step ``b``. Nothing before
-    the window; the random intruders it hid for each D (the durations ascending: none
-    from the first D that leaves none); its departure by the bucket of its gap, or near
-    the horizon per duration."""
+    the window. A stretch that began in the window goes to the run's bucket of its gap;
+    one that began before it adds the random intruders it hid (the durations
+    ascending: none from the first D that leaves none). Its departure goes to the
+    target's bucket of its gap, or near the horizon per duration."""
     w = m.warmup
     if b <= w:
         return
     attack = m.attack
     n = attack.shape[0]
-    lo = max(e - 1, w)
-    for j in range(n):
-        hid = b - attack[j] - lo
-        if hid <= 0:
-            break
-        m.random_missed[r, j] += hid
+    gap = b - e
+    j = 0
+    while j < n and attack[j] < gap:  # the bucket: the durations below the gap
+        j += 1
+    if e > w:
+        m.stretch_count[r, j] += 1
+        m.stretch_sum[r, j] += gap
+        if j < n and attack[j] == gap:
+            m.stretch_equal[r, j] += 1
+    else:
+        for i in range(n):
+            hid = b - attack[i] - w
+            if hid <= 0:
+                break
+            m.random_missed[r, i] += hid
     if e >= 1 and e >= w:
-        gap = b - e
         if e <= m.horizon - attack[n - 1]:  # counted for every D
-            j = 0
-            while j < n and attack[j] < gap:
-                j += 1
             m.gaps[r, c, j] += 1
         else:
-            for j in range(n):
-                if e <= m.horizon - attack[j]:
-                    m.tail_departures[r, c, j] += 1
-                    if gap > attack[j]:
-                        m.tail_missed[r, c, j] += 1
+            for i in range(n):
+                if e <= m.horizon - attack[i]:
+                    m.tail_departures[r, c, i] += 1
+                    if gap > attack[i]:
+                        m.tail_missed[r, c, i] += 1
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
