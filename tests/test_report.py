@@ -93,6 +93,8 @@ def test_policies_goal_of_a_learner_beyond_the_paper():
     assert "5,000 for qlearning, 5,000 for qlearning-idleness" in text
     assert "max_episode_steps (no idleness measure uses them): qlearning at 1 point " in text
     assert "(most: m, K = 1, 2.5 per run)" in text
+    # the length-blindness of idleness-paid rewards (docs/model.md), stated for the learners
+    assert "By reward per step neither learner can tell a short tour from a long one" in text
 
 
 def test_figure_2_names_its_runs_that_went_wrong():

@@ -538,6 +538,24 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
                 ]
             ),
         ]
+    blind = (
+        [
+            "What the rewards can tell (proof: docs/model.md, 'Idleness-paid rewards are "
+            "blind to tour length'): robots paid the idleness of each cell they enter earn "
+            "exactly C per team step (C = the cells entered) on every closed walk through "
+            "every cell, whatever its length. qlearning-idleness, paid min(3, idle / "
+            "(cells / K)), is paid the same, 1 per robot step, on every walk and spacing "
+            "whose gaps stay within 3 x cells / K; the paper's learner's idleness term, "
+            "incremental_value x min(1, idle / idle_horizon) with idle_horizon = 100 steps "
+            "(below every map's cell count), pays one robot at most incremental_value per "
+            "step, exactly that on every walk that re-enters no cell within fewer than 100 "
+            "steps, however long (its dot and lambda terms, paid per dot episode, are not "
+            "covered). By reward per step neither learner can tell a short tour from a long "
+            "one, which is consistent with their measured gaps to cyclic's worst idleness."
+        ]
+        if learners
+        else []
+    )
     runs = int(fig["runs"].min())
     frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
     missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
@@ -598,6 +616,7 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             table,
             *verdicts,
             *goal,
+            *blind,
         ],
         "no paper numbers to compare with; mean over runs.",
     )
