@@ -460,7 +460,8 @@ def plot(
         typer.Argument(
             metavar="FIGURE",
             help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6, team-size, "
-            "strategies, policies, learning, field, security or security-failures.",
+            "strategies, policies, learning, field, security, security-failures or "
+            "security-recovery.",
         ),
     ],
     from_: Annotated[
