@@ -435,8 +435,8 @@ def test_a_waypoint_counted_as_a_target_is_caught(tmp_path, monkeypatch):
     differ from the recount over vertices."""
     real = Measures.__init__
 
-    def every_cell(self, n_runs, n_agents, n_cells, warmup, target=None):
-        real(self, n_runs, n_agents, n_cells, warmup, None)
+    def every_cell(self, n_runs, n_agents, n_cells, warmup, target=None, *rest):
+        real(self, n_runs, n_agents, n_cells, warmup, None, *rest)
 
     monkeypatch.setattr(Measures, "__init__", every_cell)
     result = lattice_run(tmp_path, "numpy", runs=1)

@@ -394,8 +394,8 @@ def test_a_broken_idleness_sum_is_caught(tmp_path, monkeypatch):
     """The guard works: an idleness sum off by one per visit fails the comparison."""
     observe = Measures.observe
 
-    def off_by_one(self, out, wait, charge):
-        observe(self, out, wait, charge)
+    def off_by_one(self, out, wait, charge, *rest):
+        observe(self, out, wait, charge, *rest)
         self.last_sum -= out.moved.sum(axis=1)  # as if each visit were one step earlier
 
     monkeypatch.setattr(Measures, "observe", off_by_one)

@@ -522,48 +522,6 @@ def intruder_measures(m: Measures, steps_done: np.ndarray) -> dict[str, list[Any
         out[k_obs] = [x if h else None for x, h in zip(value.tolist(), has, strict=True)]
         out[k_cell] = [x if h else None for x, h in zip(cell_ids[worst].tolist(), has, strict=True)]
     return out
-    s, w = m.horizon, m.warmup
-    tgt = m.target
-    # the stretches still open at the end close at the horizon + 1 (added to copies: the
-    # accumulators stay as they are, so a checkpointed run goes on from them)
-    since = m.empty_since[:, tgt]  # [R, T]
-    # (an occupied target as a stretch from the horizon + 1: it adds nothing)
-    e_end = np.where(since >= 0, since, s + 1)
-    rand, counted, miss = empty_stretch(attack, w, s, e_end, s + 1)  # [R, T, A]
-    random_missed = m.random_missed + rand.sum(axis=1)
-    # the stretches that began in the window: a gap g hides max(0, g + 1 - D); the
-    # buckets above the i-th D hold the gaps longer than it, and equal ones hide 1
-    n_a = attack.size
-    for i, d in enumerate(attack.tolist()):
-        longer = slice(i + 1, n_a + 1)
-        random_missed[:, i] += (
-            m.stretch_sum[:, longer].sum(axis=1)
-            + (1 - d) * m.stretch_count[:, longer].sum(axis=1)
-            + m.stretch_equal[:, i]
-        )
-    gaps = m.gaps[:, tgt].astype(np.int64)  # [R, T, A + 1]
-    below = np.cumsum(gaps, axis=2)  # departures with a gap up to each D, and all of them
-    departures = below[..., -1:] + m.tail_departures[:, tgt] + counted  # [R, T, A]
-    # missed for the i-th D: the buckets above i
-    missed = below[..., -1:] - below[..., :-1] + m.tail_missed[:, tgt] + miss
-    done = np.asarray(steps_done) == s
-    cell_ids = np.flatnonzero(tgt)
-    for j, d in enumerate(attack.tolist()):
-        k_rand, k_obs, k_cell = attack_names(d)
-        pairs = m.n_targets * (s - d - w + 1)
-        ok = done & (pairs > 0)
-        dep = departures[..., j]
-        frac = np.full(dep.shape, np.inf)
-        np.divide(dep - missed[..., j], dep, out=frac, where=dep > 0)
-        worst = np.argmin(frac, axis=1)  # the lowest cell among ties
-        value = frac[np.arange(frac.shape[0]), worst]
-        has = ok & np.isfinite(value)
-        with np.errstate(divide="ignore", invalid="ignore"):
-            rand_j = (pairs - random_missed[:, j]) / pairs
-        out[k_rand] = [float(x) if o else None for x, o in zip(rand_j, ok, strict=True)]
-        out[k_obs] = [float(x) if h else None for x, h in zip(value, has, strict=True)]
-        out[k_cell] = [int(cell_ids[x]) if h else None for x, h in zip(worst, has, strict=True)]
-    return out
 
 
 #: The patrolling field's measures (:func:`field_measures`), after today's in a summary.

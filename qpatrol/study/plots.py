@@ -1094,7 +1094,17 @@ def learning(csv: str | Path, out: str | Path) -> Path:
 # --- the security study ------------------------------------------------------------------
 
 
-def _strategy_legend(fig, names: list[str], rows_scale: float) -> int:
+def _legend_title_save(fig, out: str | Path, names: list[str], title: str, room: float) -> Path:
+    """The strategies' legend above the panels and ``title`` above it (``room``: the
+    height per legend row, in figure fractions, for panels of 3.2 inches), then the figure
+    saved at 120 dpi (many lines: a smaller file)."""
+    rows = _strategy_legend(fig, names)
+    fig.suptitle(title, fontsize=10, y=1.0 + room * rows)
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - room * rows * 6.4 / fig.get_figheight()))
+    return _save(fig, out, dpi=120)
+
+
+def _strategy_legend(fig, names: list[str]) -> int:
     """A figure-wide legend of the strategies above the panels; returns its rows."""
     handles = [
         plt.Line2D([], [], color=_style(n, i)[0], marker=_style(n, i)[1], ms=5, label=n)
@@ -1150,16 +1160,12 @@ def security(csv: str | Path, out: str | Path) -> Path:
                 ax.set_ylabel(titles.get(who, who), fontsize=8)
             if r == len(intruders) - 1:
                 ax.set_xlabel("attack duration D (team steps)")
-    rows = _strategy_legend(fig, names, 1.0)
     runs = int(df["runs"].min()) if "runs" in df.columns else 0
-    fig.suptitle(
+    title = (
         f"Intruders caught (mean over {runs} runs; battery on; D from T/8 to 2T, T the map's "
-        "targets)",
-        fontsize=10,
-        y=1.0 + 0.03 * rows,
+        "targets)"
     )
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.03 * rows * 3.2 * 2 / fig.get_figheight()))
-    return _save(fig, out, dpi=120)  # (many lines: a smaller file)
+    return _legend_title_save(fig, out, names, title, 0.03)
 
 
 def security_failures(csv: str | Path, out: str | Path) -> Path:
@@ -1196,16 +1202,12 @@ def security_failures(csv: str | Path, out: str | Path) -> Path:
         ax.set_xlabel("team steps since the failure (end of each 100-step window)")
     for j in range(n, rows_p * cols):
         axes[j // cols][j % cols].set_visible(False)
-    rows = _strategy_legend(fig, names, 1.0)
     runs = int(df["runs"].min()) if "runs" in df.columns else 0
-    fig.suptitle(
+    title = (
         f"Worst idleness around a failure (mean over {runs} runs; faint: the same team "
-        "without failure)",
-        fontsize=10,
-        y=1.0 + 0.025 * rows,
+        "without failure)"
     )
-    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.8 * 2 / fig.get_figheight()))
-    return _save(fig, out, dpi=120)  # (many lines: a smaller file)
+    return _legend_title_save(fig, out, names, title, 0.025)
 
 
 def security_recovery(csv: str | Path, out: str | Path) -> Path:
