@@ -541,7 +541,7 @@ def reproduce(
         typer.Option(
             "--quick",
             metavar="",
-            help="Fewer seeds and steps: every figure in about a minute; the report's "
+            help="Fewer seeds and steps: every figure in under two minutes; the report's "
             "verdicts are then indicative only.",
         ),
     ] = False,

@@ -508,7 +508,9 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                     c, vk, wk = s.pos[r, k], m.visits[r, k], m.window_visits[r, k]
                     sums = observe.visit(c, t, m.warmup, p, rows_r, vk, wk, sums)
             failing = spec == SPEC_ANY and t == p.fail_at
-            observe.intruders(r, t, w.prev_pos, s.pos[r], w.moved, p.target, m, s.mode[r], failing)
+            observe.intruders_called(
+                r, t, w.prev_pos, s.pos[r], w.moved, p.target, m, s.mode[r], failing
+            )
             if spec == SPEC_ANY and tl_window > 0:
                 n_tl = observe.timeline(
                     r, t, tl_window, s.pos[r], w.moved, p.target, p.n_targets, o, n_tl

@@ -312,18 +312,20 @@ def security_overrides(quick: bool = False) -> list[dict[str, Any]]:
     window of :data:`SECURITY_WINDOW` steps (the intruder measures come from the points
     without failure).
 
-    ``quick``: map_a only, K = 4, and short runs (a smoke test, not a result).
+    ``quick``: map_a only, K = 4, none or 2 robots failing, and short runs (a smoke
+    test, not a result).
     """
     from qpatrol.strategies import learns
 
     maps, teams = (("map_a",), (4,)) if quick else (SECURITY_MAPS, SECURITY_TEAMS)
-    window, fail_after = (1000, 300) if quick else (SECURITY_WINDOW, SECURITY_FAIL_AFTER)
+    failures = (0, 2) if quick else SECURITY_FAILURES
+    window, fail_after = (600, 200) if quick else (SECURITY_WINDOW, SECURITY_FAIL_AFTER)
     points = []
     for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
         warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
         for m in maps:
             for k in teams:
-                for failed in SECURITY_FAILURES:
+                for failed in failures:
                     point = {
                         "map": m,
                         "policy": name,

@@ -64,6 +64,14 @@ def intruders(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing):
             leave(r, prev_pos[k], t, target, m)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def intruders_called(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing):
+    """:func:`intruders` compiled once, for the general loop to call (inlined into each
+    of its specialisations it made their cold compile longer; the Q-learning team's loop
+    inlines it)."""
+    intruders(r, t, prev_pos, pos_r, moved, target, m, mode_r, failing)
+
+
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def arrive(r, c, t, target, m):
     """A robot of run ``r`` entered cell ``c`` in step ``t``: an empty target's empty
