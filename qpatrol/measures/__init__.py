@@ -251,26 +251,23 @@ class Measures:
         moved, gone = out.moved, out.moved
         if failing is not None:
             moved, gone = out.moved & ~failing, out.moved | failing
-        for k in range(out.moved.shape[1]):  # arrivals
-            rows = np.flatnonzero(moved[:, k])
-            c = out.pos[rows, k]
-            rows, c = rows[target[c]], c[target[c]]
-            if rows.size == 0:
-                continue
-            v = self.empty_since[rows, c]
+        n_cells = self.empty_since.shape[1]
+        # arrivals, before any departure: robots entering one target together (cells
+        # shared with collisions off) as one group; an empty target's stretch closes
+        rows, cells, count = _groups(moved, out.pos, target, n_cells)
+        if rows.size:
+            v = self.empty_since[rows, cells]
             empty = v >= 0
             if empty.any():
-                self._close(rows[empty], c[empty], v[empty], t)
-            self.empty_since[rows, c] = np.where(empty, -1, v - 1)
-        for k in range(out.moved.shape[1]):  # departures
-            rows = np.flatnonzero(gone[:, k])
-            c = out.prev_pos[rows, k]
-            rows, c = rows[target[c]], c[target[c]]
-            v = self.empty_since[rows, c] + 1
-            self.empty_since[rows, c] = np.where(v == 0, t, v)
+                self._close(rows[empty], cells[empty], v[empty], t)
+            self.empty_since[rows, cells] = np.where(empty, -count, v - count)
+        rows, cells, count = _groups(gone, out.prev_pos, target, n_cells)  # departures
+        if rows.size:
+            v = self.empty_since[rows, cells] + count
+            self.empty_since[rows, cells] = np.where(v == 0, t, v)
 
     def _close(self, rows: np.ndarray, cells: np.ndarray, e: np.ndarray, b: int) -> None:
-        """Target ``cells`` of runs ``rows`` (int ``[B]``, distinct runs), empty from the
+        """Target ``cells`` of runs ``rows`` (int ``[B]``, distinct pairs), empty from the
         end of step ``e`` (int ``[B]``) on, are entered in step ``b``
         (:func:`empty_stretch`): a stretch that began in the window (``e > warmup``)
         goes to the bucket of its gap (the random intruders it hid follow from its gap),
@@ -283,14 +280,15 @@ class Measures:
         gap = b - e
         bucket = np.searchsorted(attack, gap, side="left")  # durations below the gap
         inside = e > self.warmup
+        # (a run may close several stretches in one step: np.add.at adds each)
         ri, bi = rows[inside], bucket[inside]
-        self.stretch_count[ri, bi] += 1
-        self.stretch_sum[ri, bi] += gap[inside]
+        np.add.at(self.stretch_count, (ri, bi), 1)
+        np.add.at(self.stretch_sum, (ri, bi), gap[inside])
         equal = inside & (bucket < attack.size)
         equal &= attack[np.minimum(bucket, attack.size - 1)] == gap
-        self.stretch_equal[rows[equal], bucket[equal]] += 1
+        np.add.at(self.stretch_equal, (rows[equal], bucket[equal]), 1)
         rand, counted, missed = empty_stretch(attack, self.warmup, self.horizon, e, b)
-        self.random_missed[rows[~inside]] += rand[~inside]
+        np.add.at(self.random_missed, rows[~inside], rand[~inside])
         every = counted.all(axis=1)  # counted for every D: by the bucket of its gap
         self.gaps[rows[every], cells[every], bucket[every]] += 1
         some = counted.any(axis=1) & ~every  # near the horizon: for the shorter D only
@@ -433,6 +431,19 @@ def summarize(
             }
         )
     return out
+
+
+def _groups(
+    who: np.ndarray, where: np.ndarray, target: np.ndarray, n_cells: int
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The targets that robots ``who`` (bool ``[R, K]``) stand on ``where`` (int ``[R,
+    K]``): each (run, target) once, as ``rows``, ``cells`` and the robots ``count``
+    (int ``[B]`` each)."""
+    rows, ks = np.nonzero(who)
+    cells = where[rows, ks]
+    on = target[cells]
+    key, count = np.unique(rows[on] * n_cells + cells[on], return_counts=True)
+    return key // n_cells, key % n_cells, count
 
 
 def empty_stretch(
