@@ -1019,21 +1019,9 @@ def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Pat
             if r == len(maps) - 1:
                 ax.set_xlabel("team size K (robots)")
             ax.set_title(f"{mname}: {label}", fontsize=10)
-    handles = [
-        plt.Line2D([], [], color=_style(n, i)[0], marker=_style(n, i)[1], ms=5, label=n)
-        for i, n in enumerate(names)
-    ]
-    fig.legend(
-        handles=handles,
-        loc="upper center",
-        ncol=min(len(names), 8),
-        fontsize=9,
-        bbox_to_anchor=(0.5, 1.0),
-        frameon=False,
-    )
+    rows = _strategy_legend(fig, names)
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     window = f", {int(df['window'].min()):,} steps measured" if "window" in df.columns else ""
-    rows = -(-len(names) // 8)  # legend rows
     fig.suptitle(title.format(runs=runs, window=window), fontsize=10, y=1.0 + 0.025 * rows)
     fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.3 * 4 / fig.get_figheight()))
     return _save(fig, out)
