@@ -551,21 +551,14 @@ def check_value(key: str, value: Any) -> Any:
         if isinstance(value, str) and value in f.choices:
             return value
         raise bad()
-    if f.kind == "cells":
-        if isinstance(value, int) and not isinstance(value, bool):
-            value = [value]
-        if isinstance(value, list) and all(
-            isinstance(v, int) and not isinstance(v, bool) and v >= 0 for v in value
-        ):
-            return sorted(set(value))
-        raise bad()
-    if f.kind == "durations":
-        if value == "auto":
+    if f.kind in ("cells", "durations"):  # a list of states (>= 0) or of steps (>= 1)
+        if f.kind == "durations" and value == "auto":
             return value
+        low = 0 if f.kind == "cells" else 1
         if isinstance(value, int) and not isinstance(value, bool):
             value = [value]
         if isinstance(value, list) and all(
-            isinstance(v, int) and not isinstance(v, bool) and v >= 1 for v in value
+            isinstance(v, int) and not isinstance(v, bool) and v >= low for v in value
         ):
             return sorted(set(value))
         raise bad()
