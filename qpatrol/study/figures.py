@@ -41,6 +41,7 @@ from qpatrol.config import Config, from_mapping, load_config
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
 from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour
+from qpatrol.measures import FIELD_MEASURES
 from qpatrol.run import prepare
 from qpatrol.util.csvio import read_csv
 from qpatrol.util.provenance import MAP_FILE, read_meta
@@ -554,15 +555,7 @@ FIELD_STUDY_MEASURES = (
     "worst_idleness",
     "mean_interval",
     "max_interval",
-    "qmi",
-    "std_interval",
-    "freq_std",
-    "worst_avg_idleness",
-    "mean_avg_idleness",
-    "median_idleness",
-    "std_idleness",
-    "cycles",
-    "interferences",
+    *FIELD_MEASURES,
     "max_wait",
     "coverage",
 )

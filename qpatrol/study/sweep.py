@@ -236,52 +236,16 @@ def learning_steps(name: str) -> int:
     return LEARNING_STEPS.get(name, LEARNING_LEARNER_STEPS)
 
 
-def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
-    """Every strategy x map x team size, the learners with their longer warm-up.
-
-    ``quick``: two maps, K = 1 and 4, and short runs (a smoke test, not a result).
-    """
+def _every_strategy(
+    maps: tuple[str, ...], teams: tuple[int, ...], window: int, quick: bool
+) -> list[dict[str, Any]]:
+    """Every strategy x map x team size, strategy first (a new strategy adds points at
+    the end), each measuring ``window`` steps after the policies study's warm-up
+    (``quick``: 1,000 steps for a learner, 200 for the others)."""
     from qpatrol.strategies import learns
 
-    maps, teams = (("map_b", "pacman"), (1, 4)) if quick else (POLICY_MAPS, POLICY_TEAMS)
-    window = 500 if quick else POLICY_WINDOW
     points = []
-    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
-        if quick:
-            warm = 1000 if learns(name) else 200
-        else:
-            warm = policy_warmup(name)
-        for m in maps:
-            for k in teams:
-                points.append(
-                    {
-                        "map": m,
-                        "policy": name,
-                        "agents": k,
-                        "steps": warm + window,
-                        "record.warmup": warm,
-                    }
-                )
-    return points
-
-
-#: The field's benchmark (``qpatrol sweep field``): patrolling_sim's graphs, its team sizes.
-FIELD_MAPS = ("ps_grid", "ps_example", "ps_cumberland", "ps_diag_floor1")
-FIELD_TEAMS = (1, 2, 4, 6, 8, 12)
-
-
-def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
-    """Every strategy x patrolling_sim graph x team size (where the team fits), each
-    with the policies study's warm-up and window.
-
-    ``quick``: two graphs, K = 1 and 4, and short runs (a smoke test, not a result).
-    """
-    from qpatrol.strategies import learns
-
-    maps, teams = (("ps_grid", "ps_example"), (1, 4)) if quick else (FIELD_MAPS, FIELD_TEAMS)
-    window = 500 if quick else POLICY_WINDOW
-    points = []
-    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
+    for name in STRATEGY_NAMES:
         warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
         for m in maps:
             for k in teams:
@@ -295,6 +259,30 @@ def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
                     }
                 )
     return points
+
+
+def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy x map x team size, the learners with their longer warm-up.
+
+    ``quick``: two maps, K = 1 and 4, and short runs (a smoke test, not a result).
+    """
+    maps, teams = (("map_b", "pacman"), (1, 4)) if quick else (POLICY_MAPS, POLICY_TEAMS)
+    return _every_strategy(maps, teams, 500 if quick else POLICY_WINDOW, quick)
+
+
+#: The field's benchmark (``qpatrol sweep field``): patrolling_sim's graphs, its team sizes.
+FIELD_MAPS = ("ps_grid", "ps_example", "ps_cumberland", "ps_diag_floor1")
+FIELD_TEAMS = (1, 2, 4, 6, 8, 12)
+
+
+def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy x patrolling_sim graph x team size (where the team fits), each
+    with the policies study's warm-up and window.
+
+    ``quick``: two graphs, K = 1 and 4, and short runs (a smoke test, not a result).
+    """
+    maps, teams = (("ps_grid", "ps_example"), (1, 4)) if quick else (FIELD_MAPS, FIELD_TEAMS)
+    return _every_strategy(maps, teams, 500 if quick else POLICY_WINDOW, quick)
 
 
 #: The security study (``qpatrol sweep security``): its maps, team sizes and failures,
@@ -315,29 +303,15 @@ def security_overrides(quick: bool = False) -> list[dict[str, Any]]:
     ``quick``: map_a only, K = 4, none or 2 robots failing, and short runs (a smoke
     test, not a result).
     """
-    from qpatrol.strategies import learns
-
     maps, teams = (("map_a",), (4,)) if quick else (SECURITY_MAPS, SECURITY_TEAMS)
     failures = (0, 2) if quick else SECURITY_FAILURES
     window, fail_after = (600, 200) if quick else (SECURITY_WINDOW, SECURITY_FAIL_AFTER)
-    points = []
-    for name in STRATEGY_NAMES:  # strategy first: a new strategy adds points at the end
-        warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
-        for m in maps:
-            for k in teams:
-                for failed in failures:
-                    point = {
-                        "map": m,
-                        "policy": name,
-                        "agents": k,
-                        "steps": warm + window,
-                        "record.warmup": warm,
-                        "failures.robots": failed,
-                        # (with no robot failing: where they would have, for comparison)
-                        "failures.at": warm + fail_after,
-                    }
-                    points.append(point)
-    return points
+    return [
+        # (with no robot failing: where they would have, for comparison)
+        {**p, "failures.robots": failed, "failures.at": p["record.warmup"] + fail_after}
+        for p in _every_strategy(maps, teams, window, quick)
+        for failed in failures
+    ]
 
 
 def learning_overrides(quick: bool = False) -> list[dict[str, Any]]:
