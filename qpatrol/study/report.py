@@ -342,6 +342,22 @@ def _no_episode(res: pd.DataFrame | None) -> str:
     )
 
 
+def _low_coverage(fig: pd.DataFrame) -> list[str]:
+    """For each strategy with points whose mean coverage is below 1 (``fig``: a study's
+    figure table, with ``coverage_mean``), its count and lowest point ("cbls at 3 points
+    (lowest 0.9: map_a, K = 4)"), in table order; none without the column."""
+    if "coverage_mean" not in fig.columns:
+        return []
+    parts = []
+    for name, g in fig[fig["coverage_mean"] < 1].groupby("policy", sort=False):
+        worst = g.sort_values("coverage_mean").iloc[0]
+        parts.append(
+            f"{name} at {len(g)} point{'s' * (len(g) != 1)} (lowest "
+            f"{_fmt(worst.coverage_mean)}: {worst['map']}, K = {int(worst.agents)})"
+        )
+    return parts
+
+
 def _wide_spread(res: pd.DataFrame | None) -> str:
     """A sentence naming the points (``res``: a study's per-run ``results.csv``) whose
     runs' average idleness spreads wider than its mean (standard deviation over runs above
@@ -563,22 +579,13 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     lwarm = ", ".join(f"{int(fig[fig['policy'] == n]['warmup'].max()):,} for {n}" for n in learners)
     window = int(fig["window"].min())
     uncovered = ""
-    if "coverage_mean" in fig.columns:
-        low = fig[fig["coverage_mean"] < 1]
-        if len(low):
-            parts = []
-            for name, g in low.groupby("policy", sort=False):
-                worst = g.sort_values("coverage_mean").iloc[0]
-                parts.append(
-                    f"{name} at {len(g)} point{'s' * (len(g) != 1)} (lowest "
-                    f"{_fmt(worst.coverage_mean)}: {worst['map']}, "
-                    f"K = {int(worst.agents)})"
-                )
-            uncovered = (
-                " Points where some run left a cell unentered for the whole window (mean "
-                "coverage below 1; the worst idleness of such a run is capped by the run's "
-                "length): " + "; ".join(parts) + "."
-            )
+    parts = _low_coverage(fig)
+    if parts:
+        uncovered = (
+            " Points where some run left a cell unentered for the whole window (mean "
+            "coverage below 1; the worst idleness of such a run is capped by the run's "
+            "length): " + "; ".join(parts) + "."
+        )
     if "episodes_truncated_mean" in fig.columns:
         cut = fig[fig["episodes_truncated_mean"] > 0]
         if len(cut):
@@ -687,16 +694,9 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     window = int(fig["window"].min())
     frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
     missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
-    low = fig[fig["coverage_mean"] < 1] if "coverage_mean" in fig.columns else fig.iloc[:0]
     uncovered = ""
-    if len(low):
-        parts = []
-        for name, g in low.groupby("policy", sort=False):
-            worst = g.sort_values("coverage_mean").iloc[0]
-            parts.append(
-                f"{name} at {len(g)} point{'s' * (len(g) != 1)} (lowest "
-                f"{_fmt(worst.coverage_mean)}: {worst['map']}, K = {int(worst.agents)})"
-            )
+    parts = _low_coverage(fig)
+    if parts:
         uncovered = (
             " Points where some run left a vertex unvisited for the whole window (mean "
             "coverage below 1): " + "; ".join(parts) + "."
