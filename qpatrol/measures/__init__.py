@@ -528,7 +528,7 @@ def intruder_measures(m: Measures, steps_done: np.ndarray) -> dict[str, list[Any
         worst = np.argmin(frac, axis=1)  # the lowest cell among ties
         value = frac[rows_all, worst]
         has = [o and v != math.inf for o, v in zip(ok, value.tolist(), strict=True)]
-        rand_j = ((pairs - random_missed[:, j]) / pairs if pairs > 0 else value).tolist()
+        rand_j = ((pairs - random_missed[:, j]) / max(pairs, 1)).tolist()  # (None: not ok)
         out[k_rand] = [x if o else None for x, o in zip(rand_j, ok, strict=True)]
         out[k_obs] = [x if h else None for x, h in zip(value.tolist(), has, strict=True)]
         out[k_cell] = [x if h else None for x, h in zip(cell_ids[worst].tolist(), has, strict=True)]
