@@ -266,7 +266,7 @@ def test_cyclic_gathers_on_evenly_spaced_slots_then_advances_together(text, k):
     index = None
     for _, s, strat, out, _ in run_steps(cfg, m, 3 * L + 40):
         if gathered_at is None:
-            np.testing.assert_array_equal(strat.walk[0, :L], walk)
+            np.testing.assert_array_equal(strat.walk[0, 0, :L], walk)
             if set(s.pos[0].tolist()) == slot_cells:
                 gathered_at = out.t
                 # which slot each robot took (the walk index of its cell among the slots)

@@ -56,7 +56,7 @@ class Strategy(follow.WalkFollower):
         return super().act(obs, u)
 
     def describe(self) -> dict[str, object]:
-        L = int(self.length[0])
+        L = int(self.length[0, 0])
         return {
             "walk_length": L,
             "walk_lower_bound": int(self.bound),

@@ -45,8 +45,9 @@ class WalkFollower(base.Strategy):
     """Robots on closed walks.
 
     Attributes:
-        walk: int ``[W, Lmax]``, the walks' cells (padded by repeating the last).
-        length: int ``[W]``, each walk's length in moves.
+        walk: int ``[R, W, Lmax]``, each run's walks' cells (padded by repeating the
+            last); the same in every run but for a strategy that learns its walks.
+        length: int ``[R, W]``, each walk's length in moves.
         wid: int ``[R, K]``, the walk each robot follows.
         target: int ``[R, K]``, the index on its walk the robot heads for.
         hold: bool ``[R, K]``, the robot waits on its target (e.g. for the team to
@@ -72,9 +73,13 @@ class WalkFollower(base.Strategy):
     ):
         super().__init__(cfg, m, p, start_cells)
         self.dist = m.distances()
-        self.length = np.array([w.size for w in walks], dtype=np.int64)
-        width = int(self.length.max())
-        self.walk = np.stack([np.pad(w, (0, width - w.size), mode="edge") for w in walks])
+        R = self.n_runs
+        length = np.array([w.size for w in walks], dtype=np.int64)
+        width = int(length.max())
+        walk = np.stack([np.pad(w, (0, width - w.size), mode="edge") for w in walks])
+        self.walk = np.repeat(walk[None], R, axis=0)
+        self.length = np.repeat(length[None], R, axis=0)
+        self.rows = np.arange(R)[:, None]
         self.wid = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
         self.target = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
         self.hold = np.zeros((self.n_runs, self.n_agents), dtype=bool)
@@ -90,7 +95,7 @@ class WalkFollower(base.Strategy):
         """int ``[R, K]``: walk steps from each robot's target forward to the nearest
         target of another ``counted`` robot (bool ``[R, K]``) on the same walk; on a tie
         the robot of lower index is ahead (0 steps); the walk's length if none."""
-        L = self.length[self.wid]  # [R, K]
+        L = self.lap()  # [R, K]
         ahead = (self.target[:, None, :] - self.target[:, :, None]) % L[:, :, None]  # [R, k, j]
         k = np.arange(self.n_agents)
         ahead = np.where((ahead == 0) & (k[None, :] > k[:, None])[None], L[:, :, None], ahead)
@@ -101,9 +106,13 @@ class WalkFollower(base.Strategy):
         )
         return np.where(other, ahead, L[:, :, None]).min(axis=-1)
 
+    def lap(self) -> np.ndarray:
+        """int ``[R, K]``: the length of each robot's walk."""
+        return self.length[self.rows, self.wid]
+
     def goal_cells(self) -> np.ndarray:
         """int ``[R, K]``: the cell each robot heads for."""
-        return self.walk[self.wid, self.target]
+        return self.walk[self.rows, self.wid, self.target]
 
     def _exchange_head_on(self, choosing: np.ndarray) -> None:
         """Robots that blocked each other last step swap walks, targets and spacings."""
@@ -139,7 +148,7 @@ class WalkFollower(base.Strategy):
         advance = mask & obs.choosing & (obs.state.pos == self.goal_cells()) & ~self.hold
         if self.keep_spacing:
             advance &= self.gap_ahead(obs.choosing) >= self.spacing
-        self.target = np.where(advance, (self.target + 1) % self.length[self.wid], self.target)
+        self.target = np.where(advance, (self.target + 1) % self.lap(), self.target)
 
     def _asks(self, obs: Observation) -> np.ndarray:
         """int ``[R, K]``: each choosing robot's first move towards its target cell."""
@@ -152,7 +161,7 @@ class WalkFollower(base.Strategy):
         A robot's next cell is the one it asks for, or for a robot waiting on its target
         the walk's cell after it."""
         pos = obs.state.pos
-        after = self.walk[self.wid, (self.target + 1) % self.length[self.wid]]
+        after = self.walk[self.rows, self.wid, (self.target + 1) % self.lap()]
         waits = (ask < 0) & (pos == self.goal_cells())
         nxt = np.where(
             ask >= 0,
@@ -180,7 +189,7 @@ class WalkFollower(base.Strategy):
         if not p.battery or (p.pocket_of < 0).all():
             return
         me = np.arange(self.n_agents)[None, :]
-        lap = self.length[self.wid]
+        lap = self.lap()
         done = np.zeros_like(self.target)
         for _ in range(int(self.length.max())):
             h = p.pocket_of[self.goal_cells()]

@@ -41,7 +41,7 @@ class Strategy(follow.WalkFollower):
         self.start_spacing()
 
     def describe(self) -> dict[str, object]:
-        return {"region_walk_lengths": [int(x) for x in self.length]}
+        return {"region_walk_lengths": [int(x) for x in self.length[0]]}
 
 
 def match_regions(dist: np.ndarray, labels: np.ndarray, starts: np.ndarray) -> np.ndarray:

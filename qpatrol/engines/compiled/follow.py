@@ -58,8 +58,8 @@ def pack(strategy) -> Pack:
     return dummy_pack(
         ipar=np.array(ipar, dtype=np.int64),
         robot_i=np.ascontiguousarray(robots),
-        table_i=np.ascontiguousarray(strategy.walk, dtype=np.int64),
-        row_i=np.ascontiguousarray(strategy.length, dtype=np.int64),
+        table_i=np.ascontiguousarray(strategy.walk[0], dtype=np.int64),
+        row_i=np.ascontiguousarray(strategy.length[0], dtype=np.int64),
         dist=np.ascontiguousarray(strategy.dist, dtype=np.int64),
     )
 
