@@ -94,6 +94,7 @@ POLICIES: tuple[str, ...] = (
     "dta-ssi",
     "dta-ssi-part",
     "cbls",
+    "learned-tour",
 )
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
@@ -262,6 +263,34 @@ SCHEMA: tuple[Field, ...] = (
         low_open=True,
         high=1.0,
         used_by=("evap",),
+    ),
+    F(
+        "tour.neighbours",
+        "int",
+        8,
+        "learned-tour: nearest targets a 2-opt or or-opt proposal may join a target to",
+        low=1,
+        high=64,
+        used_by=("learned-tour",),
+    ),
+    F(
+        "tour.kick_after",
+        "int",
+        2000,
+        "learned-tour: proposals without a shorter order before a restart from the best "
+        "order with a double bridge",
+        low=1,
+        used_by=("learned-tour",),
+    ),
+    F(
+        "tour.learn_steps",
+        "int",
+        None,
+        "learned-tour: team steps during which the learners propose changes; then the "
+        "robots keep the best route found (null: they learn for the whole run)",
+        low=0,
+        nullable=True,
+        used_by=("learned-tour",),
     ),
     F(
         "bayes.g1",

@@ -48,6 +48,7 @@ COMPILED_POLICIES = (
     "dta-ssi",
     "dta-ssi-part",
     "cbls",
+    "learned-tour",
 )
 
 

@@ -253,6 +253,10 @@ def _batch(
     if p.failures_at:
         for row, facts in zip(summary, failures.describe(state, p), strict=True):
             row.update(facts)
+    run_facts = getattr(strategy, "run_facts", None)
+    if run_facts is not None:
+        for row, facts in zip(summary, run_facts(), strict=True):
+            row.update(facts)
     return RunResult(
         config=cfg,
         map=m,

@@ -207,13 +207,14 @@ POLICY_WINDOW = 3_000
 #: the conscientious ones spread out; their idleness is flat after that.
 POLICY_WARMUP = 1_000
 #: Warm-up of a learner: the paper's learner keeps improving for 100,000 steps and more
-#: (the learning-over-time figure; on the compiled engine that costs seconds); any other
+#: (the learning-over-time figure; on the compiled engine that costs seconds), and
+#: ``learned-tour``'s route is within a few percent of cyclic's walk by then; any other
 #: learner (``qlearning-idleness`` settles within 2,000 steps) gets the default.
-LEARNER_WARMUPS = {"qlearning": 100_000}
+LEARNER_WARMUPS = {"qlearning": 100_000, "learned-tour": 100_000}
 POLICY_LEARNER_WARMUP = 5_000
 #: Team steps of each run in the learning-over-time experiment: the paper's learner,
 #: other learners, and the strategies that do not learn.
-LEARNING_STEPS = {"qlearning": 200_000}
+LEARNING_STEPS = {"qlearning": 200_000, "learned-tour": 200_000}
 LEARNING_LEARNER_STEPS = 25_000
 LEARNING_OTHERS_STEPS = 10_000
 
@@ -241,7 +242,8 @@ def _every_strategy(
 ) -> list[dict[str, Any]]:
     """Every strategy x map x team size, strategy first (a new strategy adds points at
     the end), each measuring ``window`` steps after the policies study's warm-up
-    (``quick``: 1,000 steps for a learner, 200 for the others)."""
+    (``quick``: 1,000 steps for a learner, 200 for the others); ``learned-tour`` learns
+    during the warm-up only (``tour.learn_steps``)."""
     from qpatrol.strategies import learns
 
     points = []
@@ -249,15 +251,16 @@ def _every_strategy(
         warm = (1000 if learns(name) else 200) if quick else policy_warmup(name)
         for m in maps:
             for k in teams:
-                points.append(
-                    {
-                        "map": m,
-                        "policy": name,
-                        "agents": k,
-                        "steps": warm + window,
-                        "record.warmup": warm,
-                    }
-                )
+                point = {
+                    "map": m,
+                    "policy": name,
+                    "agents": k,
+                    "steps": warm + window,
+                    "record.warmup": warm,
+                }
+                if name == "learned-tour":  # it learns in the warm-up, keeps its route after
+                    point["tour.learn_steps"] = warm
+                points.append(point)
     return points
 
 

@@ -28,6 +28,7 @@ from qpatrol.engines.compiled import (
     qlearning_idleness,
     random,
     shared_conscientious,
+    tour,
 )
 from qpatrol.engines.compiled.choice import ports_of
 from qpatrol.engines.compiled.pack import Pack
@@ -42,6 +43,7 @@ RANDOM, CONSCIENTIOUS, SHARED_CONSCIENTIOUS, EVAP, CYCLIC, PARTITION = 2, 3, 4, 
 HCR, CC, GBS, SEBS = 8, 9, 10, 11  # the goal followers (compiled/goals.py)
 DTA_GREEDY, DTA_SSI, DTA_SSI_PART = 12, 13, 14  # goal followers with any target (compiled/dta.py)
 CBLS = 15  # the learning goal follower (compiled/cbls.py)
+LEARNED_TOUR = 16  # a walk follower that learns its walk (compiled/tour.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -61,6 +63,7 @@ MODULES = {
     "dta-ssi": (DTA_SSI, dta),
     "dta-ssi-part": (DTA_SSI_PART, dta),
     "cbls": (CBLS, cbls),
+    "learned-tour": (LEARNED_TOUR, tour),
 }
 
 
@@ -160,6 +163,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.row_i,
             sp.dist, sp.row_f,
         )  # fmt: skip
+    elif code == LEARNED_TOUR:
+        tour.act(
+            r, t, ur, nbrs, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask,
+            sp.ipar, sp.robot_i, sp.cell_i, sp.table_i, sp.dist,
+        )  # fmt: skip
     elif code == CBLS:
         cbls.act(
             r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,
@@ -188,7 +196,7 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
         conscientious.learn(r, t, s.pos, w.moved, sp.cell_i)
     elif code == EVAP:
         evap.learn(r, t, p.communication, s.pos, w.moved, sp.cell_f, sp.cell_i, sp.fpar)
-    elif code == CYCLIC or code == PARTITION:
+    elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
         follow.learn(r, w.blocked_by, sp.robot_i)
     elif code >= HCR and code <= SEBS:
         goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
