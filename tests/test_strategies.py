@@ -480,8 +480,14 @@ def test_base_choose_min_maps_u_to_the_nth_tied_direction():
     assert base.choose_min(score, ~mask & False, np.array([[0.5]]))[0, 0] == -1
 
 
-def test_learners_are_the_q_learners_and_cbls():
-    """The policies study gives learners a longer warm-up: the Q-learners and cbls."""
+def test_learners_are_the_q_learners_cbls_and_learned_tour():
+    """The policies study gives learners a longer warm-up: the Q-learners, cbls and
+    learned-tour."""
     from qpatrol.strategies import NAMES, learns
 
-    assert [n for n in NAMES if learns(n)] == ["qlearning", "qlearning-idleness", "cbls"]
+    assert [n for n in NAMES if learns(n)] == [
+        "qlearning",
+        "qlearning-idleness",
+        "cbls",
+        "learned-tour",
+    ]

@@ -16,10 +16,11 @@ route, and keeps a change only when the route gets shorter.
 
 How it learns (one learner per team with ``team.communication`` on, one per robot
 otherwise; a learner proposes one change per team step in which one of its robots
-patrols, during the first ``tour.learn_steps`` team steps if set). Its memory is an *order* of the targets, the order in which its route first
-visits them; the route is that order joined by shortest paths (first port one move
-closer: N, E, S, W on a grid) and then :func:`repair`-ed, and the table is the route's
-exits. Each step it draws one proposal from the run's uniforms:
+patrols, during the first ``tour.learn_steps`` team steps if that is set). Its memory
+is an *order* of the targets, the order in which its route first visits them; the route
+is that order joined by shortest paths (first port one move closer: N, E, S, W on a
+grid) and then :func:`repair`-ed, and the table is the route's exits. Each step it
+draws one proposal from the first uniform of its first robot:
 
 * a 2-opt move: reverse the part of the route between two passes, so that a target
   is followed by one of its ``tour.neighbours`` nearest targets (the exits of the two

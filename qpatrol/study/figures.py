@@ -573,7 +573,8 @@ def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
 
     One row per strategy and window: policy, learns, window, first_step, last_step,
     ``avg_idleness_mean/_lo/_hi`` and ``worst_idleness_mean/_lo/_hi`` over runs (95%
-    t-interval), runs, map, agents.
+    t-interval), runs, map, agents; for ``learned-tour`` also ``tour_ratio_mean/_lo/_hi``,
+    its route's length at the window's end over the closed walk ``cyclic`` uses.
     """
     d = Path(sweep_dir)
     sw = read_sweep(d)
@@ -584,6 +585,7 @@ def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
             raise FileNotFoundError(f"{tl}: missing; the learning figure needs record.timeline")
         t = _read_csv(tl, "idleness in windows")
         name = folder_map(path, cfg).name
+        tours = _tour_runs(Path(path))
         for (w, first, last), g in t.groupby(["window", "first_step", "last_step"], sort=True):
             row: dict[str, Any] = {
                 "policy": cfg["policy"],
@@ -596,10 +598,35 @@ def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
             for col in ("avg_idleness", "worst_idleness"):
                 ci = mean_ci(pd.to_numeric(g[col]), level)
                 row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi")})
+            if tours is not None:
+                ci = mean_ci(pd.Series([tour_ratio_at(run, int(last)) for run in tours]), level)
+                row.update({f"tour_ratio_{k}": ci[k] for k in ("mean", "lo", "hi")})
             row["map"] = name
             row["agents"] = int(cfg["agents"])
             rows.append(row)
     return pd.DataFrame(rows)
+
+
+def _tour_runs(folder: Path) -> list[dict[str, Any]] | None:
+    """The runs of a ``learned-tour`` run folder as dicts with ``tour_changes``,
+    ``tour_lengths`` and ``reference`` (the closed walk ``cyclic`` uses); None for a
+    strategy that does not learn a route."""
+    summary = json.loads((folder / "summary.json").read_text(encoding="utf-8"))
+    ref = summary.get("strategy", {}).get("reference_walk_length")
+    if ref is None:
+        return None
+    return [{**r, "reference": ref} for r in summary["runs"]]
+
+
+def tour_ratio_at(run: dict[str, Any], step: int) -> float:
+    """A run's route length after team step ``step`` over the reference walk's: its last
+    change made in a step up to ``step`` (a change made in step ``t + 1`` is recorded
+    as ``t``, the steps taken before it)."""
+    n = run["tour_lengths"][0]
+    for t, length in zip(run["tour_changes"], run["tour_lengths"], strict=True):
+        if t < step:
+            n = length
+    return n / run["reference"]
 
 
 def grouped_data(

@@ -871,7 +871,10 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
         ax.minorticks_off()
         ax.set_xlabel("team size K (robots)")
         ax.grid(alpha=0.3, lw=0.4, which="both")
-    axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    handles, labels = axes[1].get_legend_handles_labels()
+    if tours:
+        axes[2].add_artist(axes[2].legend(fontsize=8, loc="upper right"))
+    axes[-1].legend(handles, labels, fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     fig.suptitle(
@@ -1043,13 +1046,19 @@ def learning(csv: str | Path, out: str | Path) -> Path:
     cols = ["policy", "learns", "window", "last_step", "avg_idleness_mean", "worst_idleness_mean"]
     df = _read(csv, cols)
     names = _policy_order(set(df["policy"]))
-    fig, axes = plt.subplots(1, 2, figsize=(13, 4.6))
+    tours = "tour_ratio_mean" in df.columns and df["tour_ratio_mean"].notna().any()
+    fig, axes = plt.subplots(1, 3 if tours else 2, figsize=(18 if tours else 13, 4.6))
     end = float(df["last_step"].max())
     for i, name in enumerate(names):
         d = df[df["policy"] == name].sort_values("window")
         colour, _ = _style(name, i)
         learns = bool(d["learns"].iloc[0])
-        for ax, m in zip(axes, ("avg_idleness", "worst_idleness"), strict=True):
+        if tours and d["tour_ratio_mean"].notna().any():
+            axes[2].plot(d["last_step"], d["tour_ratio_mean"], color=colour, lw=1.6, label=name)
+            axes[2].fill_between(
+                d["last_step"], d["tour_ratio_lo"], d["tour_ratio_hi"], color=colour, alpha=0.2
+            )
+        for ax, m in zip(axes[:2], ("avg_idleness", "worst_idleness"), strict=True):
             if learns:
                 ax.plot(d["last_step"], d[f"{m}_mean"], color=colour, lw=1.6, label=name)
                 ax.fill_between(
@@ -1058,13 +1067,25 @@ def learning(csv: str | Path, out: str | Path) -> Path:
             else:
                 level = d[d["window"] >= 1][f"{m}_mean"].mean()
                 ax.plot([0, end], [level, level], color=colour, lw=1, ls="--", label=name)
-    for ax, label in zip(axes, ("average idleness", "worst idleness"), strict=True):
+    if tours:
+        ax = axes[2]
+        ax.axhline(1.0, color="0.3", lw=1, ls="--", label="cyclic's walk (L)")
+        ax.set_ylabel("route length / L")
+        ax.set_xlabel("team step (end of each window)")
+        ax.xaxis.set_major_formatter(FuncFormatter(_step_label if end >= 20_000 else _fmt_steps))
+        ax.set_xlim(0, end * 1.01)
+        ax.grid(alpha=0.3, lw=0.4)
+        ax.set_title("learned-tour: its route's length over cyclic's walk", fontsize=10)
+    for ax, label in zip(axes[:2], ("average idleness", "worst idleness"), strict=True):
         _log_y(ax, f"{label} in the window (team steps)", subs=(1.0, 1.5, 2.0, 2.5, 3.0, 5.0, 7.0))
         ax.set_xlabel("team step (end of each window)")
         ax.xaxis.set_major_formatter(FuncFormatter(_step_label if end >= 20_000 else _fmt_steps))
         ax.set_xlim(0, end * 1.01)
         ax.grid(alpha=0.3, lw=0.4, which="both")
-    axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    handles, labels = axes[1].get_legend_handles_labels()
+    if tours:
+        axes[2].add_artist(axes[2].legend(fontsize=8, loc="upper right"))
+    axes[-1].legend(handles, labels, fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     w = int(df["last_step"].min())
     where = f"{df['map'].iloc[0]}, K = {int(df['agents'].iloc[0])}, " if "map" in df.columns else ""
     runs = f"{int(df['runs'].min())} runs" if "runs" in df.columns else ""
