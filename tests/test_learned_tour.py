@@ -13,8 +13,8 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-
 from mazes import random_maze
+
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.engines import numba_installed
 from qpatrol.maps import get_map, parse_map, walks

@@ -658,7 +658,9 @@ def grouped_data(
     res = res.merge(keyed, on="point", how="inner")
     group = [*keys, *swept]
     rows = []
-    for values, g in res.groupby(group, sort=True):
+    # a key some points leave unset (None: ``tour.learn_steps`` outside learned-tour) is
+    # a group value like any other, not a reason to drop the points
+    for values, g in res.groupby(group, sort=True, dropna=False):
         row: dict[str, Any] = dict(zip(group, values, strict=True))
         row["runs"] = len(g)
         row["map"] = ",".join(sorted(set(g["map"])))

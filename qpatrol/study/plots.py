@@ -871,10 +871,7 @@ def strategies(csv: str | Path, out: str | Path) -> Path:
         ax.minorticks_off()
         ax.set_xlabel("team size K (robots)")
         ax.grid(alpha=0.3, lw=0.4, which="both")
-    handles, labels = axes[1].get_legend_handles_labels()
-    if tours:
-        axes[2].add_artist(axes[2].legend(fontsize=8, loc="upper right"))
-    axes[-1].legend(handles, labels, fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
+    axes[1].legend(fontsize=8, loc="center left", bbox_to_anchor=(1.01, 0.5))
     where = f"{df['map'].iloc[0]}, " if "map" in df.columns else ""
     runs = f"{int(df['runs'].min())} runs per point" if "runs" in df.columns else ""
     fig.suptitle(

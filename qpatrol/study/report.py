@@ -453,6 +453,93 @@ def strategies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
 GOAL_WORST_FACTOR = 1.5
 
 
+#: The goal issue 25 set ``learned-tour``: worst idleness within this factor of the cyclic
+#: strategy's (:data:`TOUR_WORST_FACTORS` per map, else the default), average idleness
+#: below shared-conscientious's.
+TOUR_WORST_FACTOR = 1.25
+TOUR_WORST_FACTORS = {"facility": 1.5}
+#: A learned route counts as short from the first team step at which it is within this
+#: factor of the closed walk ``cyclic`` uses.
+TOUR_SHORT = 1.1
+
+
+def _history(cell: object) -> list[int]:
+    """A ``+``-joined list cell of results.csv (or one number) as ints."""
+    return [int(float(x)) for x in str(cell).split("+")]
+
+
+def learned_tour_lines(fig: pd.DataFrame, res: pd.DataFrame | None) -> list[str]:
+    """The policies section's account of ``learned-tour``: its goal (worst idleness within
+    1.25x cyclic's, 1.5x on facility; average below shared-conscientious's) per map and
+    team size, and per point its routes: every run's route covers every cell (the first
+    one does, and no change drops a target), its length over cyclic's walk L (mean and
+    worst run), and when it got within 1.1 L (median and latest run; 'never' counts)."""
+    q = fig[fig["policy"] == "learned-tour"]
+    if not len(q):
+        return []
+    rows, met = [], []
+    for _, t in q.iterrows():
+        same = fig[(fig["map"] == t["map"]) & (fig["agents"] == t["agents"])]
+        cyc = same[same["policy"] == "cyclic"]
+        con = same[same["policy"] == "shared-conscientious"]
+        if not len(cyc) or not len(con):
+            continue
+        factor = TOUR_WORST_FACTORS.get(t["map"], TOUR_WORST_FACTOR)
+        cw, ca = cyc.iloc[0].worst_idleness_mean, con.iloc[0].avg_idleness_mean
+        ok_w, ok_a = t.worst_idleness_mean <= factor * cw, t.avg_idleness_mean < ca
+        met.append(ok_w and ok_a)
+        route = ""
+        if res is not None and "tour_ratio" in res.columns:
+            runs = res[
+                (res["policy"] == "learned-tour")
+                & (res["map"] == t["map"])
+                & (res["agents"] == t["agents"])
+            ]
+            ratio = pd.to_numeric(runs["tour_ratio"])
+            when = []
+            for _, r in runs.iterrows():
+                L = r["tour_length"] / r["tour_ratio"]
+                steps = _history(r["tour_changes"])
+                lengths = _history(r["tour_lengths"])
+                short = [s for s, n in zip(steps, lengths, strict=True) if n <= TOUR_SHORT * L]
+                when.append(short[0] + 1 if short else None)
+            got = [w for w in when if w is not None]
+            never = len(when) - len(got)
+            route = (
+                f"| {_fmt(ratio.mean())} | {_fmt(ratio.max())} "
+                f"| {f'{int(np.median(got)):,}' if got else '-'} "
+                f"| {f'{max(got):,}' if got else '-'}{f' ({never} never)' if never else ''} "
+            )
+        rows.append(
+            f"| {t['map']} | {int(t.agents)} | {_fmt(t.worst_idleness_mean)} | {_fmt(cw)} "
+            f"| {factor}x | {'yes' if ok_w else 'no'} | {_fmt(t.avg_idleness_mean)} "
+            f"| {_fmt(ca)} | {'yes' if ok_a else 'no'} {route}|"
+        )
+    missed = [r.split("|")[1].strip() + ", K = " + r.split("|")[2].strip() for r, ok in
+              zip(rows, met, strict=True) if not ok]  # fmt: skip
+    head = (
+        "| map | K | worst | cyclic worst | within | met | average | shared-conscientious "
+        "average | below |"
+    )
+    rule = "|---|---|---|---|---|---|---|---|---|"
+    if res is not None and "tour_ratio" in res.columns:
+        head += " route / L (mean) | route / L (worst run) | within 1.1 L at step (median) "
+        head += "| (latest run) |"
+        rule += "---|---|---|---|"
+    return [
+        "**learned-tour** against its goal: worst idleness within "
+        f"{TOUR_WORST_FACTOR}x cyclic's ({TOUR_WORST_FACTORS['facility']}x on facility) "
+        "and average idleness below shared-conscientious's, after its warm-up of learning "
+        f"(it learns only then: `tour.learn_steps`). Met in {sum(met)} of {len(met)} cells"
+        + (f"; missed on {'; '.join(missed)}." if missed else ".")
+        + " Every run's route covers every cell from the first step (the depth-first "
+        "start does, and no change drops a target); the table gives its length over the "
+        "closed walk L that cyclic uses, and the first team step at which it was within "
+        f"{TOUR_SHORT} L.",
+        "\n".join([head, rule, *rows]),
+    ]
+
+
 def _times(a: float, b: float) -> str:
     return f"{_fmt(a / b)}x" if b else "n/a"
 
@@ -623,6 +710,7 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             table,
             *verdicts,
             *goal,
+            *learned_tour_lines(fig, res),
             *blind,
         ],
         "no paper numbers to compare with; mean over runs.",
