@@ -66,6 +66,23 @@ def test_repair_by_hand():
     np.testing.assert_array_equal(lt.repair(np.array([0, 1, 2, 3, 2, 1]), nl), [0, 1, 2, 3, 2, 1])
 
 
+def test_route_repairs_by_hand():
+    """The ring's order 0 2 1 4 7 6 5 3 expands to 0 1 2 1 2 4 7 6 5 3 (0 -> 2 through 1,
+    1 -> 4 through 2): the move 1 -> 2 is made twice (positions 1 and 3), and the
+    repair leaves the ring 0 1 2 4 7 6 5 3, in each engine."""
+    m, nbrs, dist = _arrays(RING)
+    order = np.array([0, 2, 1, 4, 7, 6, 5, 3])
+    np.testing.assert_array_equal(lt.expand(nbrs, dist, order), [0, 1, 2, 1, 2, 4, 7, 6, 5, 3])
+    np.testing.assert_array_equal(lt.route_of(nbrs, dist, m.back, order), [0, 1, 2, 4, 7, 6, 5, 3])
+    if numba_installed():
+        tour = _compiled()
+        w = np.zeros(16, dtype=np.int64)
+        first = np.full(m.n_cells * 4, -1, dtype=np.int64)
+        n = tour._route(order, 8, nbrs, dist, w, np.zeros(16, dtype=np.int64), first)
+        assert w[:n].tolist() == [0, 1, 2, 4, 7, 6, 5, 3]
+        assert (first == -1).all()  # left clean for the next call
+
+
 def test_route_by_hand():
     """The line's depth-first order 0 1 2 3 joined by shortest paths: out and back,
     6 moves (3 -> 0 expands to 3 2 1); no move repeats, so no repair."""
@@ -204,10 +221,26 @@ def _learned(text_or_name: str, steps: int, **flat) -> list[dict]:
 
 
 def test_learning_stops_at_learn_steps():
-    """With ``tour.learn_steps`` the route changes only in the first steps."""
-    for run in _learned("map_b", 3000, **{"tour.learn_steps": 500}):
-        assert max(run["tour_changes"]) < 500
+    """With ``tour.learn_steps`` the route changes only in the first steps, each change
+    to a shorter route; 3 robots on one route keep ``floor(n / 3)`` steps apart."""
+    cfg = from_flat(
+        {
+            "map": "map_a",
+            "policy": "learned-tour",
+            "agents": 3,
+            "runs": 2,
+            "steps": 3000,
+            "battery.enabled": False,
+            "security.attack_steps": [],
+            "tour.learn_steps": 1500,
+        }
+    )
+    result = simulate(cfg)
+    for r, run in enumerate(result.summary):
+        assert len(run["tour_changes"]) > 1 and max(run["tour_changes"]) < 1500
         assert run["tour_lengths"][-1] == run["tour_length"]
+        assert (np.diff(run["tour_lengths"]) < 0).all()
+        assert (result.strategy.spacing[r] == run["tour_length"] // 3).all()
 
 
 @pytest.mark.parametrize("seed", [101, 202, 303, 404])
@@ -249,3 +282,26 @@ def test_shipped_map_route_is_short():
     L = walks.closed_walk(get_map("map_a")).size
     for run in _learned("map_a", 30_000):
         assert run["tour_length"] <= 1.1 * L
+
+
+@pytest.mark.parametrize(
+    "flat",
+    [
+        {"map": "map_b", "agents": 1, "battery.enabled": False, "tour.kick_after": 200},
+        {"map": "map_a", "agents": 4, "tour.kick_after": 100, "record.trajectory": 1500},
+        {"map": "pacman", "agents": 3, "team.communication": False, "tour.kick_after": 50},
+        {"map": "ps_example", "agents": 2, "tour.learn_steps": 700},
+        {"map": "map_a", "agents": 4, "failures.robots": 1, "failures.at": 600},
+    ],
+    ids=["lone", "team-battery", "private", "graph-learn-steps", "failure"],
+)
+def test_engines_agree(tmp_path, flat):
+    """Both engines give the same files and the same strategy arrays (orders, routes,
+    histories) to the bit, with route changes, kicks, the battery, private tables, a
+    graph and a failure."""
+    if not numba_installed():
+        pytest.skip("numba not installed")
+    from test_engines import both
+
+    base = {"policy": "learned-tour", "runs": 2, "steps": 1500, "security.attack_steps": []}
+    assert both({**base, **flat}, tmp_path, strategy=True) == ("numba", "")

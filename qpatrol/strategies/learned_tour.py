@@ -32,9 +32,10 @@ and keeps it when the order's length (the sum of shortest-path lengths between
 consecutive targets) does not grow. After ``tour.kick_after`` proposals without a
 shortening it restarts from the best order with a random double bridge (two
 neighbouring stretches of at most 40 targets swapped). The route the robots walk is
-always the best order's; it changes only when a proposal makes the order strictly
-shorter than the best so far. Starting order: depth-first from the learner's first
-robot's start cell (on a tree, already the optimum).
+the best order's; it changes only when a proposal makes the order strictly shorter
+than the best so far and its route is shorter than the one the robots follow.
+Starting order: depth-first from the learner's first robot's start cell (on a tree,
+already the optimum).
 
 Walking the route: the robots follow it as ``cyclic``'s robots follow their walk
 (:mod:`qpatrol.strategies.follow`: a displaced robot takes a shortest path back to its
@@ -168,9 +169,12 @@ class Strategy(follow.WalkFollower):
         return False
 
     def _new_route(self, r: int, g: int, t: int) -> None:
-        """The route of the best order; its robots head for the route cell nearest
-        their old target cell; spacing ``floor(n / K)``."""
+        """The route of the best order, if shorter than the route the robots follow: its
+        robots head for the route cell nearest their old target cell; spacing
+        ``floor(n / K)``."""
         w = route_of(self.nbrs, self.dist_, self.back, self.best[r, g])
+        if w.size >= self.length[r, g]:
+            return
         on = self.wid[r] == g
         old = self.walk[r, g, self.target[r]]  # [K] (only the robots on it count)
         self.walk[r, g, : w.size] = w

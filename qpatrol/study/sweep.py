@@ -243,7 +243,8 @@ def _every_strategy(
     """Every strategy x map x team size, strategy first (a new strategy adds points at
     the end), each measuring ``window`` steps after the policies study's warm-up
     (``quick``: 1,000 steps for a learner, 200 for the others); ``learned-tour`` learns
-    during the warm-up only (``tour.learn_steps``)."""
+    during the first 9/10 of the warm-up (``tour.learn_steps``): a change of route
+    disorders the team for a lap or two, and the last tenth lets it settle."""
     from qpatrol.strategies import learns
 
     points = []
@@ -258,8 +259,8 @@ def _every_strategy(
                     "steps": warm + window,
                     "record.warmup": warm,
                 }
-                if name == "learned-tour":  # it learns in the warm-up, keeps its route after
-                    point["tour.learn_steps"] = warm
+                if name == "learned-tour":  # learns in 9/10 of the warm-up, then settles
+                    point["tour.learn_steps"] = warm * 9 // 10
                 points.append(point)
     return points
 

@@ -4,10 +4,10 @@ The numpy twin is :mod:`qpatrol.strategies.learned_tour`; per run, in its order:
 learner with a patrolling robot on its route makes one proposal from its robot's first
 uniform (a restart from the best order with a double bridge after ``kick_after``
 proposals without a shortening; else a 2-opt or an or-opt move kept when the order does
-not lengthen); a strictly shorter best order becomes the route (expanded by shortest
-paths, repaired), its robots head for the route cell nearest their old target, with
-spacing ``floor(n / K)``; then the robots follow their routes as ``cyclic``'s follow
-their walk (:mod:`qpatrol.engines.compiled.follow`).
+not lengthen); a strictly shorter best order's route (expanded by shortest paths,
+repaired), if shorter than the robots' route, becomes theirs: each heads for the route
+cell nearest its old target, with spacing ``floor(n / K)``; then the robots follow their
+routes as ``cyclic``'s follow their walk (:mod:`qpatrol.engines.compiled.follow`).
 
 Pack: ``robot_i`` as :mod:`~qpatrol.engines.compiled.follow`'s; ``cell_i`` int64
 ``[R, 6 G + 5, M]``, rows (``G`` learners): ``0..G-1`` the routes (the follower's
@@ -343,15 +343,18 @@ def act(
             x, ipar[6], ipar[8], cell[scratch],
         ):  # fmt: skip
             continue
+        new = cell[scratch + 2]
+        n = _route(cell[2 * G + 1 + g], T, nbrs, dist, new, cell[scratch], cell[scratch + 1])
+        if n >= cell[G, g]:
+            continue  # no shorter than the route the robots follow
         walk = cell[g]
         on = 0
         for k in range(n_agents):  # old target cells, before the route changes
             if ri[k, follow.WID] == g:
                 ri[k, follow.SCRATCH] = walk[ri[k, follow.TARGET]]
                 on += 1
-        n = _route(cell[2 * G + 1 + g], T, nbrs, dist, walk, cell[scratch], cell[scratch + 1])
-        for i in range(n, width):
-            walk[i] = walk[n - 1]
+        for i in range(width):
+            walk[i] = new[i] if i < n else new[n - 1]
         cell[G, g] = n
         for k in range(n_agents):
             if ri[k, follow.WID] != g:
