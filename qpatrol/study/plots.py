@@ -830,6 +830,8 @@ STRATEGY_STYLE = {
     "dta-greedy": ("teal", "d"),
     "dta-ssi": ("slategray", "X"),
     "dta-ssi-part": ("darkgreen", "1"),
+    # beyond the paper, like qlearning-idleness
+    "learned-tour": ("magenta", "8"),
 }
 
 

@@ -518,7 +518,7 @@ def learned_tour_lines(fig: pd.DataFrame, res: pd.DataFrame | None) -> list[str]
     missed = [r.split("|")[1].strip() + ", K = " + r.split("|")[2].strip() for r, ok in
               zip(rows, met, strict=True) if not ok]  # fmt: skip
     head = (
-        "| map | K | worst | cyclic worst | within | met | average | shared-conscientious "
+        "| map | K | worst | cyclic worst | factor | within | average | shared-conscientious "
         "average | below |"
     )
     rule = "|---|---|---|---|---|---|---|---|---|"
@@ -529,8 +529,9 @@ def learned_tour_lines(fig: pd.DataFrame, res: pd.DataFrame | None) -> list[str]
     return [
         "**learned-tour** against its goal: worst idleness within "
         f"{TOUR_WORST_FACTOR}x cyclic's ({TOUR_WORST_FACTORS['facility']}x on facility) "
-        "and average idleness below shared-conscientious's, after its warm-up of learning "
-        f"(it learns only then: `tour.learn_steps`). Met in {sum(met)} of {len(met)} cells"
+        "and average idleness below shared-conscientious's, measured after its warm-up (it "
+        "learns in the first 9/10 of it, `tour.learn_steps`, and keeps its route after). "
+        f"Met in {sum(met)} of {len(met)} cells"
         + (f"; missed on {'; '.join(missed)}." if missed else ".")
         + " Every run's route covers every cell from the first step (the depth-first "
         "start does, and no change drops a target); the table gives its length over the "
