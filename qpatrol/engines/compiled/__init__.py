@@ -148,10 +148,16 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
             sp.cell_i, sp.fpar, w.score,
         )  # fmt: skip
-    elif code == CYCLIC or code == PARTITION:
+    elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
+        walk, length = sp.table_i, sp.row_i
+        if code == LEARNED_TOUR:  # learned routes: each run's own
+            tour.learn_routes(
+                r, t, ur, nbrs, choosing, sp.ipar, sp.robot_i, sp.cell_i, sp.table_i, sp.dist
+            )
+            walk, length = tour.routes(sp.cell_i, r, sp.ipar)
         follow.act(
             r, t, nbrs, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask, sp.ipar,
-            sp.robot_i, sp.table_i, sp.row_i, sp.dist,
+            sp.robot_i, walk, length, sp.dist,
         )  # fmt: skip
     elif code >= HCR and code <= SEBS:
         goals.act(
@@ -162,11 +168,6 @@ def act(code, r, t, ur, battery, p, s, w, sp):
         dta.act(
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.row_i,
             sp.dist, sp.row_f,
-        )  # fmt: skip
-    elif code == LEARNED_TOUR:
-        tour.act(
-            r, t, ur, nbrs, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask,
-            sp.ipar, sp.robot_i, sp.cell_i, sp.table_i, sp.dist,
         )  # fmt: skip
     elif code == CBLS:
         cbls.act(

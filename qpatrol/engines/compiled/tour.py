@@ -1,13 +1,15 @@
 """``learned-tour`` compiled: a routing table learned by local search on its route.
 
-The numpy twin is :mod:`qpatrol.strategies.learned_tour`; per run, in its order: each
-learner with a patrolling robot on its route makes one proposal from its robot's first
-uniform (a restart from the best order with a double bridge after ``kick_after``
-proposals without a shortening; else a 2-opt or an or-opt move kept when the order does
-not lengthen); a strictly shorter best order's route (expanded by shortest paths,
-repaired), if shorter than the robots' route, becomes theirs: each heads for the route
-cell nearest its old target, with spacing ``floor(n / K)``; then the robots follow their
-routes as ``cyclic``'s follow their walk (:mod:`qpatrol.engines.compiled.follow`).
+The numpy twin is :mod:`qpatrol.strategies.learned_tour`; per run, in its order
+(:func:`learn_routes`): each learner with a patrolling robot on its route makes one
+proposal from its robot's first uniform (a restart from the best order with a double
+bridge after ``kick_after`` proposals without a shortening; else a 2-opt or an or-opt
+move kept when the order does not lengthen); a strictly shorter best order's route
+(expanded by shortest paths, repaired), if shorter than the robots' route, becomes
+theirs: each heads for the route cell nearest its old target, with spacing
+``floor(n / K)``. Then the loop has the robots follow their routes (:func:`routes`) as
+``cyclic``'s follow their walk, with the same inlined
+:func:`qpatrol.engines.compiled.follow.act`.
 
 Pack: ``robot_i`` as :mod:`~qpatrol.engines.compiled.follow`'s; ``cell_i`` int64
 ``[R, 6 G + 5, M]``, rows (``G`` learners): ``0..G-1`` the routes (the follower's
@@ -313,13 +315,13 @@ def _propose(order, best, pos, sc, g, T, dist, near, x, kick_after, window, buf)
     return False
 
 
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(
-    r, t, ur, nbrs, battery, pocket_of, pos, reserved, mode, choosing, ask, ipar, robot_i,
-    cell_i, near, dist,
-):  # fmt: skip
-    """Each learner of run ``r`` with a patrolling robot proposes a change; then
-    ``ask[k]``: the robots follow their routes (``follow.act``)."""
+# not inlined into the loop (compiled once on its own); the loop then calls the walk
+# followers' ``follow.act`` with the routes, the same inlined code as cyclic's
+@njit(cache=True, nogil=True, _nrt=False)
+def learn_routes(r, t, ur, nbrs, choosing, ipar, robot_i, cell_i, near, dist):
+    """Each learner of run ``r`` with a patrolling robot (``choosing`` bool ``[K]``)
+    proposes a change; a shorter route becomes its robots'. The loop then has them
+    follow ``routes(cell_i, r, ipar)`` with ``follow.act``."""
     G = ipar[5]
     T = ipar[7]
     width = ipar[2]
@@ -370,10 +372,13 @@ def act(
         cell[4 * G + 2 + 2 * g, h] = t
         cell[4 * G + 3 + 2 * g, h] = n
         sc[4 * g + 3] = h + 1
-    follow.act(
-        r, t, nbrs, battery, pocket_of, pos, reserved, mode, choosing, ask, ipar, robot_i,
-        cell[:G], cell[G, :G], dist,
-    )  # fmt: skip
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def routes(cell_i, r, ipar):
+    """Run ``r``'s routes (the followers' ``walk [G, M]``) and their lengths ``[G]``."""
+    G = ipar[5]
+    return cell_i[r, :G], cell_i[r, G, :G]
 
 
 learn = follow.learn
