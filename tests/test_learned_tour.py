@@ -305,3 +305,30 @@ def test_engines_agree(tmp_path, flat):
 
     base = {"policy": "learned-tour", "runs": 2, "steps": 1500, "security.attack_steps": []}
     assert both({**base, **flat}, tmp_path, strategy=True) == ("numba", "")
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_checkpoint_resumes_the_same(tmp_path, stop_and_resume, engine):
+    """Stopped at step 900 and resumed from its checkpoint, a run learns the same orders,
+    routes and route history as one uninterrupted run."""
+    if engine == "numba" and not numba_installed():
+        pytest.skip("numba not installed")
+    cfg = from_flat(
+        {
+            "map": "map_a",
+            "policy": "learned-tour",
+            "agents": 3,
+            "runs": 2,
+            "steps": 2000,
+            "engine": engine,
+            "tour.kick_after": 200,
+            "security.attack_steps": [],
+        }
+    )
+    whole = simulate(cfg)
+    rest = stop_and_resume(cfg, tmp_path / "cp", 900)
+    assert rest.summary == whole.summary
+    for name in ("order", "best", "pos", "walk", "length", "target", "spacing"):
+        np.testing.assert_array_equal(getattr(rest.strategy, name), getattr(whole.strategy, name))
+    assert rest.strategy.history == whole.strategy.history
+    assert all(len(run["tour_changes"]) > 1 for run in whole.summary)
