@@ -20,7 +20,7 @@ patrols, during the first ``tour.learn_steps`` team steps if that is set). Its m
 is an *order* of the targets, the order in which its route first visits them; the route
 is that order joined by shortest paths (first port one move closer: N, E, S, W on a
 grid) and then :func:`repair`-ed, and the table is the route's exits. Each step it
-draws one proposal from the first uniform of its first robot:
+draws one proposal from robot g's first uniform of the step, for learner g:
 
 * a 2-opt move: reverse the part of the route between two passes, so that a target
   is followed by one of its ``tour.neighbours`` nearest targets (the exits of the two
