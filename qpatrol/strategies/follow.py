@@ -117,8 +117,8 @@ class WalkFollower(base.Strategy):
     def _exchange_head_on(self, choosing: np.ndarray) -> None:
         """Robots that blocked each other last step swap walks, targets and spacings."""
         bb = self.blocked_by
-        R, K = bb.shape
-        rows = np.arange(R)[:, None]
+        K = bb.shape[1]
+        rows = self.rows
         other = np.maximum(bb, 0)
         mutual = (bb >= 0) & (bb[rows, other] == np.arange(K)[None, :]) & choosing
         mutual &= choosing[rows, other] & (np.arange(K)[None, :] < bb)

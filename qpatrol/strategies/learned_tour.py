@@ -80,18 +80,16 @@ class Strategy(follow.WalkFollower):
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         R, K = start_cells.shape
-        self.n_learners = G = 1 if p.communication else K
-        self.nbrs = m.neighbors.astype(np.int64)
-        self.dist_ = np.ascontiguousarray(m.distances(), dtype=np.int64)
-        self.targets = np.flatnonzero(m.target).astype(np.int64)
-        T = self.targets.size
-        self.n_near = min(int(cfg["tour.neighbours"]), max(T - 1, 1))
+        G = 1 if p.communication else K
+        dist = m.distances()
+        targets = np.flatnonzero(m.target)
+        T = targets.size
         self.kick_after = int(cfg["tour.kick_after"])
         steps = cfg["tour.learn_steps"]
         self.learn_steps = -1 if steps is None else int(steps)
-        self.near = nearest_targets(self.dist_, self.targets, self.n_near)
+        self.near = nearest_targets(dist, targets, min(int(cfg["tour.neighbours"]), max(T - 1, 1)))
         first = [
-            [depth_first_order(self.nbrs, m.target, int(start_cells[r, g])) for g in range(G)]
+            [depth_first_order(m.neighbors, m.target, int(start_cells[r, g])) for g in range(G)]
             for r in range(R)
         ]
         self.order = np.array(first, dtype=np.int64).reshape(R, G, T)
@@ -101,15 +99,13 @@ class Strategy(follow.WalkFollower):
             for g in range(G):
                 self.pos[r, g, self.order[r, g]] = np.arange(T)
         self.cur_len = np.array(
-            [[order_length(self.dist_, self.order[r, g]) for g in range(G)] for r in range(R)],
+            [[order_length(dist, self.order[r, g]) for g in range(G)] for r in range(R)],
             dtype=np.int64,
         ).reshape(R, G)
         self.best_len = self.cur_len.copy()
         self.stall = np.zeros((R, G), dtype=np.int64)
-        routes = [route_of(self.nbrs, self.dist_, m.back, self.best[r, g]) for r in range(R)
-                  for g in range(G)]  # fmt: skip
+        routes = [route_of(m.neighbors, dist, self.best[r, g]) for r in range(R) for g in range(G)]
         super().__init__(cfg, m, p, start_cells, routes[:G])
-        self.back = m.back.astype(np.int64)
         # no later route is longer than its order, and no order than the first
         width = max(int(self.best_len.max()), max(w.size for w in routes))
         self.walk = np.zeros((R, G, width), dtype=np.int64)
@@ -126,27 +122,26 @@ class Strategy(follow.WalkFollower):
                 self.target[r, k] = follow.nearest_index(
                     self.dist, self.walk[r, g, : self.length[r, g]], int(start_cells[r, k])
                 )
-        self.spacing = self.length[self.rows, self.wid] // (K // G)
+        self.spacing = self.lap() // (K // G)
         self.history = [[[(0, int(self.length[r, g]))] for g in range(G)] for r in range(R)]
         self.reference = walks.closed_walk(m).size
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
-        R, G = self.order.shape[:2]
-        x = np.floor(u * DRAW).astype(np.int64)  # [R, K, 2]
-        if 0 <= self.learn_steps <= obs.t:
-            R = 0  # learning is over: the robots keep the best route
-        for r in range(R):
-            for g in range(G):
-                if not (obs.choosing[r] & (self.wid[r] == g)).any():
-                    continue
-                if self._propose(r, g, int(x[r, g, 0]), int(x[r, g, 1])):
-                    self._new_route(r, g, obs.t)
+        if self.learn_steps < 0 or obs.t < self.learn_steps:  # else it keeps its route
+            x = np.floor(u[..., 0] * DRAW).astype(np.int64)  # [R, K]
+            R, G = self.order.shape[:2]
+            for r in range(R):
+                for g in range(G):
+                    if (obs.choosing[r] & (self.wid[r] == g)).any() and self._propose(
+                        r, g, int(x[r, g])
+                    ):
+                        self._new_route(r, g, obs.t)
         return super().act(obs, u)
 
-    def _propose(self, r: int, g: int, x: int, y: int) -> bool:
+    def _propose(self, r: int, g: int, x: int) -> bool:
         """One proposal of learner ``g`` of run ``r``; True when its best order got
         strictly shorter (the route changes)."""
-        order, pos, dist = self.order[r, g], self.pos[r, g], self.dist_
+        order, pos, dist = self.order[r, g], self.pos[r, g], self.dist
         if order.size < 5:
             return False
         if self.stall[r, g] >= self.kick_after:
@@ -172,7 +167,7 @@ class Strategy(follow.WalkFollower):
         """The route of the best order, if shorter than the route the robots follow: its
         robots head for the route cell nearest their old target cell; spacing
         ``floor(n / K)``."""
-        w = route_of(self.nbrs, self.dist_, self.back, self.best[r, g])
+        w = route_of(self.params.neighbors, self.dist, self.best[r, g])
         if w.size >= self.length[r, g]:
             return
         on = self.wid[r] == g
@@ -189,14 +184,14 @@ class Strategy(follow.WalkFollower):
         """``route``: int8 ``[R, G, C, D]``, the routing table (the exit port per cell and
         arrival port, -1 off the route)."""
         R, G = self.order.shape[:2]
-        C, D = self.nbrs.shape
-        table = np.full((R, G, C, D), -1, dtype=np.int8)
+        nbrs, back = self.params.neighbors, self.map.back
+        table = np.full((R, G, *nbrs.shape), -1, dtype=np.int8)
         for r in range(R):
             for g in range(G):
                 w = self.walk[r, g, : self.length[r, g]]
                 for i in range(w.size if w.size > 1 else 0):
                     a, c, b = w[i - 1], w[i], w[(i + 1) % w.size]
-                    table[r, g, c, port(self.back, self.nbrs, a, c)] = port_to(self.nbrs, c, b)
+                    table[r, g, c, port(back, nbrs, a, c)] = port_to(nbrs, c, b)
         return {"route": table}
 
     def describe(self) -> dict[str, object]:
@@ -368,7 +363,7 @@ def repair(w: np.ndarray, nbrs: np.ndarray) -> np.ndarray:
         w = np.concatenate([w[: p + 1], w[p + 2 : q][::-1], w[q + 1 :]])
 
 
-def route_of(nbrs: np.ndarray, dist: np.ndarray, back: np.ndarray, order: np.ndarray) -> np.ndarray:
+def route_of(nbrs: np.ndarray, dist: np.ndarray, order: np.ndarray) -> np.ndarray:
     """int ``[n]``: the route of an order: expanded by shortest paths, then repaired."""
     if order.size == 1:
         return order.copy()

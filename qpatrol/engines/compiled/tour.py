@@ -49,7 +49,7 @@ def pack(strategy) -> Pack:
     fp = follow.pack(strategy)
     R, G, T = strategy.order.shape
     C = strategy.pos.shape[-1]
-    D = strategy.nbrs.shape[1]
+    D = strategy.params.neighbors.shape[1]
     width = strategy.walk.shape[-1]
     M = max(width, T, C * D, 4 * G, C)
     rows = _rows(G)
@@ -84,7 +84,7 @@ def pack(strategy) -> Pack:
         robot_i=fp.robot_i,
         cell_i=cell,
         table_i=np.ascontiguousarray(strategy.near, dtype=np.int64),
-        dist=np.ascontiguousarray(strategy.dist_, dtype=np.int64),
+        dist=fp.dist,
     )
 
 
