@@ -111,3 +111,52 @@ def comb(teeth: int, depth: int) -> str:
     grid[1 + depth, 2 * (teeth - 1) + 1] = "H"
     grid[1, 2] = "0"
     return _text(grid, f"comb-{teeth}x{depth}")
+
+
+def rooms(rows: int, cols: int, size: int, seed: int, stub: int = 2, loops: float = 0.3) -> str:
+    """Square rooms of ``size x size`` cells on a ``rows x cols`` grid, joined by one-wide
+    corridors of two cells (a random spanning tree of the rooms, plus each other link
+    with probability ``loops``); one station ends a one-wide dead end of ``stub`` cells
+    off a top room (a charging room at the end of a corridor), the other stands in a
+    room."""
+    rng = np.random.default_rng(seed)
+    gap = 2
+    h = 2 + stub + rows * size + (rows - 1) * gap
+    w = 2 + cols * size + (cols - 1) * gap
+    grid = np.full((h, w), "#", dtype="<U1")
+
+    def corner(i: int, j: int) -> tuple[int, int]:
+        return 1 + stub + i * (size + gap), 1 + j * (size + gap)
+
+    for i in range(rows):
+        for j in range(cols):
+            r0, c0 = corner(i, j)
+            grid[r0 : r0 + size, c0 : c0 + size] = "."
+    links = [((i, j), (i, j + 1)) for i in range(rows) for j in range(cols - 1)]
+    links += [((i, j), (i + 1, j)) for i in range(rows - 1) for j in range(cols)]
+    order = rng.permutation(len(links))
+    group = {(i, j): (i, j) for i in range(rows) for j in range(cols)}
+
+    def root(x: tuple[int, int]) -> tuple[int, int]:
+        while group[x] != x:
+            x = group[x]
+        return x
+
+    for n in order.tolist():
+        a, b = links[n]
+        joined = root(a) != root(b)
+        if not joined and rng.random() >= loops:
+            continue
+        group[root(a)] = root(b)
+        r0, c0 = corner(*a)
+        if a[0] == b[0]:  # east: a corridor along the room's middle row
+            grid[r0 + size // 2, c0 + size : c0 + size + gap] = "."
+        else:  # south: along the middle column
+            grid[r0 + size : r0 + size + gap, c0 + size // 2] = "."
+    r0, c0 = corner(0, int(rng.integers(cols)))
+    col = c0 + int(rng.integers(size))
+    grid[r0 - stub : r0, col] = "."
+    grid[r0 - stub, col] = "H"
+    r1, c1 = corner(int(rng.integers(rows)), int(rng.integers(cols)))
+    grid[r1 + int(rng.integers(size)), c1 + int(rng.integers(size))] = "H"
+    return _text(grid, f"rooms-{rows}x{cols}x{size}-{seed}")

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from covering import BOTH2, BOTH3, covers_every_pair, pairs
 
-from qpatrol import engines
+from qpatrol import engines, world
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.run import checkpoint as ck
 from qpatrol.run import simulate, write_run
@@ -26,6 +26,13 @@ pytest.importorskip("numba")
 
 META = {"started": "-", "ended": "-"}
 ENGINE_FIELDS = ("engine",)
+
+
+@pytest.fixture
+def crowded(monkeypatch):
+    """Teams denser than the battery room rule allows (:func:`world.check_battery_room`):
+    the engines must agree on every config, and crowded dead ends take the most rules."""
+    monkeypatch.setattr(world, "check_battery_room", lambda *a: None)
 
 
 def both(flat: dict, tmp_path: Path, strategy: bool = False) -> tuple[str, str]:
@@ -104,7 +111,7 @@ def test_compiled_qlearning_teams(rooms_map, tmp_path, agents, communication, av
 
 @pytest.mark.parametrize("seed", [1, 2])
 @pytest.mark.parametrize("agents", [3, 6])
-def test_compiled_battery_on_dead_end_stations(tmp_path, seed, agents):
+def test_compiled_battery_on_dead_end_stations(crowded, tmp_path, seed, agents):
     """Station pockets, queues, homing yields and pushes: random tree-like mazes."""
     path = tmp_path / "maze.txt"
     path.write_text(mazes.random_maze(5, 6, seed, loops=0.1 * seed, stations=2))
@@ -121,7 +128,7 @@ def test_compiled_battery_on_dead_end_stations(tmp_path, seed, agents):
     assert both(flat, tmp_path) == ("numba", "")
 
 
-def test_compiled_crowded_dead_end_floor(tmp_path):
+def test_compiled_crowded_dead_end_floor(crowded, tmp_path):
     """Eight learners on a 62-cell floor of one-wide corridors with both stations at the
     ends of dead ends: token holders offered only the moves a push makes room for
     (the steps that froze the old rules)."""
@@ -510,7 +517,7 @@ def test_compiled_qlearning_idleness_teams(rooms_map, tmp_path, row):
 
 @pytest.mark.parametrize("seed", [1, 2])
 @pytest.mark.parametrize("agents", [3, 6])
-def test_compiled_qlearning_idleness_dead_end_stations(tmp_path, seed, agents):
+def test_compiled_qlearning_idleness_dead_end_stations(crowded, tmp_path, seed, agents):
     """Station pockets, queues, yields and pushes on random tree-like mazes, shared
     table (seed 1) or one per robot (seed 2)."""
     path = tmp_path / "maze.txt"
@@ -691,7 +698,7 @@ def test_compiled_classic_without_avoidance(rooms_map, tmp_path, policy, agents,
 
 @pytest.mark.parametrize("policy", CLASSIC)
 @pytest.mark.parametrize("seed, agents", [(1, 3), (2, 6), (3, 1)])
-def test_compiled_classic_on_dead_end_stations(tmp_path, policy, seed, agents):
+def test_compiled_classic_on_dead_end_stations(crowded, tmp_path, policy, seed, agents):
     """Station pockets (walk targets skipped while another robot holds the pocket, not
     while the robot itself does, leaving it), queues, homing yields and pushes: random
     tree-like mazes."""

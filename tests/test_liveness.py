@@ -18,6 +18,8 @@ from pathlib import Path
 import mazes
 import numpy as np
 import pytest
+from hypothesis import assume, given, settings
+from hypothesis import strategies as st
 
 from qpatrol import measures, strategies, world
 from qpatrol.config import ConfigError, from_flat, load_config
@@ -140,17 +142,11 @@ def test_no_robot_waits_longer_than_a_fair_station_queue(name, k, policy):
 
 
 #: Denser teams on one-wide dead ends, which jammed before the token holder was offered
-#: only the moves a push can make room for: 8 robots on the comb, 16 on the ring whose
-#: only station ends a spur (40 free cells plus the spur). Left out: ``partition`` with 16
-#: robots on the ring: 14 of them queue for the one station and the longest queue wait
-#: is 850 and 844 steps against a bound of 822 (not a jam: the station serves robot after
-#: robot; the bound's ``diameter`` per trip home is too short for a ring this crowded);
-#: ``dta-ssi`` likewise: longest waits 866 and 798, of which 851 and 779 steps queued
-#: for the station (QUEUED).
-DENSE = [("comb", 8, policy) for policy in strategies.NAMES] + [
-    ("ring-spur", 16, policy)
-    for policy in strategies.NAMES
-    if policy not in ("partition", "dta-ssi")
+#: only the moves a push can make room for: 5 robots on the comb (the most the room rule
+#: allows: 5 cells past the door of a tooth), 16 on the ring whose only station ends a
+#: spur (40 free cells plus the spur).
+DENSE = [("comb", 5, policy) for policy in strategies.NAMES] + [
+    ("ring-spur", 16, policy) for policy in strategies.NAMES
 ]
 
 
@@ -178,11 +174,20 @@ def test_a_station_behind_another_robot_on_a_line_is_refused(monkeypatch):
     assert (max_wait > 300).all()
 
 
-def test_sixteen_robots_on_a_maze_with_dead_end_stations():
-    """Denser: 16 robots on a 95-cell tree maze whose two stations end dead ends."""
+def test_fifteen_robots_on_a_maze_with_dead_end_stations():
+    """Denser: 15 robots (the room rule's limit) on a 95-cell tree maze whose two
+    stations end dead ends."""
     m = load("maze-tree")
-    max_wait, bound, _ = drive(m, "shared-conscientious", 16, 7, steps=1500)
+    max_wait, bound, _ = drive(m, "shared-conscientious", 15, 7, steps=1500)
     assert max_wait.max() <= bound
+
+
+@pytest.mark.parametrize("name, k, room", [("comb", 6, 5), ("maze-tree", 16, 15)])
+def test_more_robots_than_the_room_ahead_are_refused(name, k, room):
+    """One robot more than the room past the narrowest door is refused, with one line
+    naming ``agents``, the door's cell and the most allowed."""
+    with pytest.raises(ConfigError, match=f"agents: {k} robots .* allowed: at most {room} "):
+        drive(load(name), "random", k, 1, steps=10)
 
 
 def test_regression_station_104_of_map_a_with_eight_robots():
@@ -230,7 +235,9 @@ def test_regression_two_holders_trapped_behind_robots_in_a_dead_end(tmp_path, mo
     cfg = load_config("paper", [f"map={path}", "agents=8", "runs=1", "steps=3500"])
     result = simulate(cfg.replace(engine="numpy"))
     run = result.summary[0]
-    assert run["wait_bound"] == 1490
+    # K (charge_steps + 2 max depart_len + 2 diameter + 1) + diameter, by hand: 8 robots,
+    # 50 charging steps, the 40-cell pocket, diameter 50
+    assert run["wait_bound"] == 8 * (50 + 2 * 40 + 2 * 50 + 1) + 50 == 1898
     assert run["live"] and run["max_wait"] <= run["wait_bound"]
 
 
@@ -259,3 +266,69 @@ def test_the_step_check_sees_swaps_and_jumps():
     far = int(np.argmax(get_map("map_a").distances()[a]))
     with pytest.raises(AssertionError, match="jumped"):
         check_steps(np.array([[a, b], [far, b]]), p)
+
+
+# --- stress: generated floors, every strategy, teams up to the density limit -------------
+
+FLOORS = st.one_of(
+    st.builds(
+        mazes.random_maze,
+        rows=st.integers(3, 5),
+        cols=st.integers(4, 6),
+        seed=st.integers(0, 10**6),
+        loops=st.sampled_from([0.0, 0.08, 0.2]),
+    ),
+    st.builds(mazes.comb, teeth=st.integers(3, 7), depth=st.integers(1, 5)),
+    st.builds(mazes.corridor_ring, length=st.integers(16, 40), spur=st.integers(1, 5)),
+    st.builds(
+        mazes.rooms,
+        rows=st.integers(1, 3),
+        cols=st.integers(2, 3),
+        size=st.integers(2, 3),
+        seed=st.integers(0, 10**6),
+        stub=st.integers(1, 4),
+    ),
+)
+
+
+def most_robots(m) -> int:
+    """The largest team the config accepts on ``m`` with the battery on (the density
+    limit: half the free cells and the room rules of :func:`world.check_battery_room`);
+    0 if not even two robots fit."""
+
+    def fits(k: int) -> bool:
+        try:
+            world.make_params(from_flat({"agents": k, "battery.capacity": 10**5}), m)
+        except ConfigError:
+            return False
+        return True
+
+    lo, hi = 1, min(64, m.n_cells // 2)  # every refusal is "K above a number": monotone
+    while lo < hi:
+        mid = (lo + hi + 1) // 2
+        lo, hi = (mid, hi) if fits(mid) else (lo, mid - 1)
+    return lo if lo >= 2 else 0
+
+
+@given(
+    text=FLOORS,
+    policy=st.sampled_from(strategies.NAMES),
+    at_limit=st.booleans(),
+    share=st.floats(0.0, 1.0),
+    seed=st.integers(0, 10**6),
+)
+@settings(max_examples=200)
+def test_generated_floors_every_strategy_up_to_the_density_limit(
+    text, policy, at_limit, share, seed
+):
+    """Generated mazes (trees and loops with stations at dead ends), combs of one-wide
+    dead ends, rings whose station ends a spur, and rooms joined by one-wide corridors
+    with a station at the end of one: any strategy, two robots up to the most the
+    config accepts, battery on. At every step no shared cell, no swap, no jump and no
+    negative charge (:func:`drive`), and no wait longer than ``wait_bound``."""
+    m = parse_map(text)
+    limit = most_robots(m)
+    assume(limit >= 2)
+    k = limit if at_limit else 2 + int(share * (limit - 2))
+    max_wait, bound, _ = drive(m, policy, k, seed, steps=1500, engine=FAST)
+    assert max_wait.max() <= bound, f"{m.name} K={k} {policy}: max_wait {max_wait} > {bound}"

@@ -301,7 +301,8 @@ def test_pockets_of_one_junction_are_not_taken_at_once(engine):
 def test_wait_bound_exact_value():
     """``measures.wait_bound``, the fair-queue bound of docs/model.md, on a map whose
     quantities are counted by hand: ``K x (charge_steps + 2 x max depart_len +
-    diameter) + diameter`` with the battery on, ``(K - 1)(diameter + 1) + 1`` without."""
+    2 x diameter + 1) + diameter`` with the battery on, ``(K - 1)(diameter + 1) + 1``
+    without."""
     K, charge_steps = 3, 4
     cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
     p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
@@ -314,8 +315,8 @@ def test_wait_bound_exact_value():
     assert p.depart_len.tolist() == depart_len and p.diameter == diameter
     # the formula's terms, spelled out (a new formula: rewrite these two lines from the
     # hand-counted quantities above, not from what wait_bound returns)
-    turnaround = charge_steps + 2 * max(depart_len) + diameter  # 4 + 6 + 5 = 15
-    assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 15 + 5 == 50
+    turnaround = charge_steps + 2 * max(depart_len) + 2 * diameter + 1  # 4 + 6 + 11 = 21
+    assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 21 + 5 == 68
     off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
     assert measures.wait_bound(off) == (K - 1) * (diameter + 1) + 1 == 2 * 6 + 1 == 13
 
@@ -417,9 +418,10 @@ def deep_end(engine: str, starts: list[int]) -> Team:
 
 def test_a_queued_robot_leaves_a_held_pocket_free_and_credited_the_holder_waits(engine):
     """Robot 1, waiting for a station (QUEUED) deep in the pocket of H, steps out when
-    robot 0 holds H: up to the junction, then off it, at no charge, credited the
-    distance it put between itself and the station (its charge grows by one a move).
-    Robot 0, homing, waits before the junction until the pocket is empty, then goes in."""
+    robot 0 holds H: up to the junction, at no charge, credited the distance it put
+    between itself and the station (its charge grows by one a move), and waits there.
+    Robot 0, homing, waits before the junction until the pocket is empty, then, with
+    the right of way, pushes robot 1 off the junction (free and credited) and goes in."""
     team = deep_end(engine, [0, 6])
     s = team.s
     team.holds(0, 0, mode=HOMING)
@@ -429,12 +431,15 @@ def test_a_queued_robot_leaves_a_held_pocket_free_and_credited_the_holder_waits(
     #   held pocket) steps out 6 -> 5: free, credited 2 - 1 = 1 more move to H: 3.
     # step 2: robot 0 would enter the junction with robot 1 in the pocket: held back (it
     #   waits, charge kept). Robot 1: 5 -> 2 (out of the pocket, 3 from H): 4.
-    # step 3: robot 1 on the junction steps off it to the first free cell outside the
-    #   pocket, N E S W: East, 3 (4 from H): 5. Robot 0 follows onto 2 (charge 8).
-    # steps 4-6: robot 0 goes 5, 6, 7 (7, 6, 5), charging from step 6; robot 1 waits on
-    #   3, neither in the pocket nor on its junction (QUEUED, charge 5).
+    # step 3: the pocket is empty; robot 0 asks for the junction, where robot 1 (queued,
+    #   out of the pocket) waits: blocked, it gets the right of way.
+    # step 4: robot 0 pushes robot 1 to the nearest empty cell, N E S W: East, 3 (4 from
+    #   H: credited, 5), and takes the junction (charge 8).
+    # steps 5-7: robot 0 goes 5, 6, 7 (7, 6, 5), charging from step 7; robot 1 waits on
+    #   3 (QUEUED, charge 5).
     expect = [
         ((0,), (1, Hm, 9), (5, Q, 3)),
+        ((0,), (1, Hm, 9), (2, Q, 4)),
         ((0,), (1, Hm, 9), (2, Q, 4)),
         ((0,), (2, Hm, 8), (3, Q, 5)),
         ((0,), (5, Hm, 7), (3, Q, 5)),
@@ -447,34 +452,33 @@ def test_a_queued_robot_leaves_a_held_pocket_free_and_credited_the_holder_waits(
         got.append(team.row(0, 1))
         waits0.append(int(s.wait[0, 0]))
     assert got == expect
-    assert waits0 == [0, 1, 0, 0, 0, 0]  # held back at step 2: a wait
+    assert waits0 == [0, 1, 2, 0, 0, 0, 0]  # held back at step 2, blocked at 3: waits
 
 
 def test_a_homing_robot_on_the_junction_steps_aside_free_for_one_leaving_the_pocket(engine):
     """Robot 0, homing to H, stands on the pocket's junction while robot 1 patrols in the
     pocket: robot 0 yields (off the junction, at no charge, credited the detour), robot
-    1 walks out (its moves deeper are closed), then robot 0 goes in."""
+    1, shut in, steps out (also at no charge), then robot 0 goes in."""
     team = deep_end(engine, [2, 5])
     s = team.s
     team.holds(0, 0, mode=HOMING)
     s.charge[0] = [5, 20]
     # step 1: robot 0 on the junction, robot 1 in the pocket: robot 0 steps off to the
     #   first free neighbour outside the pocket (N E S W): 3, 4 moves from H instead of
-    #   3: free and credited 1 (charge 6). Robot 1: South (deeper) is closed, North is
-    #   taken: no open move, it asks for its first legal one, North, and follows onto 2
-    #   (a patrolling move: 19).
+    #   3: free and credited 1 (charge 6). Robot 1, shut in the held pocket, does not
+    #   choose: it steps out, North, and follows onto 2 (yielding: free, 20).
     # step 2: robot 0 heads back onto 2 (the pocket is empty), where robot 1 stands;
     #   robot 1's open moves: West only (East is robot 0's cell, South the held pocket):
-    #   it goes to 1 (18), robot 0 follows onto 2 (5).
+    #   it goes to 1 (19), robot 0 follows onto 2 (5).
     # steps 3-5: robot 0 goes 5, 6, 7 (4, 3, 2), charging from step 5. Robot 1: East is
-    #   robot 0's cell at the start of step 3: West, to 0 (17); then East to 1 (16), and
-    #   from 1 East to 2 (15), free again.
+    #   robot 0's cell at the start of step 3: West, to 0 (18); then East to 1 (17), and
+    #   from 1 East to 2 (16), free again.
     expect = [
-        ((0,), (3, Hm, 6), (2, P, 19)),
-        ((0,), (2, Hm, 5), (1, P, 18)),
-        ((0,), (5, Hm, 4), (0, P, 17)),
-        ((0,), (6, Hm, 3), (1, P, 16)),
-        ((0,), (7, C, 2), (2, P, 15)),
+        ((0,), (3, Hm, 6), (2, P, 20)),
+        ((0,), (2, Hm, 5), (1, P, 19)),
+        ((0,), (5, Hm, 4), (0, P, 18)),
+        ((0,), (6, Hm, 3), (1, P, 17)),
+        ((0,), (7, C, 2), (2, P, 16)),
     ]
     assert team.rows(len(expect), [FIRST, FIRST], 0, 1) == expect
 
@@ -533,8 +537,9 @@ def test_a_push_does_not_shift_robots_into_a_held_pocket(engine):
 # --- 6. pushes: free, and credited to a robot that needs a station ------------------------
 
 # A row of 9 cells, the station on cell 0 (cell c of the row is c moves from it), and a
-# one-cell spur (cell 9) under cell 1, so the map is not a line.
-ROW_9 = "H........\n#.#######\n"
+# two-cell spur (cells 9, 10) under cell 1, so the map is not a line and a robot on its
+# way to H has room for two others past cell 1 (the room rule, three robots).
+ROW_9 = "H........\n#.#######\n#.#######\n"
 
 
 @pytest.mark.parametrize("mode", [HOMING, QUEUED])

@@ -559,9 +559,10 @@ def test_initial_charge_full_and_staggered():
     """New: ``battery.initial_charge``. ``full``: capacity for all; ``staggered``: robot k
     of K starts with ``capacity - floor(k capacity / K)``, but never below ``distance to
     the nearest station + margin + 1`` from its start cell."""
-    # H = cell 0, cell c of the row is c moves from H; a spur (cell 11) under cell 1 (a
-    # battery team on a line with a station at an end is refused)
-    line = "H..........\n#.#########\n"
+    # H = cell 0, cell c of the row is c moves from H; a spur (cells 11-13) under cell 1
+    # (a battery team on a line with a station at an end is refused, and four robots
+    # need four cells past the door at cell 1: cell 1 and the spur)
+    line = "H..........\n#.#########\n#.#########\n#.#########\n"
     starts = [2, 4, 10, 9]
     flat = {"agents": 4, "battery.enabled": True, "battery.capacity": 22, "battery.margin": 1}
     w = build(line, starts, **flat, **{"battery.initial_charge": "full"})

@@ -334,16 +334,16 @@ def wait_bound(p: Params) -> int:
     choose among their open moves (``docs/model.md``, "What is proven": the right of way
     reaches a blocked robot after at most K - 1 holders of at most ``diameter + 1``
     steps each, and a holder makes its move). With the battery on, a robot may queue
-    behind every other robot of the team, each of which travels to a station (at most
-    ``diameter`` moves), charges (``charge_steps``) and clears the station's pocket
-    (``2 x depart_len``); then it crosses the map. So ``K x (charge_steps + 2 x max
-    depart_len + diameter) + diameter``: a yardstick, not a theorem, as the trip home is
-    not proven to take at most ``diameter`` steps, and on some maps no rule can bound a
-    station wait.
+    behind every other robot of the team, each of which travels to a station (it waits
+    for the right of way at most one holder's tenure, ``diameter + 1`` steps, then makes
+    at most ``diameter`` moves), charges (``charge_steps``) and clears the station's
+    pocket (``2 x depart_len``); then it crosses the map. So ``K x (charge_steps + 2 x
+    max depart_len + 2 x diameter + 1) + diameter``: a yardstick, not a theorem, as the
+    wait for the right of way is not proven to be one tenure (docs/model.md).
     """
     if not p.battery:
         return (p.n_agents - 1) * (p.diameter + 1) + 1
-    turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + p.diameter
+    turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * p.diameter + 1
     return p.n_agents * turnaround + p.diameter
 
 

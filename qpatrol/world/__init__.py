@@ -167,7 +167,7 @@ def make_params(cfg: Config, m: Map) -> Params:
                 f"battery.margin, plus 1, plus {leave} moves leaving a station)"
             )
     if battery_on and cfg["team.avoid_collisions"]:
-        check_battery_room(k, m, pocket_of, station_of)
+        check_battery_room(k, m, pocket_of, station_of, home_dir, pocket_entry)
     dist = m.distances()
     return Params(
         n_cells=c,
@@ -207,13 +207,21 @@ def make_params(cfg: Config, m: Map) -> Params:
     )
 
 
-def check_battery_room(k: int, m: Map, pocket_of: np.ndarray, station_of: np.ndarray) -> None:
+def check_battery_room(
+    k: int,
+    m: Map,
+    pocket_of: np.ndarray,
+    station_of: np.ndarray,
+    home_dir: np.ndarray,
+    pocket_entry: np.ndarray,
+) -> None:
     """Raise :class:`ConfigError` if a team of ``k`` robots with batteries (collisions
     avoided) has no room on map ``m`` to let every robot reach a station: on a one-wide
     line (a path), no station with ``k - 1`` cells on each side; on any map, more than half
-    the free cells that are neither a station nor in a station's pocket (docs/model.md,
-    "What is proven, and what is not"). ``pocket_of``, ``station_of``: int ``[C]``, as
-    in :class:`Params`."""
+    the free cells that are neither a station nor in a station's pocket, or more robots
+    than the room ahead of a robot on its way to a station (:func:`battery.door_room`;
+    docs/model.md, "What is proven, and what is not"). ``pocket_of``, ``station_of``,
+    ``home_dir``, ``pocket_entry``: as in :class:`Params`."""
     if k < 2:
         return
     if (m.degree <= 2).all() and (m.degree == 1).sum() == 2:
@@ -236,6 +244,16 @@ def check_battery_room(k: int, m: Map, pocket_of: np.ndarray, station_of: np.nda
             f"cells, {closed} of them stations or in their pockets) leave no room to yield; "
             f"allowed: at most {(m.n_cells - closed) // 2} (half the free cells outside "
             "stations and their pockets)"
+        )
+    homes = np.flatnonzero(station_of >= 0)[np.argsort(station_of[station_of >= 0])]
+    room, door = battery.door_room(m.neighbors, homes, home_dir, pocket_of, pocket_entry)
+    if k > room:
+        row, col = (int(x) for x in m.coords[door])
+        raise ConfigError(
+            f"agents: {k} robots with battery.enabled on map {m.name} can fill the {room} "
+            f"cells a robot on its way to a station may push them into past the door at "
+            f"row {row}, col {col} (pockets closed), and it would be stuck there; allowed: "
+            f"at most {room} (the room ahead of the narrowest door)"
         )
 
 
@@ -504,6 +522,8 @@ def begin_step(state: State, p: Params) -> Observation:
     else:
         open_ = legal_open.copy()
     choosing = s.active[:, None] & (s.mode == PATROL)
+    if p.battery:
+        choosing &= ~battery.shut_in(s, p)
     return Observation(t=s.t + 1, state=s, params=p, choosing=choosing, legal=legal, open=open_)
 
 
@@ -528,8 +548,16 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         obs.legal, np.maximum(choice, 0)[..., None], axis=2
     )[..., 0]
     ask = np.where(legal_choice, choice, -1)
+    if p.battery:
+        # a held pocket is closed: no robot but its holder moves deeper into it
+        closed = battery.closed_cells(s, p, p.neighbors[s.pos])
+        into = np.take_along_axis(closed, np.maximum(ask, 0)[..., None], axis=2)[..., 0]
+        ask = np.where(into, -1, ask)
     homing = active[:, None] & (s.mode == HOMING)
     queued = active[:, None] & (s.mode == QUEUED)
+    if p.battery:
+        # patrolling robots shut in a held pocket step out, like queued ones
+        queued = queued | (active[:, None] & battery.shut_in(s, p))
     held_back = yielding = np.zeros((R, K), dtype=bool)
     if homing.any():
         home_ask, held_back, yielding = battery.homing_ask(s, p)
@@ -588,7 +616,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     failed = (asked & ~res.as_asked) | waiting_station
     s.wait = np.where(failed, s.wait + 1, 0)
     blocked_by = np.where(asked & ~res.as_asked, s.occ[ar, np.maximum(want, 0)], -1)
-    traffic.pass_token(s, p, want, res, blocked_by)
+    traffic.pass_token(s, p, want, res, blocked_by, yielding)
     s.steps_done[active] = t
     ends = _end_episodes(s, p)
     return Outcome(

@@ -192,17 +192,26 @@ def way_out(s: State, p: Params, station: np.ndarray) -> np.ndarray:
     return np.where((station >= 0) & want.any(axis=-1), want.argmax(axis=-1), -1)
 
 
+def shut_in(s: State, p: Params) -> np.ndarray:
+    """bool ``[R, K]``: patrolling robots inside the pocket of a station another robot
+    holds. They do not choose: they step out (:func:`queued_ask`), so that the pocket
+    empties for its holder."""
+    R, K = s.pos.shape
+    h = p.pocket_of[s.pos]
+    holder = s.reserved[np.arange(R)[:, None], np.maximum(h, 0)]
+    return (s.mode == PATROL) & (h >= 0) & (holder >= 0) & (holder != np.arange(K)[None, :])
+
+
 def queued_ask(s: State, p: Params) -> np.ndarray:
-    """int ``[R, K]``: a queued robot in the pocket of a station another robot holds, or
-    on its junction, steps out of the way (:func:`way_out`); -1 otherwise."""
+    """int ``[R, K]``: a queued robot in the pocket of a station another robot holds
+    steps out of it (:func:`way_out`), and so does a patrolling robot shut in such a
+    pocket (:func:`shut_in`); -1 otherwise. (A robot on the pocket's junction stays: the
+    holder and the robots leaving the pocket push it aside when they need the cell.)"""
     R, K = s.pos.shape
     me = np.arange(K)[None, :]
     h = p.pocket_of[s.pos]
     holder = s.reserved[np.arange(R)[:, None], np.maximum(h, 0)]
     station = np.where((h >= 0) & (holder >= 0) & (holder != me), h, -1)
-    on = (s.pos[:, :, None] == p.pocket_entry[None, None, :]) & (s.reserved[:, None, :] >= 0)
-    on &= s.reserved[:, None, :] != me[..., None]
-    station = np.where(on.any(axis=-1), on.argmax(axis=-1), station)
     return way_out(s, p, station)
 
 
@@ -342,3 +351,106 @@ def _bfs_order(
                 order.append((d + 1, nb))
         i += 1
     return order
+
+
+def door_room(
+    neighbors: np.ndarray,
+    homes: np.ndarray,
+    home_dir: np.ndarray,
+    pocket_of: np.ndarray,
+    entry: np.ndarray,
+) -> tuple[int, int]:
+    """``(room, door)``: the fewest cells a homing robot can push robots into ahead of
+    it: the smallest *room ahead*, over every station h and every cell u outside
+    pockets, of the move
+    u -> c1 that a robot homing to h asks for (``home_dir``), when c1 is not in h's
+    pocket. The room ahead is the part of the map that the push search of
+    :mod:`qpatrol.world.traffic` may use from c1 with the holder on u: the connected
+    component of c1 once u, h's pocket and the pockets of other junctions (closed while
+    their stations are held) are removed. A team of at most this many robots leaves a
+    homing robot an empty cell ahead of it on every step of its way
+    (docs/model.md, "The trip to the door"). ``door`` is the cell c1 of a move with the
+    smallest room; ``(C, -1)`` if no move has a room smaller than the number of cells C.
+
+    Args:
+        neighbors: int ``[C, D]``, -1 for a wall; homes: int ``[H]``; home_dir: int
+            ``[H, C]``; pocket_of: int ``[C]``; entry: int ``[H]`` (:func:`station_pockets`).
+    """
+    c = neighbors.shape[0]
+    best, door = c, -1
+    nbrs = neighbors.tolist()
+    for i in range(homes.size):
+        # closed to the pushes of a robot on its way to station i: its own pocket and the
+        # pockets of other junctions (those of its junction are held at most while a
+        # robot charges on them and leaves: battery.shut_junctions)
+        same = (entry[np.maximum(pocket_of, 0)] == entry[i]) & (entry[i] >= 0)
+        removed = ((pocket_of >= 0) & ~(same & (pocket_of != i))).tolist()
+        sizes = _rooms_ahead(nbrs, removed)
+        for u in range(c):
+            d = int(home_dir[i, u])
+            if removed[u] or d < 0:
+                continue
+            c1 = nbrs[u][d]
+            if not removed[c1]:
+                room = sizes(u, c1)
+                if room < best:
+                    best, door = room, c1
+    return best, door
+
+
+def _rooms_ahead(nbrs: list[list[int]], removed: list[bool]):
+    """``size(u, v)``: cells of the component of v in the graph without the ``removed``
+    cells and without u (u, v neighbours, neither removed), for every u at once from
+    one depth-first search: entry times, subtree sizes and low points (Tarjan)."""
+    c = len(nbrs)
+    disc = [-1] * c
+    low = [0] * c
+    size = [1] * c
+    parent = [-1] * c
+    comp = [-1] * c
+    comp_size: list[int] = []
+    clock = 0
+    for root in range(c):
+        if removed[root] or disc[root] >= 0:
+            continue
+        cid = len(comp_size)
+        members = 0
+        disc[root] = low[root] = clock
+        clock += 1
+        comp[root] = cid
+        stack = [(root, 0)]
+        while stack:
+            v, i = stack[-1]
+            if i < len(nbrs[v]):
+                stack[-1] = (v, i + 1)
+                w = nbrs[v][i]
+                if w < 0 or removed[w] or w == parent[v]:
+                    continue
+                if disc[w] < 0:
+                    disc[w] = low[w] = clock
+                    clock += 1
+                    comp[w] = cid
+                    parent[w] = v
+                    stack.append((w, 0))
+                else:
+                    low[v] = min(low[v], disc[w])
+            else:
+                stack.pop()
+                members += 1
+                if parent[v] >= 0:
+                    low[parent[v]] = min(low[parent[v]], low[v])
+                    size[parent[v]] += size[v]
+        comp_size.append(members)
+
+    def room(u: int, v: int) -> int:
+        # u's children in the search tree whose subtrees no edge joins above u: removing
+        # u cuts each off on its own; the rest of u's component stays together
+        cut_off = [
+            w for w in nbrs[u] if w >= 0 and not removed[w] and parent[w] == u and low[w] >= disc[u]
+        ]
+        for w in cut_off:
+            if disc[w] <= disc[v] < disc[w] + size[w]:
+                return size[w]
+        return comp_size[comp[u]] - 1 - sum(size[w] for w in cut_off)
+
+    return room

@@ -18,7 +18,8 @@ The moves are resolved in three parts:
    for up to ``diameter`` consecutive steps, long enough to clear any corridor; a
    holder whose push failed hands it to the robot that blocked it (which may then back
    it out of a dead end, or squeeze past it); otherwise it goes to the blocked robot of
-   highest priority. Priority: a robot leaving a station first, then homing robots,
+   highest priority. Priority: a robot leaving a station or stepping out of a held
+   pocket's way first, then homing robots,
    then patrolling ones; among equals, the one that has waited longest, then a turn
    that rotates with the step number.
 
@@ -57,11 +58,16 @@ class Resolution:
     push_failed: np.ndarray
 
 
-def priority(s: State, t: int) -> np.ndarray:
-    """int ``[R, K]``: larger goes first (class, then wait, then a rotating turn)."""
+def priority(s: State, t: int, yielding: np.ndarray | None = None) -> np.ndarray:
+    """int ``[R, K]``: larger goes first (class, then wait, then a rotating turn).
+    ``yielding``: bool ``[R, K]``, robots stepping out of a held pocket's way, of the
+    first class with robots leaving a station (None: none)."""
     R, K = s.pos.shape
+    first = s.depart_left > 0
+    if yielding is not None:
+        first = first | yielding
     cls = np.where(
-        s.depart_left > 0,
+        first,
         3,
         np.where(s.mode == battery.HOMING, 2, np.where(s.mode == battery.PATROL, 1, 0)),
     )
@@ -79,12 +85,23 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
     own = int(s.pos[r, k])
     occ = s.occ[r].tolist()
     may_move = (s.mode[r] != battery.CHARGING).tolist()
-    out = battery.held_pockets(s, p, r).tolist() if p.battery else None
+    out = _keep_out(s, p, r) if p.battery else None
     ok = np.zeros(len(legal_open), dtype=bool)
     for d, cell in enumerate(nbrs[own]):
         if cell >= 0 and legal_open[d]:
             ok[d] = occ[cell] < 0 or _push_path(nbrs, occ, own, cell, may_move, out) is not None
     return ok
+
+
+def _keep_out(s: State, p: Params, r: int) -> tuple[list[bool], list[int], list[int]]:
+    """What a push may not do in run ``r``: move a robot into a held pocket or deeper
+    inside one (:func:`battery.held_pockets`); ``(held, pocket_of, pocket_depth)`` as
+    lists (a push may shift a robot out of a held pocket, towards its junction)."""
+    return (
+        battery.held_pockets(s, p, r).tolist(),
+        _cell_list(p, "pocket_of"),
+        _cell_list(p, "pocket_depth"),
+    )
 
 
 def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
@@ -145,7 +162,7 @@ def holder_step(
         want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).
         movable: bool ``[K]``, the robots of run r that may be pushed.
     """
-    keep_out = battery.held_pockets(s, p, r) if p.battery else None
+    keep_out = _keep_out(s, p, r) if p.battery else None
     cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
     if cell < 0:
         res.push_failed[r] = True
@@ -168,7 +185,7 @@ def _holder_move(
     k: int,
     asked: int,
     movable: np.ndarray,
-    keep_out: np.ndarray | None,
+    keep_out: tuple[list[bool], list[int], list[int]] | None,
 ) -> tuple[int, list[int]]:
     """``(cell, push path)``: where the token holder goes, -1 if nowhere.
 
@@ -180,14 +197,13 @@ def _holder_move(
     own = int(s.pos[r, k])
     occ = s.occ[r].tolist()
     may_move = movable.tolist()
-    out = keep_out.tolist() if keep_out is not None else None
     candidates = [asked] + [c for c in nbrs[own] if c >= 0 and c != asked]
     for i, cell in enumerate(candidates):
-        if i > 0 and out is not None and out[cell]:
+        if i > 0 and keep_out is not None and keep_out[0][cell]:
             continue
         if occ[cell] < 0:
             return cell, []
-        path = _push_path(nbrs, occ, own, cell, may_move, out)
+        path = _push_path(nbrs, occ, own, cell, may_move, keep_out)
         if path is not None:
             return cell, path
     return -1, []
@@ -200,11 +216,17 @@ _LISTS: dict[int, tuple[np.ndarray, list[list[int]]]] = {}
 
 def _neighbour_lists(p: Params) -> list[list[int]]:
     """``p.neighbors`` as Python lists (computed once per map)."""
-    seen = _LISTS.get(id(p.neighbors))
-    if seen is None or seen[0] is not p.neighbors:
+    return _cell_list(p, "neighbors")
+
+
+def _cell_list(p: Params, name: str) -> list:
+    """The array ``p.<name>`` as Python lists (computed once per map)."""
+    a = getattr(p, name)
+    seen = _LISTS.get(id(a))
+    if seen is None or seen[0] is not a:
         if len(_LISTS) > 64:
             _LISTS.clear()
-        seen = _LISTS[id(p.neighbors)] = (p.neighbors, p.neighbors.tolist())
+        seen = _LISTS[id(a)] = (a, a.tolist())
     return seen[1]
 
 
@@ -220,13 +242,15 @@ def _push_path(
     own: int,
     start: int,
     movable: list[bool],
-    keep_out: list[bool] | None,
+    keep_out: tuple[list[bool], list[int], list[int]] | None,
 ) -> list[int] | None:
     """Cells ``[start, ..., empty]`` along which the robots from ``start`` on can shift.
 
     Breadth-first from ``start`` (whose robot must be movable), never through the
-    holder's own cell ``own``, through immovable robots, nor into ``keep_out`` cells
-    (``[C]``: pockets of held stations); neighbours in N, E, S, W order. ``nbrs``:
+    holder's own cell ``own``, through immovable robots, nor into a held pocket or
+    deeper inside one (``keep_out``: held cells ``[C]``, ``pocket_of`` and
+    ``pocket_depth``; a step towards the pocket's junction is allowed, so a push may
+    shift robots out of a held pocket); neighbours in N, E, S, W order. ``nbrs``:
     each cell's neighbours (-1: wall); ``occ``: the robot on each cell of the run (-1:
     none); ``movable``: per robot. None if no empty cell can be reached.
     """
@@ -239,8 +263,10 @@ def _push_path(
         for nb in nbrs[c]:
             if nb < 0 or nb == own or nb in parent:
                 continue
-            if keep_out is not None and keep_out[nb]:
-                continue
+            if keep_out is not None and keep_out[0][nb]:
+                held, of, depth = keep_out
+                if of[nb] != of[c] or depth[nb] >= depth[c]:
+                    continue
             j = occ[nb]
             if j >= 0 and not movable[j]:
                 continue
@@ -255,16 +281,23 @@ def _push_path(
 
 
 def pass_token(
-    s: State, p: Params, want: np.ndarray, res: Resolution, blocked_by: np.ndarray
+    s: State,
+    p: Params,
+    want: np.ndarray,
+    res: Resolution,
+    blocked_by: np.ndarray,
+    yielding: np.ndarray | None = None,
 ) -> None:
-    """Choose the robot that holds the right of way in the next step (see module doc)."""
+    """Choose the robot that holds the right of way in the next step (see module doc).
+    ``yielding``: bool ``[R, K]``, robots that asked to step out of a held pocket's way
+    this step (of the first class, :func:`priority`)."""
     R, K = s.pos.shape
     if not p.avoid_collisions or K == 1:
         return
     rows = np.arange(R)
     tok = s.token
     blocked = s.active[:, None] & (want >= 0) & ~res.as_asked
-    key = np.where(blocked, priority(s, s.t + 1), -1)
+    key = np.where(blocked, priority(s, s.t + 1, yielding), -1)
     had = tok >= 0
     failed = had & res.push_failed
     # a holder whose push failed may not take the token back at once

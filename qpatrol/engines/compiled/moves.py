@@ -16,11 +16,12 @@ from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, 
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def priority(wait, mode, depart_left, k, n_agents, t_mod):
+def priority(wait, mode, depart_left, yielding, k, n_agents, t_mod):
     """:func:`qpatrol.world.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
     taken once per step: an integer division per robot cost more than the rest of
-    this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
-    if depart_left > 0:
+    this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``.
+    ``yielding``: the robot steps out of a held pocket's way (first class)."""
+    if depart_left > 0 or yielding:
         cls = 3
     elif mode == HOMING:
         cls = 2
@@ -36,9 +37,12 @@ def priority(wait, mode, depart_left, k, n_agents, t_mod):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def push_path(nbrs, entry, occ_r, own, start, scratch, battery, mode_r, pocket_of, reserved_r):
+def push_path(
+    nbrs, entry, occ_r, own, start, scratch, battery, mode_r, pocket_of, pocket_depth, reserved_r
+):
     """Breadth-first from ``start`` to the nearest empty cell, never through ``own``,
-    charging robots, nor (battery on) cells of held pockets.
+    charging robots, nor (battery on) into a held pocket or deeper inside one (a step
+    towards its junction is allowed).
 
     ``scratch``: the loop's ``(w.parent, w.seen, w.queue, w.path)`` (four arrays, not
     the whole ``Work``: fewer arguments to pass). Fills ``path[:m]`` with ``[start, ...,
@@ -66,7 +70,9 @@ def push_path(nbrs, entry, occ_r, own, start, scratch, battery, mode_r, pocket_o
             if nb < 0 or nb == own or parent[nb] != -2:
                 continue
             if battery:
-                if kept_out(nb, pocket_of, reserved_r):
+                if kept_out(nb, pocket_of, reserved_r) and (
+                    pocket_of[nb] != pocket_of[c] or pocket_depth[nb] >= pocket_depth[c]
+                ):
                     continue
                 j = occ_r[nb]
                 if j >= 0 and mode_r[j] == CHARGING:
@@ -94,7 +100,9 @@ def push_path(nbrs, entry, occ_r, own, start, scratch, battery, mode_r, pocket_o
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def holder_moves(tok, nbrs, entry, occ_r, pos_r, w, battery, mode_r, pocket_of, reserved_r):
+def holder_moves(
+    tok, nbrs, entry, occ_r, pos_r, w, battery, mode_r, pocket_of, pocket_depth, reserved_r
+):
     """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
     (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
     else a neighbour (in port order: N, E, S, W on a grid), empty or emptied by pushing
@@ -119,8 +127,9 @@ def holder_moves(tok, nbrs, entry, occ_r, pos_r, w, battery, mode_r, pocket_of, 
             m = 0
             break
         m = push_path(
-            nbrs, entry, occ_r, own, cell, scratch, battery, mode_r, pocket_of, reserved_r
-        )
+            nbrs, entry, occ_r, own, cell, scratch, battery, mode_r, pocket_of, pocket_depth,
+            reserved_r,
+        )  # fmt: skip
         if m > 0:
             dest = cell
             break
@@ -186,7 +195,10 @@ def pushable(r, c, nb, battery, p, s, w):
     traffic.feasible_moves)."""
     scratch = (w.parent, w.seen, w.queue, w.path)
     occ_r, mode_r, reserved_r = s.occ[r], s.mode[r], s.reserved[r]
-    m = push_path(p.nbrs, p.entry, occ_r, c, nb, scratch, battery, mode_r, p.pocket_of, reserved_r)
+    m = push_path(
+        p.nbrs, p.entry, occ_r, c, nb, scratch, battery, mode_r, p.pocket_of, p.pocket_depth,
+        reserved_r,
+    )  # fmt: skip
     return m > 0
 
 
@@ -202,7 +214,11 @@ def open_moves(r, tok, battery, avoid, p, s, w):
     nd = ports_of(p.entry, nbrs.shape[1])
     for k in range(s.pos.shape[1]):
         c = s.pos[r, k]
-        w.choosing[k] = s.mode[r, k] == PATROL
+        # battery.shut_in: a patrolling robot inside another robot's held pocket steps out
+        w.choosing[k] = s.mode[r, k] == PATROL and not (
+            battery and pocket_of[c] >= 0 and s.reserved[r, pocket_of[c]] >= 0
+            and s.reserved[r, pocket_of[c]] != k
+        )  # fmt: skip
         w.held_back[k] = False
         w.yielding[k] = False
         any_open = False
@@ -251,8 +267,9 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
         return push_failed
     if tok >= 0 and want[tok] >= 0:
         push_failed = holder_moves(
-            tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of, s.reserved[r]
-        )
+            tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of, p.pocket_depth,
+            s.reserved[r],
+        )  # fmt: skip
     if n_agents == 1:  # alone: the priority order is trivial
         wk = want[0]
         if wk >= 0 and not moved[0] and occ_r[wk] < 0:
@@ -268,7 +285,9 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
             order[a] = k if k < n_agents else k - n_agents
     else:
         for k in range(n_agents):
-            key[k] = priority(s.wait[r, k], mode_r[k], s.depart_left[r, k], k, n_agents, t_mod)
+            key[k] = priority(
+                s.wait[r, k], mode_r[k], s.depart_left[r, k], False, k, n_agents, t_mod
+            )
             order[k] = k
         _sort_by_key(order, key, n_agents)
     _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
@@ -314,7 +333,10 @@ def pass_token(r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w):
     for k in range(n_agents):
         kk = -1
         if want[k] >= 0 and not as_asked[k]:
-            kk = priority(s.wait[r, k], s.mode[r, k], s.depart_left[r, k], k, n_agents, t_next_mod)
+            kk = priority(
+                s.wait[r, k], s.mode[r, k], s.depart_left[r, k], w.yielding[k], k, n_agents,
+                t_next_mod,
+            )  # fmt: skip
         if tok >= 0 and push_failed and k == tok:
             kk = -1
         if kk > best_key:

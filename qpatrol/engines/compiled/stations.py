@@ -164,18 +164,23 @@ def ask(r, p, s, w):
                 w.held_back[k] = held
                 w.yielding[k] = yld and out >= 0
             w.ask[k] = direction
-        elif s.mode[r, k] == QUEUED:
+        elif s.mode[r, k] == PATROL and w.choosing[k]:
+            # a held pocket is closed: no robot but its holder moves deeper into it
+            d = w.ask[k]
+            if d >= 0:
+                nb = nbrs[c, d]
+                hp = pocket_of[nb] if nb >= 0 else -1
+                if hp >= 0 and reserved[r, hp] >= 0 and reserved[r, hp] != k:
+                    if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
+                        w.ask[k] = -1
+        elif s.mode[r, k] == QUEUED or s.mode[r, k] == PATROL:
+            # queued, or patrolling and shut in a held pocket (battery.shut_in)
             station = -1
             hp = pocket_of[c]
             if hp >= 0:
                 holder = reserved[r, hp]
                 if holder >= 0 and holder != k:
                     station = hp
-            for hh in range(p.homes.shape[0]):
-                if c == pocket_entry[hh] and reserved[r, hh] >= 0:
-                    if reserved[r, hh] != k:
-                        station = hh
-                        break
             w.ask[k] = way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station)
             if w.ask[k] >= 0:
                 w.yielding[k] = True
