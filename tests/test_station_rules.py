@@ -25,14 +25,18 @@ Cells are numbered row by row over the free cells of the map.
 
 from __future__ import annotations
 
+import mazes
 import numpy as np
 import pytest
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from qpatrol import measures, strategies, world
-from qpatrol.config import from_flat
+from qpatrol.config import ConfigError, from_flat
 from qpatrol.engines import numpy_loop
 from qpatrol.maps import parse_map
 from qpatrol.measures.records import Recorder, Tail
+from qpatrol.world import battery
 from qpatrol.world.battery import CHARGING, HOMING, PATROL, QUEUED
 
 FIRST, MID, LAST = 0.0, 0.5, 0.999  # a robot's fixed uniform: its first, second, last open move
@@ -581,3 +585,176 @@ def test_a_charging_robot_is_not_pushed_off_its_station(engine):
     #   Robot 1 stays on H, charging (20).
     team.step([FIRST, FIRST])
     assert team.row(0, 1) == ((1,), (0, P, 19), (2, C, 20))
+
+
+# --- 7. a held pocket is closed: nobody enters, those inside step out first -------------
+
+# A row of 9 cells with the junction 4, under it the pocket 9, 10, 11 (H at its end).
+ROW_POCKET = "....-....\n####.####\n####.####\n####H####\n"
+
+
+def test_a_move_into_a_held_pocket_is_not_made_even_with_no_open_move(engine):
+    """Robot 1 patrols on the junction 4 between robot 0 (homing to H, on 3) and robot 2
+    (on 5): it has no open move (East and West are taken, South is the held pocket), so
+    it chooses among its legal ones, East, South, West: MID, South, into the pocket. The
+    move is not made (a held pocket is closed to every robot but its holder); robot 0,
+    blocked, gets the right of way and then pushes robot 1 off the junction."""
+    team = Team(engine, ROW_POCKET, [3, 4, 5])
+    assert team.p.pocket_entry.tolist() == [4] and team.p.homes.tolist() == [11]
+    team.holds(0, 0, mode=HOMING)
+    # step 1: robot 0 asks for 4 (the pocket is empty: not held back): taken, it waits.
+    #   Robot 1: South, into 9, not made: it stays on 4 (were it made: 9, charge 19).
+    #   Robot 2 (on 5): open moves East (6) and West (4 is taken: no): FIRST, East (19).
+    # step 2: robot 0 holds the right of way and pushes robot 1 along the first path to
+    #   an empty cell, East to 5 (19 for robot 0). Robot 1 now has one open move, East
+    #   (5), asked and made by the push: its own move (19). Robot 2: FIRST of East (7)
+    #   and West (5, empty at the start of the step): East (18).
+    expect = [
+        ((0,), (3, Hm, 20), (4, P, 20), (6, P, 19)),
+        ((0,), (4, Hm, 19), (5, P, 19), (7, P, 18)),
+    ]
+    assert team.rows(len(expect), [FIRST, MID, FIRST], 0, 1, 2) == expect
+
+
+# A row of 11 cells with the junction 5, under it the pocket 11, 12, 13 (H at its end).
+ROW_DEEP = ".....-.....\n#####.#####\n#####.#####\n#####H#####\n"
+
+
+def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
+    """Robots 1, 2, 3 patrol in the pocket (11, 12, 13) of H, which robot 0 holds; robot
+    4 waits for a station on the junction 5. Shut in, the three step out, robot 1 first,
+    blocked by robot 4. Robot 3, deepest and the longest waiting, gets the right of way
+    and pushes the whole row out: robots 2 and 1 one cell towards the junction (a push
+    inside a held pocket may go towards its junction), robot 4 off the junction, East.
+    Stepping out is yielding: free; robot 4, pushed away from H, is credited a move."""
+    team = Team(engine, ROW_DEEP, [0, 11, 12, 13, 5])
+    s = team.s
+    assert team.p.pocket_entry.tolist() == [5] and team.p.pocket_depth[11:].tolist() == [1, 2, 3]
+    team.holds(0, 0, mode=HOMING)
+    s.mode[0, 4] = QUEUED
+    s.charge[0, 4] = 4  # 4 <= 3 + 0 + 1 (three moves from H): it still needs a station
+    s.wait[0, 3] = 5
+    # step 1: robot 0 walks East, 0 -> 1 (19). Robots 1, 2, 3 ask for 5, 11, 12: all
+    #   taken, they wait (1, 1, 6); robot 4 waits for H. Right of way: the blocked robots
+    #   stepping out are of the first class; robot 3 has waited longest.
+    team.step([FIRST] * 5)
+    assert s.pos[0].tolist() == [1, 11, 12, 13, 5] and s.token[0] == 3
+    # step 2: robot 3 asks for 12: the push search from 12 goes to 11 (towards the
+    #   junction: allowed inside the held pocket), then 5, then its first neighbour, East,
+    #   6, empty: robot 4 -> 6, robot 1 -> 5, robot 2 -> 11, robot 3 -> 12, each free;
+    #   robot 4 is 4 moves from H instead of 3: credited, 5. Robot 0: 1 -> 2 (18).
+    team.step([FIRST] * 5)
+    assert s.pos[0].tolist() == [2, 5, 11, 12, 6]
+    assert s.charge[0].tolist() == [18, 20, 20, 20, 5]
+
+
+def test_robots_stepping_out_of_a_held_pocket_get_the_right_of_way_first(engine):
+    """Robot 0, homing to H, has waited 9 steps behind robot 3 (queued on 2); robot 2,
+    shut in the pocket behind robot 1, and robot 1, blocked by robot 4 on the junction,
+    have waited none. After a step in which all three are blocked, the right of way goes
+    to one stepping out of the pocket (the first class), not to the homing robot that
+    waited longest."""
+    team = Team(engine, ROW_DEEP, [1, 11, 12, 2, 5])
+    s = team.s
+    team.holds(0, 0, mode=HOMING)
+    s.mode[0, [3, 4]] = QUEUED
+    s.charge[0, [3, 4]] = [4, 4]  # at most 3 + 0 + 1 moves from H: both still queue
+    s.wait[0] = [9, 0, 0, 0, 0]
+    # step 1 (t = 1): robot 0 asks for 2 (taken: waits, 10), robot 1 for 5 (taken: 1),
+    #   robot 2 for 11 (taken: 1). Right of way at t = 2: robots 1 and 2, first class,
+    #   waited 1 each; the turn (K - 1) - (k - 2) % K gives robot 1 0 and robot 2 4.
+    team.step([FIRST] * 5)
+    assert s.pos[0].tolist() == [1, 11, 12, 2, 5]
+    assert s.wait[0, :3].tolist() == [10, 1, 1]
+    assert s.token[0] == 2
+
+
+# --- 8. the room past the narrowest door -----------------------------------------------
+
+# A row of 11 cells, H on cell 0 (its pocket: cell 0 alone, the junction 1), a spur of
+# three cells (11, 12, 13) under cell 1.
+ROW_SPUR = "H..........\n#.#########\n#.#########\n#.#########\n"
+
+
+def test_the_room_past_the_narrowest_door_by_hand():
+    """A robot homing to H from cell 2 asks for the junction 1; with it on 2 and H's
+    pocket closed, a push from 1 can use 1 and the spur: 4 cells. From the spur (11 ->
+    1: the row 1..10, 10 cells; 12 -> 11: 11 cells) and from farther along the row
+    (3 -> 2: 2..10 with 1 and the spur, 12 cells) the room is larger. So at most 4
+    robots, and the error names the door, cell 1 at row 0, col 1."""
+    m = parse_map(ROW_SPUR)
+    p = world.make_params(from_flat({"agents": 4, "battery.capacity": 40}), m)
+    assert p.pocket_of.tolist()[:2] == [0, -1] and p.pocket_entry.tolist() == [1]
+    room, door = battery.door_room(m.neighbors, p.homes, p.home_dir, p.pocket_of, p.pocket_entry)
+    assert (room, door) == (4, 1)
+    with pytest.raises(ConfigError) as e:
+        world.make_params(from_flat({"agents": 5, "battery.capacity": 40}), m)
+    assert str(e.value).startswith("agents: 5 robots with battery.enabled")
+    assert "door at row 0, col 1" in str(e.value) and "allowed: at most 4 " in str(e.value)
+
+
+def _room_by_search(m, p) -> int:
+    """The room rule's number from its definition: for every station and cell, one
+    breadth-first search of the part the push may use (an independent implementation
+    of :func:`battery.door_room`, which computes all at once from one depth-first
+    search)."""
+    nbrs = m.neighbors.tolist()
+    best = m.n_cells
+    for i in range(p.homes.size):
+        entry = p.pocket_entry
+        same = (entry[np.maximum(p.pocket_of, 0)] == entry[i]) & (entry[i] >= 0)
+        removed = (p.pocket_of >= 0) & ~(same & (p.pocket_of != i))
+        for u in range(m.n_cells):
+            d = int(p.home_dir[i, u])
+            if removed[u] or d < 0 or removed[nbrs[u][d]]:
+                continue
+            seen, todo = {nbrs[u][d]}, [nbrs[u][d]]
+            while todo:
+                for w in nbrs[todo.pop()]:
+                    if w >= 0 and w != u and not removed[w] and w not in seen:
+                        seen.add(w)
+                        todo.append(w)
+            best = min(best, len(seen))
+    return best
+
+
+@given(
+    seed=st.integers(0, 10**6),
+    loops=st.sampled_from([0.0, 0.1, 0.3]),
+    rows=st.integers(2, 5),
+    cols=st.integers(2, 6),
+    dead=st.booleans(),
+)
+@settings(max_examples=60)
+def test_the_room_ahead_matches_a_search_from_its_definition(seed, loops, rows, cols, dead):
+    m = parse_map(mazes.random_maze(rows, cols, seed, loops, dead_end_stations=dead))
+    p = world.make_params(from_flat({"agents": 1, "battery.capacity": 10**5}), m)
+    room, door = battery.door_room(m.neighbors, p.homes, p.home_dir, p.pocket_of, p.pocket_entry)
+    assert room == _room_by_search(m, p)
+    assert (door >= 0) == (room < m.n_cells)
+
+
+@given(
+    seed=st.integers(0, 10**6),
+    loops=st.sampled_from([0.0, 0.2, 0.5]),
+    cut=st.floats(0.0, 0.2),
+)
+@settings(max_examples=40)
+def test_every_room_ahead_matches_a_search(seed, loops, cut):
+    """The room of every move u -> v (one depth-first search with low points) against a
+    breadth-first search of v's part without u, on mazes with random cells taken away."""
+    m = parse_map(mazes.random_maze(4, 5, seed, loops))
+    nbrs = m.neighbors.tolist()
+    removed = (np.random.default_rng(seed).random(m.n_cells) < cut).tolist()
+    room = battery._rooms_ahead(nbrs, removed)
+    for u in range(m.n_cells):
+        for v in nbrs[u]:
+            if v < 0 or removed[u] or removed[v]:
+                continue
+            seen, todo = {v}, [v]
+            while todo:
+                for w in nbrs[todo.pop()]:
+                    if w >= 0 and w != u and not removed[w] and w not in seen:
+                        seen.add(w)
+                        todo.append(w)
+            assert room(u, v) == len(seen), (u, v)
