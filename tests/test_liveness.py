@@ -150,6 +150,16 @@ DENSE = [("comb", 5, policy) for policy in strategies.NAMES] + [
 ]
 
 
+@pytest.mark.parametrize("name", ["map_a", "mspacman2"])
+@pytest.mark.parametrize("policy", strategies.NAMES)
+def test_sixteen_robots_every_strategy(name, policy):
+    """16 robots with the battery on, on a shipped map and an arcade maze."""
+    m = load(name)
+    seed = sum(map(ord, name + policy)) + 16
+    max_wait, bound, _ = drive(m, policy, 16, seed, steps=1200, engine=FAST)
+    assert max_wait.max() <= bound, f"{name} K=16 {policy}: max_wait {max_wait} > {bound}"
+
+
 @pytest.mark.parametrize("name, k, policy", DENSE)
 def test_dense_teams_on_dead_ends(name, k, policy):
     m = load(name)

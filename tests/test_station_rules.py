@@ -635,8 +635,8 @@ def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
     s.charge[0, 4] = 4  # 4 <= 3 + 0 + 1 (three moves from H): it still needs a station
     s.wait[0, 3] = 5
     # step 1: robot 0 walks East, 0 -> 1 (19). Robots 1, 2, 3 ask for 5, 11, 12: all
-    #   taken, they wait (1, 1, 6); robot 4 waits for H. Right of way: the blocked robots
-    #   stepping out are of the first class; robot 3 has waited longest.
+    #   taken, they wait (1, 1, 6); robot 4 waits for H. Right of way: robot 3, the
+    #   longest waiting.
     team.step([FIRST] * 5)
     assert s.pos[0].tolist() == [1, 11, 12, 13, 5] and s.token[0] == 3
     # step 2: robot 3 asks for 12: the push search from 12 goes to 11 (towards the
@@ -648,25 +648,31 @@ def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
     assert s.charge[0].tolist() == [18, 20, 20, 20, 5]
 
 
-def test_robots_stepping_out_of_a_held_pocket_get_the_right_of_way_first(engine):
+def test_the_right_of_way_goes_to_the_longest_waiting_whatever_it_does(engine):
     """Robot 0, homing to H, has waited 9 steps behind robot 3 (queued on 2); robot 2,
     shut in the pocket behind robot 1, and robot 1, blocked by robot 4 on the junction,
     have waited none. After a step in which all three are blocked, the right of way goes
-    to one stepping out of the pocket (the first class), not to the homing robot that
-    waited longest."""
+    to the one that has waited longest, the homing robot: one order for every robot,
+    whether it patrols, homes or steps out of a pocket."""
     team = Team(engine, ROW_DEEP, [1, 11, 12, 2, 5])
     s = team.s
     team.holds(0, 0, mode=HOMING)
     s.mode[0, [3, 4]] = QUEUED
     s.charge[0, [3, 4]] = [4, 4]  # at most 3 + 0 + 1 moves from H: both still queue
     s.wait[0] = [9, 0, 0, 0, 0]
-    # step 1 (t = 1): robot 0 asks for 2 (taken: waits, 10), robot 1 for 5 (taken: 1),
-    #   robot 2 for 11 (taken: 1). Right of way at t = 2: robots 1 and 2, first class,
-    #   waited 1 each; the turn (K - 1) - (k - 2) % K gives robot 1 0 and robot 2 4.
+    # step 1: robot 0 asks for 2 (taken: waits, 10), robot 1 for 5 (taken: 1), robot 2
+    #   for 11 (taken: 1). Right of way: robot 0, the longest waiting (10 against 1, 1).
     team.step([FIRST] * 5)
     assert s.pos[0].tolist() == [1, 11, 12, 2, 5]
     assert s.wait[0, :3].tolist() == [10, 1, 1]
-    assert s.token[0] == 2
+    assert s.token[0] == 0
+    # step 2: robot 0 pushes robot 3 East to 3, the nearest empty cell, and takes 2
+    #   (19); robot 3, queued, is pushed one move nearer H (5 moves from it instead of
+    #   6): nothing to credit, its charge stays 4. Robot 0 made its move: it keeps the
+    #   right of way.
+    team.step([FIRST] * 5)
+    assert s.pos[0, [0, 3]].tolist() == [2, 3] and s.charge[0, [0, 3]].tolist() == [19, 4]
+    assert s.token[0] == 0
 
 
 # --- 8. the room past the narrowest door -----------------------------------------------

@@ -616,7 +616,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     failed = (asked & ~res.as_asked) | waiting_station
     s.wait = np.where(failed, s.wait + 1, 0)
     blocked_by = np.where(asked & ~res.as_asked, s.occ[ar, np.maximum(want, 0)], -1)
-    traffic.pass_token(s, p, want, res, blocked_by, yielding)
+    traffic.pass_token(s, p, want, res, blocked_by)
     s.steps_done[active] = t
     ends = _end_episodes(s, p)
     return Outcome(

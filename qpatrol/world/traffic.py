@@ -18,10 +18,8 @@ The moves are resolved in three parts:
    for up to ``diameter`` consecutive steps, long enough to clear any corridor; a
    holder whose push failed hands it to the robot that blocked it (which may then back
    it out of a dead end, or squeeze past it); otherwise it goes to the blocked robot of
-   highest priority. Priority: a robot leaving a station or stepping out of a held
-   pocket's way first, then homing robots,
-   then patrolling ones; among equals, the one that has waited longest, then a turn
-   that rotates with the step number.
+   highest priority: the one that has waited longest, then a turn that rotates with
+   the step number, whatever the robots are doing.
 
 The holder sees every legal move as open (:func:`qpatrol.world.begin_step`), so it
 insists on its way instead of fleeing, and a blocked robot always gets the token within
@@ -58,21 +56,12 @@ class Resolution:
     push_failed: np.ndarray
 
 
-def priority(s: State, t: int, yielding: np.ndarray | None = None) -> np.ndarray:
-    """int ``[R, K]``: larger goes first (class, then wait, then a rotating turn).
-    ``yielding``: bool ``[R, K]``, robots stepping out of a held pocket's way, of the
-    first class with robots leaving a station (None: none)."""
+def priority(s: State, t: int) -> np.ndarray:
+    """int ``[R, K]``: larger goes first: the longer wait, then a turn that rotates with
+    the step ``t`` (every robot alike, whatever it is doing: a fair right of way)."""
     R, K = s.pos.shape
-    first = s.depart_left > 0
-    if yielding is not None:
-        first = first | yielding
-    cls = np.where(
-        first,
-        3,
-        np.where(s.mode == battery.HOMING, 2, np.where(s.mode == battery.PATROL, 1, 0)),
-    )
     turn = (K - 1) - (np.arange(K) - t) % K
-    return (cls * (1 << 40) + np.minimum(s.wait, (1 << 30)) * K + turn[None, :]).astype(np.int64)
+    return (np.minimum(s.wait, (1 << 30)) * K + turn[None, :]).astype(np.int64)
 
 
 def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) -> np.ndarray:
@@ -281,23 +270,16 @@ def _push_path(
 
 
 def pass_token(
-    s: State,
-    p: Params,
-    want: np.ndarray,
-    res: Resolution,
-    blocked_by: np.ndarray,
-    yielding: np.ndarray | None = None,
+    s: State, p: Params, want: np.ndarray, res: Resolution, blocked_by: np.ndarray
 ) -> None:
-    """Choose the robot that holds the right of way in the next step (see module doc).
-    ``yielding``: bool ``[R, K]``, robots that asked to step out of a held pocket's way
-    this step (of the first class, :func:`priority`)."""
+    """Choose the robot that holds the right of way in the next step (see module doc)."""
     R, K = s.pos.shape
     if not p.avoid_collisions or K == 1:
         return
     rows = np.arange(R)
     tok = s.token
     blocked = s.active[:, None] & (want >= 0) & ~res.as_asked
-    key = np.where(blocked, priority(s, s.t + 1, yielding), -1)
+    key = np.where(blocked, priority(s, s.t + 1), -1)
     had = tok >= 0
     failed = had & res.push_failed
     # a holder whose push failed may not take the token back at once

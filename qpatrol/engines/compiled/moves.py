@@ -12,28 +12,19 @@ from __future__ import annotations
 from numba import njit
 
 from qpatrol.engines.compiled.choice import ports_of
-from qpatrol.engines.compiled.stations import CHARGING, HOMING, PATROL, QUEUED, kept_out
+from qpatrol.engines.compiled.stations import CHARGING, PATROL, QUEUED, kept_out
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def priority(wait, mode, depart_left, yielding, k, n_agents, t_mod):
+def priority(wait, k, n_agents, t_mod):
     """:func:`qpatrol.world.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
     taken once per step: an integer division per robot cost more than the rest of
-    this): class, then wait, then turn ``(n_agents - 1) - (k - t) % n_agents``.
-    ``yielding``: the robot steps out of a held pocket's way (first class)."""
-    if depart_left > 0 or yielding:
-        cls = 3
-    elif mode == HOMING:
-        cls = 2
-    elif mode == PATROL:
-        cls = 1
-    else:
-        cls = 0
+    this): wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
     back = k - t_mod  # (k - t) % n_agents, without a division
     if back < 0:
         back += n_agents
     turn = (n_agents - 1) - back
-    return cls * (1 << 40) + min(wait, 1 << 30) * n_agents + turn
+    return min(wait, 1 << 30) * n_agents + turn
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -285,9 +276,7 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
             order[a] = k if k < n_agents else k - n_agents
     else:
         for k in range(n_agents):
-            key[k] = priority(
-                s.wait[r, k], mode_r[k], s.depart_left[r, k], False, k, n_agents, t_mod
-            )
+            key[k] = priority(s.wait[r, k], k, n_agents, t_mod)
             order[k] = k
         _sort_by_key(order, key, n_agents)
     _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
@@ -333,10 +322,7 @@ def pass_token(r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w):
     for k in range(n_agents):
         kk = -1
         if want[k] >= 0 and not as_asked[k]:
-            kk = priority(
-                s.wait[r, k], s.mode[r, k], s.depart_left[r, k], w.yielding[k], k, n_agents,
-                t_next_mod,
-            )  # fmt: skip
+            kk = priority(s.wait[r, k], k, n_agents, t_next_mod)
         if tok >= 0 and push_failed and k == tok:
             kk = -1
         if kk > best_key:
