@@ -6,7 +6,7 @@ adversary, from every placement of the robots, and looks for a reachable cycle o
 some robot fails at every step (a livelock). The family run by default fits in a few
 minutes of one core; ``QPATROL_MODELCHECK=full`` runs a larger one (7 cells, three
 robots with the battery on, two stations), for a benchmark or a release: about 30
-minutes of a loaded core (battery on: 1,288 cases, 4,409,670 states, no livelock;
+minutes of a loaded core (battery on: 1,288 cases, 3,804,752 states, no livelock;
 battery off: 2,496 cases, 12,353,844 states). Its battery-off test fails: the insisting
 adversary (walk followers, outside the theorem of docs/model.md) starves a robot in 202
 of the 214 cases of three robots on 6 cells.
