@@ -7,6 +7,9 @@ whose writes :mod:`qpatrol.engines.cachelock` makes safe between processes.
 
 from __future__ import annotations
 
+import importlib.util
+import subprocess
+import sys
 from pathlib import Path
 
 import pytest
@@ -20,6 +23,23 @@ cachelock.install()  # before any compiled function is first called in this proc
 # database written into the checkout, no time limit per example (a loaded machine)
 settings.register_profile("qpatrol", derandomize=True, database=None, deadline=None)
 settings.load_profile("qpatrol")
+
+
+def pytest_configure(config: pytest.Config) -> None:
+    """Before the workers of a parallel run start (in the controller only): compile the
+    compiled engine's eight loops into numba's cache in two processes at once
+    (``tests/warm_loops.py``), so that no worker sits idle waiting for another's
+    compile. On a warm cache each process only loads them (a few seconds)."""
+    parallel = getattr(config.option, "numprocesses", None)
+    if hasattr(config, "workerinput") or not parallel or not importlib.util.find_spec("numba"):
+        return
+    import warm_loops
+
+    script = Path(__file__).with_name("warm_loops.py")
+    procs = [subprocess.Popen([sys.executable, str(script), *half]) for half in warm_loops.HALVES]
+    for proc in procs:
+        proc.wait()
+
 
 RING = """\
 ; name: ring
