@@ -648,24 +648,31 @@ def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
     assert s.charge[0].tolist() == [18, 20, 20, 20, 5]
 
 
-def test_the_right_of_way_goes_to_the_longest_waiting_whatever_it_does(engine):
-    """Robot 0, homing to H, has waited 9 steps behind robot 3 (queued on 2); robot 2,
-    shut in the pocket behind robot 1, and robot 1, blocked by robot 4 on the junction,
-    have waited none. After a step in which all three are blocked, the right of way goes
-    to the one that has waited longest, the homing robot: one order for every robot,
-    whether it patrols, homes or steps out of a pocket."""
+@pytest.mark.parametrize("longest", [0, 2])
+def test_the_right_of_way_goes_to_the_longest_waiting_whatever_it_does(engine, longest):
+    """Robot 0, homing to H, is blocked by robot 3 (queued on 2); robot 2, shut in the
+    pocket behind robot 1, and robot 1, blocked by robot 4 on the junction, step out.
+    One of robot 0 (homing) and robot 2 (stepping out of a pocket) has waited 9 steps,
+    the others none. After a step in which all three are blocked, the right of way goes
+    to the one that has waited longest: one order for every robot, whether it patrols,
+    homes or steps out of a pocket."""
     team = Team(engine, ROW_DEEP, [1, 11, 12, 2, 5])
     s = team.s
     team.holds(0, 0, mode=HOMING)
     s.mode[0, [3, 4]] = QUEUED
     s.charge[0, [3, 4]] = [4, 4]  # at most 3 + 0 + 1 moves from H: both still queue
-    s.wait[0] = [9, 0, 0, 0, 0]
-    # step 1: robot 0 asks for 2 (taken: waits, 10), robot 1 for 5 (taken: 1), robot 2
-    #   for 11 (taken: 1). Right of way: robot 0, the longest waiting (10 against 1, 1).
+    s.wait[0, longest] = 9
+    # step 1: robot 0 asks for 2, robot 1 for 5, robot 2 for 11: all taken, each waits
+    #   one step more (10 for the one that had waited 9, 1 for the others). Right of way:
+    #   that one.
     team.step([FIRST] * 5)
     assert s.pos[0].tolist() == [1, 11, 12, 2, 5]
-    assert s.wait[0, :3].tolist() == [10, 1, 1]
-    assert s.token[0] == 0
+    want = [1, 1, 1]
+    want[longest] = 10
+    assert s.wait[0, :3].tolist() == want
+    assert s.token[0] == longest
+    if longest != 0:
+        return
     # step 2: robot 0 pushes robot 3 East to 3, the nearest empty cell, and takes 2
     #   (19); robot 3, queued, is pushed one move nearer H (5 moves from it instead of
     #   6): nothing to credit, its charge stays 4. Robot 0 made its move: it keeps the
