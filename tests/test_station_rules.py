@@ -706,6 +706,17 @@ def test_the_room_past_the_narrowest_door_by_hand():
     assert "door at row 0, col 1" in str(e.value) and "allowed: at most 4 " in str(e.value)
 
 
+def _reached(nbrs: list[list[int]], v: int, u: int, removed) -> int:
+    """Cells a breadth-first search from v reaches without entering u or removed cells."""
+    seen, todo = {v}, [v]
+    while todo:
+        for w in nbrs[todo.pop()]:
+            if w >= 0 and w != u and not removed[w] and w not in seen:
+                seen.add(w)
+                todo.append(w)
+    return len(seen)
+
+
 def _room_by_search(m, p) -> int:
     """The room rule's number from its definition: for every station and cell, one
     breadth-first search of the part the push may use (an independent implementation
@@ -721,13 +732,7 @@ def _room_by_search(m, p) -> int:
             d = int(p.home_dir[i, u])
             if removed[u] or d < 0 or removed[nbrs[u][d]]:
                 continue
-            seen, todo = {nbrs[u][d]}, [nbrs[u][d]]
-            while todo:
-                for w in nbrs[todo.pop()]:
-                    if w >= 0 and w != u and not removed[w] and w not in seen:
-                        seen.add(w)
-                        todo.append(w)
-            best = min(best, len(seen))
+            best = min(best, _reached(nbrs, nbrs[u][d], u, removed))
     return best
 
 
@@ -764,10 +769,4 @@ def test_every_room_ahead_matches_a_search(seed, loops, cut):
         for v in nbrs[u]:
             if v < 0 or removed[u] or removed[v]:
                 continue
-            seen, todo = {v}, [v]
-            while todo:
-                for w in nbrs[todo.pop()]:
-                    if w >= 0 and w != u and not removed[w] and w not in seen:
-                        seen.add(w)
-                        todo.append(w)
-            assert room(u, v) == len(seen), (u, v)
+            assert room(u, v) == _reached(nbrs, v, u, removed), (u, v)

@@ -245,8 +245,7 @@ def check_battery_room(
             f"allowed: at most {(m.n_cells - closed) // 2} (half the free cells outside "
             "stations and their pockets)"
         )
-    homes = np.flatnonzero(station_of >= 0)[np.argsort(station_of[station_of >= 0])]
-    room, door = battery.door_room(m.neighbors, homes, home_dir, pocket_of, pocket_entry)
+    room, door = battery.door_room(m.neighbors, m.homes, home_dir, pocket_of, pocket_entry)
     if k > room:
         row, col = (int(x) for x in m.coords[door])
         raise ConfigError(
@@ -550,14 +549,14 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     ask = np.where(legal_choice, choice, -1)
     if p.battery:
         # a held pocket is closed: no robot but its holder moves deeper into it
-        closed = battery.closed_cells(s, p, p.neighbors[s.pos])
-        into = np.take_along_axis(closed, np.maximum(ask, 0)[..., None], axis=2)[..., 0]
-        ask = np.where(into, -1, ask)
+        cell = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
+        ask = np.where(battery.closed_cells(s, p, cell[..., None])[..., 0], -1, ask)
     homing = active[:, None] & (s.mode == HOMING)
     queued = active[:, None] & (s.mode == QUEUED)
     if p.battery:
-        # patrolling robots shut in a held pocket step out, like queued ones
-        queued = queued | (active[:, None] & battery.shut_in(s, p))
+        # patrolling robots that do not choose are those shut in a held pocket
+        # (begin_step): they step out, like queued ones
+        queued = queued | (active[:, None] & (s.mode == PATROL) & ~obs.choosing)
     held_back = yielding = np.zeros((R, K), dtype=bool)
     if homing.any():
         home_ask, held_back, yielding = battery.homing_ask(s, p)

@@ -245,6 +245,7 @@ def _push_path(
     """
     if not movable[occ[start]]:
         return None
+    held, pocket_of, depth = keep_out if keep_out is not None else (None, None, None)
     parent = {start: -1}
     queue = deque([start])
     while queue:
@@ -252,9 +253,8 @@ def _push_path(
         for nb in nbrs[c]:
             if nb < 0 or nb == own or nb in parent:
                 continue
-            if keep_out is not None and keep_out[0][nb]:
-                held, of, depth = keep_out
-                if of[nb] != of[c] or depth[nb] >= depth[c]:
+            if held is not None and held[nb]:
+                if pocket_of[nb] != pocket_of[c] or depth[nb] >= depth[c]:
                     continue
             j = occ[nb]
             if j >= 0 and not movable[j]:

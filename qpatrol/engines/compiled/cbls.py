@@ -25,6 +25,7 @@ from numba import njit
 
 from qpatrol.engines.compiled import goals
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.engines.compiled.stations import closed
 
 BIG = np.iinfo(np.int64).max
 W_FIRST = 0.75
@@ -146,7 +147,7 @@ def _choose(r, k, t, uu, c, battery, p, s, open_mask, robot, hist, visits, avg, 
         if table[c, d] < 0:
             continue
         cand |= 1 << d
-        if not goals._closed(r, k, c, nbrs[c, d], battery, p.pocket_of, p.pocket_depth, s.reserved):
+        if not closed(r, k, c, nbrs[c, d], battery, p.pocket_of, p.pocket_depth, s.reserved):
             a2 |= 1 << d
             if open_mask[k, d]:
                 a1 |= 1 << d

@@ -26,6 +26,7 @@ import numpy as np
 from numba import njit
 
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
+from qpatrol.engines.compiled.stations import closed
 
 HCR, CC, GBS, SEBS = 0, 1, 2, 3
 GONE = 4  # battery.GONE
@@ -83,21 +84,6 @@ def _held_by_other(r, k, cell, pocket_of, reserved):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _closed(r, k, c, nb, battery, pocket_of, pocket_depth, reserved):
-    """The move from c to nb goes deeper into another robot's held pocket
-    (:func:`qpatrol.world.battery.closed_cells`)."""
-    if not battery or nb < 0:
-        return False
-    h = pocket_of[nb]
-    if h < 0:
-        return False
-    holder = reserved[r, h]
-    if holder < 0 or holder == k:
-        return False
-    return pocket_of[c] != h or pocket_depth[nb] > pocket_depth[c]
-
-
-@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _score(kind, d, r, k, t, c, i_max, c_max, communication, last, goal, table, fpar):
     """The score of port d's far target for robot k on target c (greater is better)."""
     n_ports = table.shape[1] // 2
@@ -137,7 +123,7 @@ def _choose_neighbour(kind, r, k, t, uu, c, battery, p, s, open_mask, goal, tabl
         if table[c, d] < 0:
             continue
         cand |= 1 << d
-        if not _closed(r, k, c, nbrs[c, d], battery, p.pocket_of, p.pocket_depth, s.reserved):
+        if not closed(r, k, c, nbrs[c, d], battery, p.pocket_of, p.pocket_depth, s.reserved):
             a2 |= 1 << d
             if open_mask[k, d]:
                 a1 |= 1 << d
@@ -226,7 +212,7 @@ def _travel(r, k, c, g, battery, p, s, open_mask, dist):
         nb = nbrs[c, d]
         if nb < 0 or dist[nb, g] != here - 1:
             continue
-        if _closed(r, k, c, nb, battery, p.pocket_of, p.pocket_depth, s.reserved):
+        if closed(r, k, c, nb, battery, p.pocket_of, p.pocket_depth, s.reserved):
             continue
         if open_mask[k, d]:
             return d

@@ -12,7 +12,7 @@ from __future__ import annotations
 from numba import njit
 
 from qpatrol.engines.compiled.choice import ports_of
-from qpatrol.engines.compiled.stations import CHARGING, PATROL, QUEUED, kept_out
+from qpatrol.engines.compiled.stations import CHARGING, PATROL, QUEUED, closed, kept_out
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -215,14 +215,7 @@ def open_moves(r, tok, battery, avoid, p, s, w):
         any_open = False
         for d in range(nd):
             nb = nbrs[c, d]
-            ok = nb >= 0
-            if ok and battery:
-                hp = pocket_of[nb]
-                if hp >= 0:
-                    holder = s.reserved[r, hp]
-                    if holder >= 0 and holder != k:
-                        if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
-                            ok = False
+            ok = nb >= 0 and not closed(r, k, c, nb, battery, pocket_of, pocket_depth, s.reserved)
             if ok and avoid and occ[r, nb] >= 0:
                 # the holder of the right of way: a move a push can make room for
                 ok = k == tok and pushable(r, c, nb, battery, p, s, w)

@@ -23,6 +23,21 @@ def kept_out(c, pocket_of, reserved_r):
     return h >= 0 and reserved_r[h] >= 0
 
 
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def closed(r, k, c, nb, battery, pocket_of, pocket_depth, reserved):
+    """The move from c to nb goes deeper into another robot's held pocket
+    (:func:`qpatrol.world.battery.closed_cells`)."""
+    if not battery or nb < 0:
+        return False
+    h = pocket_of[nb]
+    if h < 0:
+        return False
+    holder = reserved[r, h]
+    if holder < 0 or holder == k:
+        return False
+    return pocket_of[c] != h or pocket_depth[nb] > pocket_depth[c]
+
+
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def shut_junction(r, h, p, s):
     """:func:`qpatrol.world.battery.shut_junctions` of station h: the junction of its
@@ -167,12 +182,8 @@ def ask(r, p, s, w):
         elif s.mode[r, k] == PATROL and w.choosing[k]:
             # a held pocket is closed: no robot but its holder moves deeper into it
             d = w.ask[k]
-            if d >= 0:
-                nb = nbrs[c, d]
-                hp = pocket_of[nb] if nb >= 0 else -1
-                if hp >= 0 and reserved[r, hp] >= 0 and reserved[r, hp] != k:
-                    if pocket_of[c] != hp or pocket_depth[nb] > pocket_depth[c]:
-                        w.ask[k] = -1
+            if d >= 0 and closed(r, k, c, nbrs[c, d], True, pocket_of, pocket_depth, reserved):
+                w.ask[k] = -1
         elif s.mode[r, k] == QUEUED or s.mode[r, k] == PATROL:
             # queued, or patrolling and shut in a held pocket (battery.shut_in)
             station = -1
