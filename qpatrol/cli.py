@@ -371,6 +371,11 @@ def sweep(
     overrides = list(set_ or []) + ([f"runs={runs}"] if runs is not None else [])
     try:
         limits.check_jobs(jobs, "--jobs")
+        if runs is not None:
+            try:
+                config_mod.check_value("runs", runs)
+            except ConfigError as e:
+                fail(f"--runs {runs}: {str(e).split(': ', 1)[-1]}")
         if not grid and args and args[0] in sw.NAMED_SWEEPS and values is None:
             named = sw.NAMED_SWEEPS[args[0]]
             name = args[0]
@@ -406,7 +411,7 @@ def sweep(
             points = sw.points_for(name, sw.parse_values(name, values))
         base = config_mod.load_config(config, overrides)
         target = out or Path("results") / "sweeps" / name
-        outputs.check_sweep_target(target, force)
+        sw.check_target(target, force)
         meta = provenance.collect(overrides, config_file=config_mod.find_config(config))
         bar = Bar(f"sweep {name}", unit="runs", quiet=quiet)
         try:
@@ -484,6 +489,14 @@ def plot(
             "results/figures/FIGURE.png). Its CSV is written beside it.",
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force",
+            metavar="",
+            help="Replace the image and CSV even if qpatrol did not write them as they are.",
+        ),
+    ] = False,
 ) -> None:
     """Draw one paper figure from an experiment folder, writing its CSV beside it.
 
@@ -497,7 +510,9 @@ def plot(
         fig = rp.figure(name)
         target = out or Path("results") / "figures" / f"{name}{fig.ext}"
         plots.check_image_path(target, extra=("gif",))
-        outputs.check_writable_file(target)
+        for f in fig.files(target):
+            outputs.check_writable_file(f)
+        fresh = outputs.is_fresh(target.parent)
         if from_ is None:
             candidates = [
                 rp.experiment_dir(Path("results"), fig.experiment, False),
@@ -515,7 +530,13 @@ def plot(
         if not from_.is_dir():
             fail(f"--from {from_}: is a file; give an experiment folder")
         rp.check_source(fig, from_)
-        made = rp.make_figure(name, from_, target)
+
+        def check(files: list[Path], csv_text: str) -> None:
+            same = {files[0]: csv_text.encode("utf-8")}  # a CSV as it would be written
+            outputs.check_files(files, force, same=same)
+
+        made = rp.make_figure(name, from_, target, check=check)
+        outputs.record_files(target.parent, [p.name for p in made], fresh)
     except (ConfigError, MapError) as e:
         fail(str(e))
     except (FileNotFoundError, KeyError, ValueError) as e:
@@ -560,6 +581,15 @@ def reproduce(
             "--jobs", "-j", metavar="N", help="Experiments run at once (default: 2, or 1 core)."
         ),
     ] = None,
+    force: Annotated[
+        bool,
+        typer.Option(
+            "--force",
+            metavar="",
+            help="Compute everything anew in --out: when it was written by another version, "
+            "a file of it changed, or its points differ from what this qpatrol would write.",
+        ),
+    ] = False,
     update_references: Annotated[
         bool,
         typer.Option(
@@ -585,9 +615,9 @@ def reproduce(
         n = jobs if jobs is not None else min(2, limits.cores())
         limits.check_jobs(n, "--jobs")
         target = out or rp.default_out(quick)
-        outputs.check_writable_dir(target, "--out", inside=True)
+        rp.check_target(target, force)
         if update_references:
-            outputs.check_writable_dir(rp.REFERENCES, "--update-references", inside=True)
+            rp.check_references(rp.REFERENCES)
     except ConfigError as e:
         fail(str(e))
     bar = Bar("reproduce" + (" --quick" if quick else ""), unit="runs", quiet=quiet)
@@ -599,6 +629,7 @@ def reproduce(
             update_references=update_references,
             log=bar.log,
             progress=bar,
+            force=force,
         )
     except KeyboardInterrupt:
         bar.close()

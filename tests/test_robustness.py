@@ -147,7 +147,7 @@ def test_force_never_replaces_a_file(run, tmp_path):
     f = tmp_path / "notes.txt"
     f.write_text("mine\n")
     res = run("train", tiny(tmp_path), "--out", f, "--force")
-    assert_one_line_error(res, 2, "--force replaces only qpatrol run folders")
+    assert_one_line_error(res, 2, "is a file, not a folder")
     assert f.read_text() == "mine\n"
     assert sorted(p.name for p in tmp_path.iterdir()) == ["notes.txt", "tiny.yaml"]
 
@@ -157,10 +157,10 @@ def test_force_never_replaces_a_foreign_folder(run, tmp_path):
     d.mkdir()
     (d / "a.jpg").write_text("x")
     res = run("train", tiny(tmp_path), "--out", d, "--force")
-    assert_one_line_error(res, 2, "a folder qpatrol did not write")
+    assert_one_line_error(res, 2, "has no manifest.json, so qpatrol did not write it")
     assert [p.name for p in d.iterdir()] == ["a.jpg"]
     res = run("sweep", "learning.gamma", "--values", "0.1", tiny(tmp_path), "--out", d, "--force")
-    assert_one_line_error(res, 2, "no sweep.json")
+    assert_one_line_error(res, 2, "has no manifest.json, so qpatrol did not write it")
     assert [p.name for p in d.iterdir()] == ["a.jpg"]
 
 
@@ -176,7 +176,7 @@ def test_force_replaces_a_run_folder(run, tmp_path):
     [
         (lambda d: ["maps", "show", "map_a", "--png", d / "x.bmpx"], "unknown image format .bmpx"),
         (lambda d: ["reproduce", "--quick", "--jobs", "0", "--out", d / "r"], "--jobs: got 0"),
-        (lambda d: ["reproduce", "--quick", "--out", d / "tiny.yaml"], "is not a folder"),
+        (lambda d: ["reproduce", "--quick", "--out", d / "tiny.yaml"], "is a file, not a folder"),
         (lambda d: ["train", d / "tiny.yaml", "--out", d / "tiny.yaml" / "run"], "is a file"),
         (
             lambda d: [

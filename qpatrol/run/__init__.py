@@ -30,9 +30,10 @@ from qpatrol.engines import threads as engine_threads
 from qpatrol.maps import Map, get_map
 from qpatrol.measures.records import Recorder, Tail, to_csv_text
 from qpatrol.measures.timeline import Timeline
+from qpatrol.run import outputs
 from qpatrol.run.checkpoint import DEFAULT_EVERY, Checkpointer
 from qpatrol.strategies.base import Strategy
-from qpatrol.util import atomic, provenance
+from qpatrol.util import atomic, manifest, provenance
 from qpatrol.world import failures, limits
 from qpatrol.world.rng import Seed, Streams, run_keys
 
@@ -460,8 +461,11 @@ def write_run(
     action]``), ``meta.json`` (what
     made it: :mod:`qpatrol.util.provenance`, from ``meta`` or collected now), ``map.txt``
     (the map file used), and when recorded ``transitions.csv``, ``watch.csv`` and
-    ``trajectory.csv`` and ``timeline.csv``. A run whose Q-values are not finite is not written
-    (:func:`check_finite`).
+    ``trajectory.csv`` and ``timeline.csv``, and last ``manifest.json`` (every file above
+    with its size and hash, :mod:`qpatrol.util.manifest`). A run whose Q-values are not
+    finite is not written (:func:`check_finite`). With ``replace`` an existing ``out`` is
+    replaced only if qpatrol wrote it and it holds nothing else
+    (:func:`qpatrol.run.outputs.check_replaceable`), and only its listed files are removed.
     """
     out = Path(out)
     check_finite(result)
@@ -470,9 +474,15 @@ def write_run(
     info["engine"] = provenance.engine_entry(
         result.config["engine"], result.engine, result.loop, result.engine_note
     )
-    with atomic.staged_dir(out, replace=replace) as tmp:
+    config_text = result.config.to_yaml()
+
+    def check(old: Path) -> None:  # once more, now that the run is done
+        outputs.check_replaceable(old, ("run",), "--out", "run folder")
+
+    staged = atomic.staged_dir(out, replace=replace, check=check, discard=outputs.replace_written)
+    with staged as tmp:
         (tmp / provenance.MAP_FILE).write_text(result.map.text, encoding="utf-8")
-        (tmp / "config.yaml").write_text(result.config.to_yaml())
+        (tmp / "config.yaml").write_text(config_text)
         (tmp / "episodes.csv").write_text(to_csv_text(result.episodes))
         summary = {
             "map": result.map.name,
@@ -495,6 +505,7 @@ def write_run(
         if result.timeline is not None:
             (tmp / "timeline.csv").write_text(to_csv_text(result.timeline))
         (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
+        manifest.seal(tmp, "run", config=manifest.text_digest(config_text))
     return out
 
 

@@ -2,36 +2,25 @@
 
 Every command that writes calls one of these checks first, so an output that cannot
 be written is found out in a fraction of a second, with one line, instead of after the
-simulation. ``--force`` replaces only what qpatrol wrote itself: a run folder (with
-``meta.json``, or ``config.yaml`` and ``summary.json``) or a sweep folder (with
-``sweep.json``), never a file or someone else's folder.
+simulation. ``--force`` removes only what qpatrol wrote itself: the files a folder's
+``manifest.json`` lists (:mod:`qpatrol.util.manifest`), and nothing when the folder
+holds anything else, a file, a link or someone else's folder.
 """
 
 from __future__ import annotations
 
 import os
+import stat
 import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 
 from qpatrol.config import ConfigError
+from qpatrol.util import manifest
 
 
 class OutputError(ConfigError):
     """An output path that cannot or must not be written; the message is one line."""
-
-
-def is_run_folder(path: Path) -> bool:
-    """True for a folder ``qpatrol train`` (or a sweep point) wrote."""
-    p = Path(path)
-    return p.is_dir() and (
-        (p / "meta.json").is_file()
-        or ((p / "config.yaml").is_file() and (p / "summary.json").is_file())
-    )
-
-
-def is_sweep_folder(path: Path) -> bool:
-    """True for a folder ``qpatrol sweep`` wrote."""
-    return Path(path).is_dir() and (Path(path) / "sweep.json").is_file()
 
 
 def nearest_existing(path: Path) -> Path:
@@ -86,32 +75,182 @@ def check_writable_file(path: str | Path, label: str = "--out") -> None:
     _probe(anc, label, p)
 
 
+def check_replaceable(
+    path: str | Path,
+    kinds: tuple[str, ...],
+    label: str = "--out",
+    what: str = "folder",
+    also: Iterable[str] = (),
+    hint: str = "",
+) -> manifest.Manifest:
+    """Check that ``--force`` may remove folder ``path``: qpatrol wrote it (its
+    ``manifest.json`` is of one of ``kinds``) and it holds nothing else (but ``also``:
+    entries its manifest does not list that qpatrol wrote all the same, see
+    :func:`qpatrol.util.manifest.strays`).
+
+    Raises:
+        OutputError: one line naming the first file or folder qpatrol did not write.
+    """
+    p = Path(path)
+    keep = hint or (
+        f"--force removes only what qpatrol wrote; move it away or choose another {label}"
+    )
+    if p.is_symlink() or not p.is_dir():
+        raise OutputError(f"{label} {p}: {_kind_of(p)}, not a {what} qpatrol wrote; {keep}")
+    try:
+        m = manifest.read(p)
+        if m is None:
+            raise OutputError(
+                f"{label} {p}: has no {manifest.MANIFEST_FILE}, so qpatrol did not write it "
+                f"(or a version that kept none did); {keep}"
+            )
+        if m.kind not in kinds:
+            raise OutputError(f"{label} {p}: a {m.kind} folder, not a {what}; {keep}")
+        extra = manifest.strays(p, also=also)
+    except manifest.ManifestError as e:
+        raise OutputError(f"{label} {p}: {e}; {keep}") from None
+    if extra:
+        raise OutputError(f"{label} {p}: holds {extra[0]}, which qpatrol did not write; {keep}")
+    return m
+
+
+def _kind_of(p: Path) -> str:
+    """What a path that is not a plain folder is, in a few words."""
+    if p.is_symlink():
+        return "a symbolic link"
+    try:
+        mode = p.stat().st_mode
+    except OSError:
+        return "not readable"
+    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
+        return "a device"
+    if stat.S_ISFIFO(mode):
+        return "a FIFO"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "a file"
+
+
+def check_out_path(path: str | Path, label: str = "--out") -> None:
+    """Refuse output folder paths that can never be a qpatrol folder: empty, the root,
+    the current folder, or an existing non-folder."""
+    text = str(path)
+    if text.strip() == "":
+        raise OutputError(f"{label}: empty; give a folder path")
+    p = Path(os.path.abspath(text))
+    if p == p.parent:
+        raise OutputError(f"{label} {text}: the root folder; give a folder of its own")
+    if p == Path(os.path.abspath(".")):
+        raise OutputError(f"{label} {text}: the current folder; give a folder of its own")
+    if (Path(text).exists() or Path(text).is_symlink()) and not Path(text).is_dir():
+        raise OutputError(
+            f"{label} {text}: exists and is {_kind_of(Path(text))}, not a folder; "
+            "choose another path"
+        )
+
+
 def check_run_target(path: str | Path, force: bool, label: str = "--out") -> None:
     """Check the output folder of ``train``: writable, and replaceable only with ``force``
-    and only if it is a run folder."""
+    and only if qpatrol wrote it and it holds nothing else."""
     p = Path(path)
+    check_out_path(p, label)
     if p.exists() or p.is_symlink():
         if not force:
             raise OutputError(
                 f"{p} already exists; pass --force to replace it or --out to choose another"
             )
-        if p.is_symlink() or not is_run_folder(p):
-            what = "a file" if not p.is_dir() else "a folder qpatrol did not write"
-            raise OutputError(
-                f"{label} {p}: {what} (no meta.json or summary.json); --force replaces only "
-                "qpatrol run folders; choose another --out"
-            )
+        check_replaceable(p, ("run",), label, "run folder")
     check_writable_dir(p, label)
 
 
-def check_sweep_target(path: str | Path, force: bool, label: str = "--out") -> None:
-    """Check a sweep folder: writable; with ``force``, only a sweep folder or an empty one."""
+def check_sweep_target(
+    path: str | Path, force: bool, label: str = "--out", also: Iterable[str] = ()
+) -> None:
+    """Check a sweep folder: a path for a folder, writable; one that exists and is not
+    empty must be a sweep folder qpatrol wrote holding nothing else (resumed, or with
+    ``force`` started over)."""
     p = Path(path)
-    if p.exists() and not p.is_dir():
-        raise OutputError(f"{label} {p}: exists and is not a folder; choose another path")
-    if force and p.is_dir() and not is_sweep_folder(p) and any(p.iterdir()):
-        raise OutputError(
-            f"{label} {p}: a folder qpatrol did not write (no sweep.json); --force starts over "
-            "only in sweep folders; choose another --out"
+    check_out_path(p, label)
+    if p.is_dir() and any(p.iterdir()):
+        hint = (
+            "a sweep writes only into a new or empty folder or one of its own (which "
+            f"--force starts over); choose another {label}"
         )
+        check_replaceable(p, ("sweep",), label, "sweep folder", also, hint)
     check_writable_dir(p, label, inside=True)
+
+
+def replace_written(old: Path) -> None:
+    """``discard`` of :func:`qpatrol.util.atomic.staged_dir` for qpatrol folders: removes
+    what the manifest lists, nothing else."""
+    manifest.remove(old)
+
+
+def check_files(
+    paths: Iterable[str | Path],
+    force: bool,
+    label: str = "--out",
+    same: dict[Path, bytes] | None = None,
+) -> None:
+    """Check the files a command is about to write: each is new, or listed unchanged in
+    the ``manifest.json`` of its folder (qpatrol wrote it as it is), or holds exactly
+    the bytes ``same`` says it will get (nothing is lost), or ``force`` allows replacing
+    it. A folder or a non-file in the way is refused even with ``force``."""
+    for path in paths:
+        p = Path(path)
+        if p.is_dir() or (p.exists() and not p.is_file()):
+            raise OutputError(f"{label} {p}: is {_kind_of(p) if not p.is_dir() else 'a folder'}")
+        check_writable_file(p, label)
+        if not (p.exists() or p.is_symlink()) or force:
+            continue
+        want = (same or {}).get(p)
+        if want is not None and not p.is_symlink() and p.stat().st_size == len(want):
+            if p.read_bytes() == want:
+                continue
+        try:
+            m = manifest.read(p.parent)
+        except manifest.ManifestError:
+            m = None
+        entry = m.files.get(p.name) if m is not None else None
+        if entry is None or p.is_symlink() or manifest.file_entry(p) != entry:
+            why = (
+                "qpatrol did not write it"
+                if entry is None
+                else "it was changed after qpatrol wrote it"
+            )
+            raise OutputError(
+                f"{label} {p}: already exists and {why}; pass --force to replace it or "
+                f"choose another {label}"
+            )
+
+
+def record_files(
+    folder: str | Path, names: Iterable[str], fresh: bool, kind: str = "figures"
+) -> None:
+    """After writing ``names`` in ``folder``: list them in its manifest if it has one, or
+    start one (of ``kind``) if the folder was new or empty before (``fresh``); a folder
+    of someone else's gets no manifest."""
+    folder = Path(folder)
+    try:
+        m = manifest.read(folder)
+    except manifest.ManifestError:
+        return
+    if m is None and not fresh:
+        return
+    files = dict(m.files) if m is not None else {}
+    for n in names:
+        files[n] = manifest.file_entry(folder / n)
+    manifest.write(
+        folder,
+        m.kind if m is not None else kind,
+        files,
+        m.folders if m is not None else (),
+        m.config if m is not None else None,
+        files,
+    )
+
+
+def is_fresh(folder: str | Path) -> bool:
+    """True when ``folder`` does not exist or is empty (qpatrol may start a manifest)."""
+    p = Path(folder)
+    return not p.exists() or (p.is_dir() and not any(p.iterdir()))

@@ -21,7 +21,6 @@ from __future__ import annotations
 import csv
 import io
 import json
-import shutil
 import threading
 import time
 import warnings
@@ -33,10 +32,12 @@ from typing import Any
 
 import pandas as pd
 
+from qpatrol import __version__
 from qpatrol.config import Config, ConfigError, find_config, load_config
 from qpatrol.measures.records import to_csv_text
+from qpatrol.run import outputs
 from qpatrol.study.sweep import NAMED_SWEEPS, Point, progress_of, run_sweep, run_sweeps
-from qpatrol.util import atomic, provenance
+from qpatrol.util import atomic, manifest, provenance
 from qpatrol.world import limits
 
 REPO = Path(__file__).resolve().parents[2]
@@ -143,12 +144,78 @@ def point_seconds(folder: Path) -> float:
     return total
 
 
+def nested(out: Path) -> list[str]:
+    """Folders inside a results folder that qpatrol writes with manifests of their own:
+    the experiments' sweep folders (both modes), ``figures``, the quick references
+    (``reference/quick``) and a quick results folder inside a full one (``quick``)."""
+    out = Path(out)
+    found = []
+    kinds = {
+        **{f"runs/{mode}/{e.name}": "sweep" for mode in ("full", "quick") for e in EXPERIMENTS},
+        "figures": "figures",
+        "reference/quick": "references",
+        "quick": "reproduction",
+    }
+    for rel, kind in kinds.items():
+        d = out / rel
+        if d.is_dir() and not d.is_symlink():
+            try:
+                m = manifest.read(d)
+            except manifest.ManifestError:
+                continue
+            if m is not None and m.kind == kind:
+                found.append(rel)
+    return found
+
+
+def check_target(out: Path, force: bool, label: str = "--out") -> None:
+    """Check a results folder before any work: new or empty, or one qpatrol wrote that
+    holds nothing else. Without ``force`` it must also be of this qpatrol's version, its
+    report, data and figures as qpatrol wrote them (the experiments' points are checked
+    by their sweeps, :func:`qpatrol.study.sweep.run_sweeps`).
+
+    Raises:
+        OutputError: one line naming the file or the difference.
+    """
+    out = Path(out)
+    outputs.check_out_path(out, label)
+    if outputs.is_fresh(out):
+        outputs.check_writable_dir(out, label, inside=out.exists())
+        return
+    hint = (
+        "reproduce writes only into a new or empty folder or a results folder of its own; "
+        f"choose another {label}"
+    )
+    kinds = ("reproduction",)
+    m = outputs.check_replaceable(out, kinds, label, "results folder", nested(out), hint)
+    outputs.check_writable_dir(out, label, inside=True)
+    if force:
+        return
+    again = f"pass --force to compute it anew, or choose another {label}"
+    if m.qpatrol != __version__:
+        raise outputs.OutputError(
+            f"{label} {out}: written by qpatrol {m.qpatrol}, this is {__version__}; {again}"
+        )
+    try:
+        bad = [b for b in manifest.changed(out, 100, nested=False) if (out / b).exists()]
+        if not bad and (out / "figures").is_dir():
+            bad = [f"figures/{f}" for f in manifest.changed(out / "figures", 100)]
+            bad = [b for b in bad if (out / b).exists()]
+    except manifest.ManifestError as e:
+        raise outputs.OutputError(f"{label} {out}: {e}; {again}") from None
+    if bad:
+        raise outputs.OutputError(
+            f"{label} {out}: {bad[0]} changed since qpatrol wrote it; {again}"
+        )
+
+
 def run_all(
     out: Path,
     quick: bool,
     jobs: int = 2,
     log: Callable[[str], None] = print,
     progress: Callable[[float, float], None] | None = None,
+    force: bool = False,
 ) -> tuple[dict[str, float], list[str]]:
     """Run every experiment's points in one pool of ``jobs`` workers, the costliest
     first; returns each experiment's summed point run time in seconds (point times are
@@ -182,7 +249,7 @@ def run_all(
         (e.base(quick), e.points(quick), experiment_dir(out, e.name, quick)) for e in EXPERIMENTS
     ]
     try:
-        results = run_sweeps(sweeps, jobs=jobs, meta=provenance.collect())
+        results = run_sweeps(sweeps, jobs=jobs, meta=provenance.collect(), force=force)
     finally:
         stop.set()
         if watcher is not None:
@@ -247,6 +314,14 @@ class Figure:
     ext: str = ".png"
     sweep_key: str | None = None
     wants_map: bool = False
+
+    def files(self, image: Path) -> list[Path]:
+        """The files drawing to ``image`` writes: its CSV, the image (and, for an
+        animation, its still ``.png``)."""
+        image = Path(image)
+        if self.ext == ".gif":
+            return [image.with_suffix(".csv"), image.with_suffix(".gif"), image.with_suffix(".png")]
+        return [image.with_suffix(".csv"), image if image.suffix else image.with_suffix(".png")]
 
 
 def _figures() -> dict[str, Figure]:
@@ -412,15 +487,27 @@ def check_source(fig: Figure, folder: Path) -> None:
         raise ConfigError(f"{fig.name}: {d} holds {found}; run the sweep first")
 
 
-def make_figure(name: str, folder: Path, image: Path, draw: bool = True) -> list[Path]:
+def make_figure(
+    name: str,
+    folder: Path,
+    image: Path,
+    draw: bool = True,
+    check: Callable[[list[Path], str], None] | None = None,
+) -> list[Path]:
     """Tabulate ``folder`` into ``image``'s CSV (same stem, ``.csv``), then draw it
-    (unless ``draw`` is off). Returns the files written."""
+    (unless ``draw`` is off). Returns the files written. ``check(files, csv_text)`` is
+    called before anything is written, with the files drawing will write
+    (:meth:`Figure.files`) and the CSV's text; it raises to write nothing."""
     from qpatrol.study.figures import folder_map
 
     fig = figure(name)
     source = source_folder(fig, folder)
     table = fig.data(source)
-    csv = write_csv(table, Path(image).with_suffix(".csv"))
+    text = to_csv_text(table)
+    if check is not None:
+        check(fig.files(Path(image)) if draw else [Path(image).with_suffix(".csv")], text)
+    csv = Path(image).with_suffix(".csv")
+    atomic.write_text(csv, text)
     if not draw:
         return [csv]
     if fig.wants_map:
@@ -475,6 +562,7 @@ def reproduce(
     log: Callable[[str], None] = print,
     progress: Callable[[float, float], None] | None = None,
     references: Path | None = None,
+    force: bool = False,
 ) -> Path:
     """Run every experiment, tabulate and draw every figure, write REPORT.md.
 
@@ -484,38 +572,84 @@ def reproduce(
     copies its CSVs to ``references`` (default ``results/reference/quick``), which the
     test suite compares byte for byte with a fresh quick run. Returns the report's path
     (or ``out`` when ``draw`` is off).
+
+    ``out`` must be new or empty, or a results folder qpatrol wrote holding nothing else
+    (:func:`check_target`); its ``manifest.json`` lists what it wrote. Finished points
+    are reused only when they are what this qpatrol would write now; otherwise, and when
+    ``out`` is of another version or a file of it changed, a ConfigError names the
+    difference and ``force`` starts over (removing only what the manifest lists).
     """
     out = Path(out) if out is not None else default_out(quick)
     if update_references and not quick:
         raise ValueError("update_references applies to the quick mode")
+    ref = Path(references) if references is not None else REFERENCES
+    check_target(out, force)
+    if update_references:
+        check_references(ref)
     started = provenance.now()
     start = time.monotonic()
-    seconds, resumed = run_all(out, quick, jobs, log, progress)
+    if force and not outputs.is_fresh(out):
+        manifest.remove(out)  # what the manifest lists; nested folders of its own stay
+    out.mkdir(parents=True, exist_ok=True)
+    if manifest.read(out) is None:  # a manifest from the start: a killed run is resumable
+        manifest.write(out, "reproduction", [], [], None)
+    seconds, resumed = run_all(out, quick, jobs, log, progress, force)
     home = out
     figs, data = home / "figures", home / "data"
+    written = []
     for exp in EXPERIMENTS:
         src = experiment_dir(out, exp.name, quick) / "results.csv"
         atomic.write_bytes(data / f"{exp.name}-results.csv", src.read_bytes())
+        written.append(f"data/{exp.name}-results.csv")
+    fresh_figs = outputs.is_fresh(figs)
+    made_figs: list[str] = []
     for name, made in make_figures(out, quick, figs, draw, jobs):
+        made_figs += [Path(p).name for p in made]
         if draw:
             log(f"figure {name}: {', '.join(str(p) for p in made)}")
+    outputs.record_files(figs, made_figs, fresh=fresh_figs or force)
     if update_references:
-        ref = Path(references) if references is not None else REFERENCES
-        for sub in ("figures", "data"):
-            shutil.rmtree(ref / sub, ignore_errors=True)
-            copy_tree_files(home / sub, ref / sub)
+        _write_references(home, ref)
         log(f"updated the quick references in {ref}")
     meta = provenance.collect(started=started, mode="quick" if quick else "full", jobs=jobs)
     atomic.write_text(home / provenance.META_FILE, provenance.meta_text(meta))
-    if not draw:
-        return home
-    from qpatrol.study import report
+    written.append(provenance.META_FILE)
+    path = home
+    if draw:
+        from qpatrol.study import report
 
-    path = report.write(
-        home, "quick" if quick else "full", seconds, time.monotonic() - start, resumed
-    )
-    log(f"wrote {path}")
+        path = report.write(
+            home, "quick" if quick else "full", seconds, time.monotonic() - start, resumed
+        )
+        written.append(path.name)
+        log(f"wrote {path}")
+    mode = "quick" if quick else "full"
+    folders = ["figures", *(f"runs/{mode}/{e.name}" for e in EXPERIMENTS)]
+    old = manifest.read(out)
+    keep = {k: v for k, v in (old.files if old is not None else {}).items() if k not in written}
+    keep_dirs = [d for d in (old.folders if old is not None else []) if d not in folders]
+    manifest.write(out, "reproduction", [*keep, *written], [*keep_dirs, *folders], None, keep)
     return path
+
+
+def check_references(ref: Path) -> None:
+    """Check the references folder ``--update-references`` rewrites: new or empty, or a
+    references folder qpatrol wrote holding nothing else."""
+    outputs.check_out_path(ref, "--update-references")
+    if not outputs.is_fresh(ref):
+        outputs.check_replaceable(ref, ("references",), "--update-references", "references folder")
+    outputs.check_writable_dir(ref, "--update-references", inside=ref.exists())
+
+
+def _write_references(home: Path, ref: Path) -> None:
+    """Copy the quick run's figure and data CSVs to ``ref``, replacing only what qpatrol
+    wrote there, and give it its manifest."""
+    check_references(ref)
+    if not outputs.is_fresh(ref):
+        manifest.remove(ref)
+    for sub in ("figures", "data"):
+        copy_tree_files(home / sub, ref / sub)
+    manifest.seal(ref, "references")
 
 
 def compare_with_references(

@@ -47,6 +47,7 @@ from typing import Any, NamedTuple
 
 import pandas as pd
 
+from qpatrol import __version__
 from qpatrol.config import FIELDS, Config, ConfigError, check_value, parse_assignment
 from qpatrol.engines import coldstart, compiled_loop
 from qpatrol.engines import threads as engine_threads
@@ -54,7 +55,7 @@ from qpatrol.maps import MapError, resolve_map
 from qpatrol.measures.records import to_csv_text
 from qpatrol.run import outputs
 from qpatrol.strategies import NAMES as STRATEGY_NAMES
-from qpatrol.util import atomic, provenance
+from qpatrol.util import atomic, manifest, provenance
 from qpatrol.util.csvio import read_csv
 from qpatrol.world import limits
 
@@ -166,7 +167,12 @@ def parse_values(key: str, text: str) -> list[Any]:
         if isinstance(v, str) and FIELDS[k].kind in ("int", "float"):
             with contextlib.suppress(ValueError):
                 v = float(v)
-        out.append(check_value(k, v))
+        v = check_value(k, v)
+        if any(json.dumps(v, default=str) == json.dumps(w, default=str) for w in out):
+            raise ConfigError(
+                f"{key}: the value {_fmt_value(v)} is given twice; allowed: distinct values"
+            )
+        out.append(v)
     return out
 
 
@@ -466,6 +472,7 @@ def run_sweeps(
     jobs: int = 1,
     meta: dict[str, Any] | None = None,
     batch_points: bool = True,
+    force: bool = False,
 ) -> list[SweepResult]:
     """Run several sweeps' points in one pool of ``jobs`` workers (joblib).
 
@@ -473,12 +480,12 @@ def run_sweeps(
     share the workers, the costliest first (:func:`point_cost`), so that a large sweep
     never runs on one core while the others idle. Each sweep folder is the same as
     :func:`run_sweep` would write, and resumes the same way; ``batch_points`` as there
-    (points of different sweeps never share a batch).
+    (points of different sweeps never share a batch), ``force`` as there.
     """
     limits.check_jobs(jobs)
     meta = dict(meta) if meta is not None else provenance.collect()
     with contextlib.ExitStack() as stack:
-        opened = [_open(stack, base, points, out, False, meta) for base, points, out in sweeps]
+        opened = [_open(stack, base, points, out, force, meta) for base, points, out in sweeps]
         items: list[tuple[Any, Point, Config, Any, Path]] = []
         for i, sw in enumerate(opened):
             ready, failed = _with_maps(sw.todo, sw.maps, sw.pdir)
@@ -618,6 +625,7 @@ class _Open:
     result: SweepResult
     done_runs: int
     total: int
+    ledger: _Ledger
 
     def record(self, pid: str, error: str | None) -> None:
         if error is None:
@@ -625,6 +633,7 @@ class _Open:
         else:
             self.result.failed.append(pid)
             self.result.errors[pid] = error
+        self.ledger.point(pid)
 
     def close(self, meta: dict[str, Any]) -> SweepResult:
         """Sort the outcome, write ``results.csv`` and ``meta.json``."""
@@ -633,7 +642,88 @@ class _Open:
         self.result.failed.sort(key=order.__getitem__)
         self.result.results = write_results(self.out, self.points)
         atomic.write_text(self.out / provenance.META_FILE, provenance.meta_text(meta))
+        self.ledger.wrote(RESULTS_FILE, provenance.META_FILE)
         return self.result
+
+
+class _Ledger:
+    """The sweep folder's manifest, kept up to date as the sweep writes: its own files,
+    and each point's folder (or ``<id>.failed.json``) as the point finishes."""
+
+    def __init__(self, out: Path, config: str):
+        self.out, self.config = out, config
+        old = manifest.read(out)
+        self.files = dict(old.files) if old is not None else {}
+        self.folders = set(old.folders) if old is not None else set()
+
+    def wrote(self, *names: str) -> None:
+        for name in names:
+            self.files[name] = manifest.file_entry(self.out / name)
+        self.save()
+
+    def point(self, pid: str) -> None:
+        rel = f"{POINTS_DIR}/{pid}"
+        if (self.out / rel).is_dir():
+            self.folders.add(rel)
+        else:
+            self.folders.discard(rel)
+        failed = f"{rel}{FAILED_SUFFIX}"
+        if (self.out / failed).is_file():
+            self.files[failed] = manifest.file_entry(self.out / failed)
+        else:
+            self.files.pop(failed, None)
+        self.save()
+
+    def save(self) -> None:
+        self.files = {k: v for k, v in self.files.items() if (self.out / k).is_file()}
+        manifest.write(self.out, "sweep", self.files, self.folders, self.config, self.files)
+
+
+def adoptable(out: Path) -> list[str]:
+    """Entries of a sweep folder that its manifest does not list yet but the sweep
+    wrote (a point that finished just before the sweep was killed): ``points/<id>``
+    with a run manifest of its own and ``points/<id>.failed.json``, for the ids of the
+    folder's ``sweep.json`` as the manifest recorded it."""
+    try:
+        m = manifest.read(out)
+    except manifest.ManifestError:
+        return []
+    if m is None or m.kind != "sweep" or SWEEP_FILE not in m.files:
+        return []
+    if _sweep_json_changed(out, m):
+        return []
+    try:
+        ids = [str(p["id"]) for p in json.loads((out / SWEEP_FILE).read_text("utf-8"))["points"]]
+    except (OSError, ValueError, KeyError, TypeError):
+        return []
+    found = []
+    for pid in ids:
+        rel = f"{POINTS_DIR}/{pid}"
+        if rel not in m.folders and (out / rel).is_dir() and not (out / rel).is_symlink():
+            try:
+                sub = manifest.read(out / rel)
+            except manifest.ManifestError:
+                sub = None
+            if sub is not None and sub.kind == "run":
+                found.append(rel)
+        failed = rel + FAILED_SUFFIX
+        if failed not in m.files and (out / failed).is_file():
+            found.append(failed)
+    return found
+
+
+def _sweep_json_changed(out: Path, m: manifest.Manifest) -> bool:
+    try:
+        return manifest.file_entry(out / SWEEP_FILE) != m.files[SWEEP_FILE]
+    except OSError:
+        return True
+
+
+def check_target(out: str | Path, force: bool, label: str = "--out") -> None:
+    """Check a sweep's output folder before any work (see
+    :func:`qpatrol.run.outputs.check_sweep_target`)."""
+    out = Path(out)
+    outputs.check_sweep_target(out, force, label, also=adoptable(out) if out.is_dir() else [])
 
 
 def _open(
@@ -657,34 +747,81 @@ def _open(
             except ConfigError as e:
                 raise ConfigError(f"sweep point {point.id}: {e}") from None
     spec = _describe(base, points)
-    outputs.check_sweep_target(out, force)
+    check_target(out, force)
     if not force:
         _check_same_sweep(out, spec)  # read-only: a mismatch writes nothing
+        _check_points(out, points, configs)
+    fresh = not out.exists() or not any(out.iterdir())
     out.mkdir(parents=True, exist_ok=True)
     stack.enter_context(_lock(out))
+    if not fresh:
+        check_target(out, force)  # again, now that we hold the lock
     pdir = out / POINTS_DIR
     if force:
-        shutil.rmtree(pdir, ignore_errors=True)
-        (out / RESULTS_FILE).unlink(missing_ok=True)
+        manifest.remove(out, keep=(LOCK_FILE,))
     else:
-        _check_same_sweep(out, spec)  # again, now that we hold the lock
+        _check_same_sweep(out, spec)
+    ledger = _Ledger(out, manifest.text_digest(json.dumps(spec, sort_keys=True)))
+    for rel in adoptable(out):
+        if (out / rel).is_dir():
+            ledger.folders.add(rel)
+        else:
+            ledger.files[rel] = manifest.file_entry(out / rel)
     if force or not (out / SWEEP_FILE).exists():
         atomic.write_text(out / SWEEP_FILE, json.dumps(spec, indent=2) + "\n")
     _remove_stray_tmp(out)
     pdir.mkdir(exist_ok=True)
     _remove_stray_tmp(pdir)
+    ledger.wrote(SWEEP_FILE, LOCK_FILE)
     result = SweepResult(out=out, points=list(points))
     done_runs = 0
     todo: list[tuple[Point, Config]] = []
     for point, cfg in zip(points, configs, strict=True):
         if (pdir / point.id).is_dir():
             (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
+            ledger.point(point.id)
             result.skipped.append(point.id)
             done_runs += cfg["runs"]
         else:
             todo.append((point, cfg))
     total = sum(c["runs"] for c in configs)
-    return _Open(out, list(points), pdir, maps, todo, result, done_runs, total)
+    return _Open(out, list(points), pdir, maps, todo, result, done_runs, total, ledger)
+
+
+def _check_points(out: Path, points: list[Point], configs: list[Config]) -> None:
+    """Raise ConfigError when a finished point of ``out`` is not what this qpatrol would
+    write now: another version wrote it, its config differs, or a file of it changed
+    since it was written. Names the points (at most three) and asks for ``--force``."""
+    why: list[str] = []
+    n = 0
+    for point, cfg in zip(points, configs, strict=True):
+        d = out / POINTS_DIR / point.id
+        if not d.is_dir():
+            continue
+        try:
+            m = manifest.read(d)
+            if m is None:
+                reason = "no manifest.json"
+            elif m.qpatrol != __version__:
+                reason = f"written by qpatrol {m.qpatrol}, this is {__version__}"
+            elif m.config != manifest.text_digest(cfg.to_yaml()):
+                reason = "its config.yaml is not the point's config now"
+            else:
+                bad = manifest.changed(d)
+                reason = f"{bad[0]} changed since it was written" if bad else ""
+        except manifest.ManifestError as e:
+            reason = str(e)
+        if reason:
+            n += 1
+            if len(why) < 3:
+                why.append(f"{point.id}: {reason}")
+    if n:
+        more = f" and {n - len(why)} more" if n > len(why) else ""
+        raise ConfigError(
+            f"{out}: {n} finished point{'s' if n > 1 else ''} differ from what this qpatrol "
+            f"would write ({'; '.join(why)}{more}); pass --force to compute the sweep anew, "
+            "or choose another output folder"
+        )
 
 
 def read_progress(path: Path) -> float:
@@ -878,7 +1015,7 @@ def _flat(tree: Any, prefix: str = "") -> dict[str, Any]:
 def _check_same_sweep(out: Path, spec: dict[str, Any]) -> None:
     """Raise ConfigError if ``out`` holds something other than this sweep."""
     path = out / SWEEP_FILE
-    hint = "rerun with --force (force=True) to start over, or choose another output folder"
+    hint = "pass --force to start over, or choose another output folder"
     if out.exists() and not out.is_dir():
         raise ConfigError(f"{out} exists and is not a folder; choose another output folder")
     if not path.exists():

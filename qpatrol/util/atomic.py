@@ -10,7 +10,7 @@ from __future__ import annotations
 import os
 import shutil
 import tempfile
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
 
@@ -72,12 +72,20 @@ def _remove(path: Path) -> None:
 
 
 @contextmanager
-def staged_dir(target: str | Path, replace: bool = False) -> Iterator[Path]:
+def staged_dir(
+    target: str | Path,
+    replace: bool = False,
+    check: Callable[[Path], None] | None = None,
+    discard: Callable[[Path], None] | None = None,
+) -> Iterator[Path]:
     """Yield a fresh temporary folder; on success it is renamed to ``target``.
 
     If the body raises, the temporary folder is removed and ``target`` is untouched.
     With ``replace``, an existing ``target`` folder is swapped out only after the new
-    one is complete; a ``target`` that is not a folder is never replaced.
+    one is complete; a ``target`` that is not a folder is never replaced. The old
+    folder is first moved aside and given to ``check`` (which raises to keep it: it is
+    moved back), then, once the new one is in place, to ``discard`` (default: removed
+    whole).
     """
     t = Path(target)
     t.parent.mkdir(parents=True, exist_ok=True)
@@ -94,8 +102,14 @@ def staged_dir(target: str | Path, replace: bool = False) -> Iterator[Path]:
             if old.exists() or old.is_symlink():
                 _remove(old)
             os.replace(t, old)
+            if check is not None:
+                try:
+                    check(old)
+                except BaseException:
+                    os.replace(old, t)
+                    raise
             os.replace(tmp, t)
-            _remove(old)
+            (discard or _remove)(old)
         else:
             os.replace(tmp, t)
     except BaseException:
