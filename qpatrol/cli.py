@@ -226,6 +226,7 @@ def train(
     try:
         cfg = config_mod.load_config(config, overrides)
         target = out or run_mod.default_out_dir(cfg, config)
+        outputs.check_out_path(target)
         cp_dir = ck.location(target)
         if resume:
             if target.exists():

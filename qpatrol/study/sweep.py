@@ -19,6 +19,7 @@ as a batch of their own); the files are the same either way::
 Layout of ``out``::
 
     sweep.json               base config tree and the list of points (written first)
+    manifest.json            what the sweep wrote (qpatrol.util.manifest), kept up to date
     points/<id>/             a complete run folder per finished point (see run.write_run)
     points/<id>.failed.json  error type, message and traceback of a point that raised
     results.csv              one row per (point, run), rebuilt from every summary.json
@@ -818,7 +819,8 @@ def _check_points(out: Path, points: list[Point], configs: list[Config]) -> None
     if n:
         more = f" and {n - len(why)} more" if n > len(why) else ""
         raise ConfigError(
-            f"{out}: {n} finished point{'s' if n > 1 else ''} differ from what this qpatrol "
+            f"{out}: {n} finished point{'s differ' if n > 1 else ' differs'} from what this "
+            "qpatrol "
             f"would write ({'; '.join(why)}{more}); pass --force to compute the sweep anew, "
             "or choose another output folder"
         )
