@@ -349,3 +349,17 @@ def test_study_plots_write_images(study, tmp_path):
         csv = tmp_path / f"{name}.csv"
         csv.write_text(to_csv_text(data(folder)))
         assert draw(csv, tmp_path / f"{name}.png").read_bytes()[:8] == PNG
+
+
+def test_settle_steps_counts_only_windows_that_start_after_the_failure():
+    """A window that starts at the failure step holds steps before it: not counted."""
+    from qpatrol.study.figures import settle_steps
+
+    first = np.array([1, 11, 21, 31, 41])
+    last = np.array([10, 20, 30, 40, 50])
+    worst = np.array([5.0, 8.0, 50.0, 8.0, 8.0])
+    # after step 11: windows 21-30 (50), 31-40 (8), 41-50 (8); level 8, reached by step 40
+    assert settle_steps(first, last, worst, 11) == 40 - 11
+    # after step 10: the window 11-20 is the first within the band of the level 8
+    assert settle_steps(first, last, worst, 10) == 20 - 10
+    assert settle_steps(first, last, worst, 41) is None

@@ -316,3 +316,15 @@ def test_broken_files_exit_2_with_one_line(tmp_path: Path):
         assert len(res.stderr.strip().splitlines()) == 1, res.stderr
         assert "Traceback" not in res.output
         assert not out.exists()
+
+
+def test_positions_are_pixels_times_resolution_plus_offset(tmp_path: Path):
+    """patrolling_sim's offset is in metres, added after scaling the pixels."""
+    lines = GRID.read_text().splitlines()
+    lines[4], lines[5] = "1.5", "-2.25"  # offset x, offset y
+    shifted = tmp_path / "shifted.graph"
+    shifted.write_text("\n".join(lines) + "\n")
+    plain = import_graph_file(GRID, unit_edges=True).map
+    m = import_graph_file(shifted, unit_edges=True).map
+    assert np.allclose(m.xy[0], (19 * 0.075 + 1.5, 325 * 0.075 - 2.25))
+    assert np.allclose(m.xy - plain.xy, (1.5, -2.25))
