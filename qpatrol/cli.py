@@ -248,11 +248,7 @@ def train(
         )
         if resume:
             snap = cp.load()
-            try:
-                info = json.loads((cp.folder / ck.INFO_FILE).read_text(encoding="utf-8"))
-                started = str(info.get("started") or started)
-            except (OSError, ValueError, AttributeError):
-                pass  # the start time is only for meta.json
+            started = str(snap.info.get("started") or started)  # only for meta.json
             cp.info["started"] = started
     except (ConfigError, MapError, ck.CheckpointError) as e:
         fail(str(e))
