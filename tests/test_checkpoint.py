@@ -714,7 +714,8 @@ def test_a_pickle_left_as_checkpoint_pkl_is_never_unpickled(small, tmp_path: Pat
     --resume says so in one line and exits 2, writing nothing; --force starts over."""
     import pickle
 
-    marker = tmp_path / "marker"
+    marker = tmp_path / "elsewhere" / "marker"
+    marker.parent.mkdir()
     blob = pickle.dumps({"format": "qpatrol-checkpoint/1", "payload": Boom(marker)})
 
     def pickle_only(folder: Path) -> None:
@@ -723,8 +724,8 @@ def test_a_pickle_left_as_checkpoint_pkl_is_never_unpickled(small, tmp_path: Pat
         (folder / "checkpoint.pkl").write_bytes(blob)
 
     line = refused(small, tmp_path, capsys, pickle_only)
+    assert not marker.exists()  # the pickle was not read
     assert "older format" in line and "--force" in line
-    assert not marker.exists()
     cfg, ref, _ = small
     assert main("train", cfg, "--out", tmp_path / "run", "-q", "--force") == 0
     assert not marker.exists() and not ck.location(tmp_path / "run").exists()
@@ -833,11 +834,12 @@ def test_crafted_checkpoints_are_refused(small, tmp_path, capsys, edit_doc, edit
     object array, a class or bit generator outside the allowlists, an array the npz
     does not hold, another format, an unknown node) is refused: exit 2, one line,
     nothing written, no code of the file run."""
-    marker = tmp_path / "marker"
+    marker = tmp_path / "elsewhere" / "marker"
+    marker.parent.mkdir()
     members = object_array(marker) if edit_members == "object array" else None
     line = refused(small, tmp_path, capsys, lambda f: rewrite(f, edit_doc, members))
+    assert not marker.exists()  # no pickle in the npz was read
     assert says in line, line
-    assert not marker.exists()
 
 
 def flip(path: Path, at: float, bit: int) -> None:
