@@ -12,7 +12,6 @@ import importlib
 import inspect
 import json
 import os
-import shutil
 import sys
 import tempfile
 import time
@@ -234,10 +233,16 @@ def train(
             outputs.check_writable_dir(target)
         else:
             outputs.check_run_target(target, force)
-            if cp_dir.exists() and not force:
+            if (cp_dir.exists() or cp_dir.is_symlink()) and not force:
                 fail(
                     f"{cp_dir} holds an interrupted run; pass --resume to continue it or "
                     "--force to start over"
+                )
+            stray = ck.foreign(cp_dir) if cp_dir.exists() or cp_dir.is_symlink() else None
+            if stray is not None:
+                fail(
+                    f"{cp_dir}: holds {stray}, which is not a checkpoint file; --force removes "
+                    "only qpatrol's checkpoint files; move it away or choose another --out"
                 )
         prepared = run_mod.prepare(cfg)
         cp = run_mod.train_checkpointer(
@@ -249,16 +254,12 @@ def train(
         )
         if resume:
             snap = cp.load()
-            try:
-                info = json.loads((cp.folder / ck.INFO_FILE).read_text(encoding="utf-8"))
-                started = str(info.get("started") or started)
-            except (OSError, ValueError, AttributeError):
-                pass  # the start time is only for meta.json
+            started = str(snap.info.get("started") or started)  # only for meta.json
             cp.info["started"] = started
     except (ConfigError, MapError, ck.CheckpointError) as e:
         fail(str(e))
     if force and cp_dir.exists():
-        shutil.rmtree(cp_dir, ignore_errors=True)
+        ck.remove_folder(cp_dir)
     meta = provenance.collect(
         overrides, config_file=config_mod.find_config(config), started=started
     )

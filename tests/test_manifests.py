@@ -387,3 +387,17 @@ def test_manifest_hashes_are_the_files(tmp_path):
     data[1_234_567] ^= 1
     (d / "f").write_bytes(bytes(data))
     assert manifest.changed(d) == ["f"]
+
+
+def test_force_keeps_a_users_file_in_the_checkpoint_folder(tmp_path):
+    cfg, out = tiny(tmp_path), tmp_path / "r"
+    cp = tmp_path / "r.checkpoint"
+    cp.mkdir()
+    (cp / "info.json").write_text("{}\n")
+    (cp / "thesis.tex").write_text("mine\n")
+    before = snapshot(tmp_path)
+    one_line(*run("train", cfg, "--out", out, "--force"), "which is not a checkpoint file")
+    assert snapshot(tmp_path) == before
+    (cp / "thesis.tex").unlink()
+    assert run("train", cfg, "--out", out, "-q", "--force")[0] == 0
+    assert not cp.exists() and (out / "manifest.json").is_file()

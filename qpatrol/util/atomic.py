@@ -21,6 +21,11 @@ def _umask() -> int:
     return mask
 
 
+def file_mode() -> int:
+    """The mode of a new file: ``0666`` less the umask."""
+    return 0o666 & ~_umask()
+
+
 def write_text(path: str | Path, text: str) -> None:
     """Write ``text`` to ``path`` atomically (temp file in the same folder, fsync, rename)."""
     write_bytes(path, text.encode("utf-8"))
@@ -32,7 +37,7 @@ def write_bytes(path: str | Path, data: bytes) -> None:
     p.parent.mkdir(parents=True, exist_ok=True)
     fd, tmp = tempfile.mkstemp(prefix=f".{p.name}.", suffix=".tmp", dir=p.parent)
     try:
-        os.fchmod(fd, 0o666 & ~_umask())
+        os.fchmod(fd, file_mode())
         with os.fdopen(fd, "wb") as f:
             f.write(data)
             f.flush()
@@ -57,7 +62,7 @@ def staged_file(target: str | Path) -> Iterator[Path]:
     tmp_path = Path(tmp)
     try:
         yield tmp_path
-        os.chmod(tmp_path, 0o666 & ~_umask())
+        os.chmod(tmp_path, file_mode())
         os.replace(tmp_path, t)
     except BaseException:
         tmp_path.unlink(missing_ok=True)

@@ -120,7 +120,7 @@ def state_words(seed: int, point: int, runs: np.ndarray) -> np.ndarray:
 class KeyWords:
     """The seed sequence of a generator that :func:`generators` seeded from a
     :class:`RunKey` (what its ``bit_generator.seed_seq`` is, and what a checkpoint
-    pickles with it): the key, and the four words a PCG64 asks its seed sequence for,
+    saves with it): the key, and the four words a PCG64 asks its seed sequence for,
     ``generate_state(4, np.uint64)`` of the key's SeedSequence, computed beforehand by
     :func:`state_words`. :meth:`sequence` builds that SeedSequence."""
 
@@ -168,7 +168,7 @@ class Streams:
     Drawing ``(B, K, 2)`` doubles twice gives the same numbers as ``(2B, K, 2)`` once,
     so the block size never changes a result. The compiled engine's loop draws
     the same numbers itself, from the streams' states (:meth:`words`), and the
-    generators catch up before anyone else draws or pickles them.
+    generators catch up before anyone else draws from or saves them.
     """
 
     #: Steps drawn at once by :meth:`next` unless told otherwise.
@@ -203,7 +203,7 @@ class Streams:
         and not yet taken (:meth:`pending`) are given back first: the words stand where
         the taken ones left the stream. The same array at every call; the generators
         catch up when next used (:attr:`generators`, :meth:`next`, :meth:`take`, a
-        pickle)."""
+        checkpoint: :meth:`__getstate__`)."""
         if not self._words_valid:
             back = self.pending() * self.agents * 2
             self._buf = self._buf[:, :0]
@@ -238,13 +238,16 @@ class Streams:
             self._ahead = False
 
     def __getstate__(self) -> dict:
+        """The attributes a checkpoint saves: the generators caught up with the words."""
         self._sync()
         d = dict(self.__dict__)
         d["_words_valid"] = False
         return d
 
     def __setstate__(self, d: dict) -> None:
-        if "generators" in d:  # pickled before the words
+        """Set the attributes :meth:`__getstate__` gave (or a dict of ``generators``
+        without words, which it gave before the words existed)."""
+        if "generators" in d:  # saved before the words
             d["_gens"] = d.pop("generators")
             d.update(
                 _words=np.zeros((len(d["_gens"]), 4), dtype=np.uint64),
