@@ -89,7 +89,8 @@ def test_force_replaces_a_run_folder_only_when_it_holds_nothing_else(tmp_path):
     assert run("train", cfg, "--out", out, "-q")[0] == 0
     m = manifest.read(out)
     assert m is not None and m.kind == "run" and m.qpatrol == __version__
-    assert set(m.files) == {p.name for p in out.iterdir()} - {"manifest.json"}
+    assert set(m.files) | set(m.provenance) == {p.name for p in out.iterdir()} - {"manifest.json"}
+    assert m.provenance == ["meta.json"]
     for where in ("mine.txt", "sub/notes.txt", ".hidden"):
         (out / where).parent.mkdir(exist_ok=True)
         (out / where).write_text("mine\n")

@@ -505,7 +505,8 @@ def write_run(
         if result.timeline is not None:
             (tmp / "timeline.csv").write_text(to_csv_text(result.timeline))
         (tmp / provenance.META_FILE).write_text(provenance.meta_text(info))
-        manifest.seal(tmp, "run", config=manifest.text_digest(config_text))
+        digest = manifest.text_digest(config_text)
+        manifest.seal(tmp, "run", config=digest, provenance=[provenance.META_FILE])
     return out
 
 

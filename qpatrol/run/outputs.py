@@ -243,10 +243,11 @@ def record_files(
     manifest.write(
         folder,
         m.kind if m is not None else kind,
-        files,
+        [*files, *(m.provenance if m is not None else ())],
         m.folders if m is not None else (),
         m.config if m is not None else None,
         files,
+        m.provenance if m is not None else (),
     )
 
 

@@ -613,7 +613,6 @@ def reproduce(
         log(f"updated the quick references in {ref}")
     meta = provenance.collect(started=started, mode="quick" if quick else "full", jobs=jobs)
     atomic.write_text(home / provenance.META_FILE, provenance.meta_text(meta))
-    written.append(provenance.META_FILE)
     path = home
     if draw:
         from qpatrol.study import report
@@ -628,7 +627,15 @@ def reproduce(
     old = manifest.read(out)
     keep = {k: v for k, v in (old.files if old is not None else {}).items() if k not in written}
     keep_dirs = [d for d in (old.folders if old is not None else []) if d not in folders]
-    manifest.write(out, "reproduction", [*keep, *written], [*keep_dirs, *folders], None, keep)
+    manifest.write(
+        out,
+        "reproduction",
+        [*keep, *written],
+        [*keep_dirs, *folders],
+        None,
+        keep,
+        provenance=[provenance.META_FILE],
+    )
     return path
 
 

@@ -643,7 +643,7 @@ class _Open:
         self.result.failed.sort(key=order.__getitem__)
         self.result.results = write_results(self.out, self.points)
         atomic.write_text(self.out / provenance.META_FILE, provenance.meta_text(meta))
-        self.ledger.wrote(RESULTS_FILE, provenance.META_FILE)
+        self.ledger.wrote(RESULTS_FILE)
         return self.result
 
 
@@ -677,7 +677,15 @@ class _Ledger:
 
     def save(self) -> None:
         self.files = {k: v for k, v in self.files.items() if (self.out / k).is_file()}
-        manifest.write(self.out, "sweep", self.files, self.folders, self.config, self.files)
+        manifest.write(
+            self.out,
+            "sweep",
+            [*self.files, provenance.META_FILE],
+            self.folders,
+            self.config,
+            self.files,
+            provenance=[provenance.META_FILE],
+        )
 
 
 def adoptable(out: Path) -> list[str]:

@@ -7,14 +7,20 @@ folder of figures) carries a manifest of the files it wrote there::
      "kind": "run",                  run, sweep, reproduction, figures or references
      "qpatrol": "0.1.0",             the version that wrote the folder
      "config": "9f2c...",            sha256 of what the folder was computed from
-                                     (a run: its config.yaml; a sweep: sweep.json), or null
+                                     (a run: its config.yaml; a sweep: its description,
+                                     as in sweep.json), or null
      "files": {"episodes.csv": {"size": 5123, "sha256": "..."}, ...},
+     "provenance": ["meta.json"],
      "folders": ["points/gamma=0.1", ...]}
 
 ``files`` holds every file qpatrol wrote there (paths relative to the folder, with
-``/``), ``folders`` the folders inside it that qpatrol wrote and that carry their own
-manifest. The manifest decides what ``--force`` may remove (:func:`remove`: exactly
-the listed files and folders, and nothing at all when the folder holds anything else,
+``/``), ``provenance`` the files it wrote whose content changes from one rerun to the
+next (``meta.json``: times, the command line), listed without a hash so that the
+manifest of a rerun is byte-identical, and ``folders`` the folders inside it that
+qpatrol wrote and that carry their own manifest.
+
+The manifest decides what ``--force`` may remove (:func:`remove`: exactly the listed
+files and folders, and nothing at all when the folder holds anything else,
 :func:`strays`) and whether a result may be reused (:func:`changed`: a listed file
 whose size or hash is no longer the one qpatrol wrote). Besides the listed entries, a
 folder may hold qpatrol's unfinished temporary files (``.NAME.*.tmp``, left by a killed
@@ -55,6 +61,7 @@ class Manifest:
     config: str | None = None
     files: dict[str, dict[str, Any]] = field(default_factory=dict)
     folders: list[str] = field(default_factory=list)
+    provenance: list[str] = field(default_factory=list)
 
     def to_json(self) -> str:
         doc = {
@@ -63,6 +70,7 @@ class Manifest:
             "qpatrol": self.qpatrol,
             "config": self.config,
             "files": {k: self.files[k] for k in sorted(self.files)},
+            "provenance": sorted(set(self.provenance)),
             "folders": sorted(set(self.folders)),
         }
         return json.dumps(doc, indent=1) + "\n"
@@ -108,6 +116,7 @@ def read(folder: str | Path) -> Manifest | None:
     if not isinstance(doc, dict) or doc.get("format") != FORMAT:
         raise ManifestError(f"{path}: not a qpatrol manifest")
     files, folders = doc.get("files"), doc.get("folders")
+    prov = doc.get("provenance", [])
     ok = (
         doc.get("kind") in KINDS
         and isinstance(doc.get("qpatrol"), str)
@@ -122,10 +131,12 @@ def read(folder: str | Path) -> Manifest | None:
         )
         and isinstance(folders, list)
         and all(isinstance(d, str) and _safe(d) for d in folders)
+        and isinstance(prov, list)
+        and all(isinstance(d, str) and _safe(d) for d in prov)
     )
     if not ok:
         raise ManifestError(f"{path}: not a qpatrol manifest (malformed fields)")
-    return Manifest(doc["kind"], doc["qpatrol"], doc.get("config"), files, folders)
+    return Manifest(doc["kind"], doc["qpatrol"], doc.get("config"), files, folders, prov)
 
 
 def _safe(rel: str) -> bool:
@@ -146,25 +157,34 @@ def write(
     folders: Iterable[str] = (),
     config: str | None = None,
     known: dict[str, dict[str, Any]] | None = None,
+    provenance: Iterable[str] = (),
 ) -> Manifest:
     """Write ``folder``'s manifest (atomically), hashing each of ``files`` (relative
-    paths) that exists; ``known`` gives entries already hashed (taken as they are)."""
+    paths) that exists; ``known`` gives entries already hashed (taken as they are);
+    ``provenance`` files (that exist) are listed without a hash."""
     folder = Path(folder)
     known = known or {}
+    prov = [rel for rel in provenance if (folder / rel).is_file()]
     entries: dict[str, dict[str, Any]] = {}
     for rel in files:
+        if rel in prov:
+            continue
         if rel in known:
             entries[rel] = known[rel]
         elif (folder / rel).is_file():
             entries[rel] = file_entry(folder / rel)
-    m = Manifest(kind, __version__, config, entries, [d for d in folders if (folder / d).is_dir()])
+    dirs = [d for d in folders if (folder / d).is_dir()]
+    m = Manifest(kind, __version__, config, entries, dirs, prov)
     atomic.write_text(folder / MANIFEST_FILE, m.to_json())
     return m
 
 
-def seal(folder: str | Path, kind: str, config: str | None = None) -> Manifest:
+def seal(
+    folder: str | Path, kind: str, config: str | None = None, provenance: Iterable[str] = ()
+) -> Manifest:
     """Write the manifest of a folder qpatrol has just written whole: every file in it
-    is listed, every subfolder with a manifest of its own is listed as a folder."""
+    is listed (``provenance`` ones without a hash), every subfolder with a manifest of
+    its own is listed as a folder."""
     folder = Path(folder)
     files: list[str] = []
     folders: list[str] = []
@@ -178,7 +198,7 @@ def seal(folder: str | Path, kind: str, config: str | None = None) -> Manifest:
             rel = (rel_root / n).as_posix()
             if rel != MANIFEST_FILE and not _is_tmp(n):
                 files.append(rel)
-    return write(folder, kind, files, folders, config)
+    return write(folder, kind, files, folders, config, provenance=provenance)
 
 
 def _is_tmp(name: str) -> bool:
@@ -206,7 +226,7 @@ def _strays(folder: Path, prefix: str, found: list[str], limit: int, also: set[s
     if m is None:
         found.append(prefix.rstrip("/") or ".")
         return
-    listed = set(m.files) | {a for a in also if (folder / a).is_file()}
+    listed = set(m.files) | set(m.provenance) | {a for a in also if (folder / a).is_file()}
     nested = set(m.folders) | {a for a in also if (folder / a).is_dir()}
     parents = {p.as_posix() for rel in [*listed, *nested] for p in Path(rel).parents}
     for root, dirs, names in os.walk(folder):
@@ -281,7 +301,7 @@ def remove(folder: str | Path, keep: Iterable[str] = ()) -> None:
     if m is None:
         return
     kept = set(keep)
-    for rel in m.files:
+    for rel in [*m.files, *m.provenance]:
         if rel in kept:
             continue
         p = folder / rel
