@@ -5,7 +5,9 @@ into a :class:`SourceGraph`: vertices (with positions, or none), undirected edge
 length each, and the charging stations the file names, if any. :func:`to_graph_map` then
 
 - **lays the graph out** when the file gives no positions (:func:`layout`: classical MDS
-  of the shortest-path length matrix, then stress majorisation), so that it can be drawn;
+  of the shortest-path length matrix, then stress majorisation; above
+  :data:`EXACT_LAYOUT_MAX` vertices the near-linear :func:`pivot_layout`), so that it
+  can be drawn;
 - **cuts each edge into moves**: an edge of length ``l`` becomes
   ``max(1, floor(l / step + 1/2))`` unit moves (``--edge-step``, default the shortest
   edge, so that it is one move), or one move each (``--unit-edges``);

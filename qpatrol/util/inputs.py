@@ -65,29 +65,29 @@ def not_a_file(path: str | Path) -> str | None:
 
 def size_text(n: int) -> str:
     """A byte count in words: ``1.5 MiB``, ``300 bytes``."""
-    if n < 1024:
-        return f"{n} bytes"
     for unit, shift in (("GiB", 30), ("MiB", 20), ("KiB", 10)):
         if n >= 1 << shift:
             return f"{n / (1 << shift):.3g} {unit}"
-    return f"{n} bytes"  # pragma: no cover
+    return f"{n} bytes"
 
 
 def read_capped(path: str | Path, limit: int, noun: str) -> bytes:
     """The bytes of the regular file ``path``, at most ``limit`` of them.
 
     Raises :class:`InputError` (``PATH: is a character device, not a map file``; ``PATH:
-    more than 16 MiB, the most a map file may have``) for anything else, before reading
-    more than ``limit + 1`` bytes; ``FileNotFoundError`` and other ``OSError`` as
-    ``open`` raises them.
+    more than 16 MiB, the most qpatrol reads of a map file``) for anything else, before
+    reading more than ``limit + 1`` bytes; ``FileNotFoundError`` and other ``OSError``
+    as ``open`` raises them. The file is opened non-blocking, so a FIFO put in its place
+    after the check cannot hang the read either.
     """
     p = Path(path)
     mode = os.stat(p).st_mode
     if not stat.S_ISREG(mode):
         raise InputError(f"{p}: is {kind_of(mode)}, not {noun}")
-    with open(p, "rb") as f:
-        if not stat.S_ISREG(os.fstat(f.fileno()).st_mode):  # swapped since the stat
-            raise InputError(f"{p}: is not a regular file, not {noun}")
+    with os.fdopen(os.open(p, os.O_RDONLY | os.O_NONBLOCK), "rb") as f:
+        mode = os.fstat(f.fileno()).st_mode
+        if not stat.S_ISREG(mode):  # replaced since the stat
+            raise InputError(f"{p}: is {kind_of(mode)}, not {noun}")
         data = f.read(limit + 1)
     if len(data) > limit:
         raise InputError(
@@ -183,7 +183,8 @@ class BoundedLoader(yaml.SafeLoader):
         super().__init__(stream)
         self._depth = 0
 
-    def compose_node(self, parent: Any, index: Any) -> Any:  # noqa: D102
+    def compose_node(self, parent: Any, index: Any) -> Any:
+        """A node, refused past :data:`MAX_YAML_DEPTH` levels (PyYAML recurses here)."""
         self._depth += 1
         try:
             if self._depth > MAX_YAML_DEPTH:
@@ -195,7 +196,8 @@ class BoundedLoader(yaml.SafeLoader):
         finally:
             self._depth -= 1
 
-    def construct_document(self, node: Any) -> Any:  # noqa: D102
+    def construct_document(self, node: Any) -> Any:
+        """The document's value, refused first if its expanded size is too large."""
         sizes = expanded_sizes(node, MAX_YAML_NODES)
         if sizes[id(node)] > MAX_YAML_NODES:
             keys, where = _largest_path(node, sizes)
@@ -207,7 +209,8 @@ class BoundedLoader(yaml.SafeLoader):
             )
         return super().construct_document(node)
 
-    def construct_object(self, node: Any, deep: bool = False) -> Any:  # noqa: D102
+    def construct_object(self, node: Any, deep: bool = False) -> Any:
+        """A value, or a marked error when Python cannot build it."""
         try:
             return super().construct_object(node, deep=deep)
         except (ValueError, OverflowError) as e:
