@@ -781,7 +781,7 @@ def maps_show(
             from qpatrol.study.plots import check_image_path
 
             check_image_path(png)
-            outputs.check_writable_file(png, "--png")
+            _check_output_file(png, "--png", replace=True)
         m = load_map(resolve_map(name))
     except (MapError, ConfigError, ValueError) as e:
         fail(str(e))
@@ -918,7 +918,10 @@ def maps_import(
     if target is not None and target.exists() and not force:
         fail(f"{target} already exists; pass --force to replace it or --out to choose another")
     if target is not None:
-        outputs.check_writable_file(target)
+        try:
+            _check_output_file(target, "--out", replace=force)
+        except ConfigError as e:
+            fail(str(e))
     name = target.stem if target is not None else None
     if graph:
         text, report = _import_graph(source, name, agents, stations, edge_step, unit_edges)
@@ -933,6 +936,18 @@ def maps_import(
     except OSError as e:
         fail(f"{target}: cannot write ({e.strerror or e})")
     typer.echo(f"wrote {target}: {report}")
+
+
+def _check_output_file(path: Path, label: str, replace: bool) -> None:
+    """Raise ConfigError (one line) unless ``path`` can be written: its folder writable
+    (:func:`qpatrol.run.outputs.check_writable_file`) and, if it exists, a regular file
+    (a device or FIFO is never replaced by the renamed output)."""
+    from qpatrol.util.inputs import not_a_file
+
+    kind = not_a_file(path)
+    if replace and kind is not None and kind != "a folder":
+        raise ConfigError(f"{label} {path}: is {kind}; give the name of a file to write")
+    outputs.check_writable_file(path, label)
 
 
 def _import_ros(

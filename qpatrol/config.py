@@ -22,6 +22,14 @@ from typing import Any
 import yaml
 
 from qpatrol.util.data import shipped_dir
+from qpatrol.util.inputs import (
+    MAX_YAML_BYTES,
+    BoundedLoader,
+    InputError,
+    not_a_file,
+    read_text_capped,
+    short_repr,
+)
 
 
 class ConfigError(ValueError):
@@ -520,14 +528,14 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for k, v in tree.items():
         if not isinstance(k, str):
-            raise ConfigError(f"{prefix}{k!r}: keys must be strings")
+            raise ConfigError(f"{prefix}{short_repr(k)}: keys must be strings")
         key = f"{prefix}{k}"
         is_group = any(f.startswith(key + ".") for f in FIELDS)
         if key == "battery" and isinstance(v, bool):  # shorthand `battery: off`
             flat["battery.enabled"] = v
         elif is_group and key not in FIELDS:
             if not isinstance(v, Mapping):
-                raise ConfigError(f"{key}: expected a mapping of sub-keys, got {v!r}")
+                raise ConfigError(f"{key}: expected a mapping of sub-keys, got {short_repr(v)}")
             flat.update(_flatten(v, key + "."))
         else:
             flat[key] = v
@@ -560,7 +568,7 @@ def check_value(key: str, value: Any) -> Any:
 
     def bad(why: str = "") -> ConfigError:
         got = f" ({why})" if why else ""
-        return ConfigError(f"{key}: got {original!r}{got}; allowed: {f.allowed()}")
+        return ConfigError(f"{key}: got {short_repr(original)}{got}; allowed: {f.allowed()}")
 
     if value is None:
         if f.nullable:
@@ -614,11 +622,11 @@ def check_value(key: str, value: Any) -> Any:
 def parse_assignment(text: str) -> tuple[str, Any]:
     """Split ``KEY=VALUE`` and read VALUE as YAML (``0.5``, ``on``, ``[3, 4]``)."""
     if "=" not in text:
-        raise ConfigError(f"--set {text!r}: expected KEY=VALUE")
+        raise ConfigError(f"--set {short_repr(text)}: expected KEY=VALUE")
     key, raw = text.split("=", 1)
     key = key.strip()
     try:
-        value = yaml.safe_load(raw) if raw.strip() else None
+        value = yaml.load(raw, Loader=BoundedLoader) if raw.strip() else None  # noqa: S506
     except yaml.YAMLError:
         value = raw
     if key not in FIELDS:
@@ -723,8 +731,10 @@ class _DuplicateKey(Exception):
         self.key, self.mark, self.first = key, mark, first
 
 
-class _StrictLoader(yaml.SafeLoader):
-    """``yaml.SafeLoader`` that refuses a key given twice in one mapping."""
+class _StrictLoader(BoundedLoader):
+    """``yaml.SafeLoader`` that refuses a key given twice in one mapping, and YAML nested
+    too deep or too large once its aliases are expanded
+    (:class:`qpatrol.util.inputs.BoundedLoader`)."""
 
 
 def _construct_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool = False) -> Any:
@@ -739,7 +749,7 @@ def _construct_mapping(loader: _StrictLoader, node: yaml.MappingNode, deep: bool
             seen[key] = key_node.start_mark
         except TypeError:  # an unhashable key: the mapping constructor reports it
             pass
-    return yaml.SafeLoader.construct_mapping(loader, node, deep=deep)
+    return BoundedLoader.construct_mapping(loader, node, deep=deep)
 
 
 _StrictLoader.add_constructor(yaml.resolver.BaseResolver.DEFAULT_MAPPING_TAG, _construct_mapping)
@@ -761,8 +771,9 @@ def find_config(path: str | Path) -> Path:
     p = Path(path)
     if p.is_file():
         return p
-    if p.exists():
-        raise ConfigError(f"{p}: is a folder, not a config file")
+    kind = not_a_file(p)
+    if kind is not None:
+        raise ConfigError(f"{p}: is {kind}, not a config file")
     parts = p.parts
     if p.suffix in ("", ".yaml", ".yml") and (
         len(parts) == 1 or (len(parts) == 2 and parts[0] == "configs")
@@ -784,15 +795,18 @@ def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
     """
     p = find_config(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_text_capped(p, MAX_YAML_BYTES, "a config file")
+    except InputError as e:
+        raise ConfigError(str(e)) from None
     except (OSError, UnicodeDecodeError) as e:
-        raise ConfigError(f"{p}: cannot read config ({e})") from None
+        why = getattr(e, "strerror", None) or str(e)
+        raise ConfigError(f"{p}: cannot read config ({why})") from None
     try:
         tree = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
     except _DuplicateKey as e:
         raise ConfigError(
-            f"{p}:{e.mark.line + 1}:{e.mark.column + 1}: duplicate key {e.key!r} (first at "
-            f"line {e.first.line + 1}); allowed: each key once"
+            f"{p}:{e.mark.line + 1}:{e.mark.column + 1}: duplicate key {short_repr(e.key)} "
+            f"(first at line {e.first.line + 1}); allowed: each key once"
         ) from None
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)

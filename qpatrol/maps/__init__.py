@@ -40,6 +40,11 @@ from qpatrol.maps.core import (  # noqa: F401 (the package names them)
     EAST,
     EMPTY,
     HOME,
+    MAX_CELL_PORTS,
+    MAX_CELLS,
+    MAX_GRID_AREA,
+    MAX_MAGNITUDE,
+    MAX_MAP_BYTES,
     NO_DOT,
     NORTH,
     OFFSETS,
@@ -55,6 +60,7 @@ from qpatrol.maps.core import (  # noqa: F401 (the package names them)
 )
 from qpatrol.maps.graph import parse_graph_map
 from qpatrol.util.data import shipped_dir  # noqa: F401 (maps.shipped_dir)
+from qpatrol.util.inputs import InputError, not_a_file, read_text_capped
 
 
 def parse_map(text: str, source: str = "<string>") -> Map:
@@ -97,12 +103,24 @@ def parse_map(text: str, source: str = "<string>") -> Map:
                 f"{source}:{lineno}:{col}: ragged row: {len(row)} characters where the "
                 f"first grid row (line {line_numbers[0]}) has {width}"
             )
+    n_rows = len(rows)
+    if n_rows * width > MAX_GRID_AREA:
+        raise MapError(
+            f"{source}: a grid of {width:,} x {n_rows:,} characters ({n_rows * width:,}); "
+            f"allowed: at most {MAX_GRID_AREA:,}, walls included (refused before building it)"
+        )
+    n_free = sum(len(r) - r.count(WALL) for r in rows)
+    if n_free > MAX_CELLS:
+        raise MapError(
+            f"{source}: {n_free:,} free cells; allowed: at most {MAX_CELLS:,} cells in a map "
+            "(refused before building it)"
+        )
+    for row, lineno in zip(rows, line_numbers, strict=True):
         for j, ch in enumerate(row):
             if ch not in ALLOWED:
                 raise MapError(
                     f"{source}:{lineno}:{j + 1}: unknown character {ch!r} (allowed: # . - o H 0-9)"
                 )
-    n_rows = len(rows)
     grid = np.array([list(r) for r in rows])
     free = grid != WALL
     if not free.any():
@@ -172,14 +190,18 @@ def parse_map(text: str, source: str = "<string>") -> Map:
 
 
 def load_map(path: str | Path) -> Map:
-    """Read and parse a map file; a missing or unreadable file is a :class:`MapError`."""
+    """Read and parse a map file; a missing or unreadable file is a :class:`MapError`, and
+    so is anything but a regular file of at most :data:`MAX_MAP_BYTES`."""
     p = Path(path)
     try:
-        text = p.read_text(encoding="utf-8")
+        text = read_text_capped(p, MAX_MAP_BYTES, "a map file")
     except FileNotFoundError:
         raise MapError(f"{p}: no such map file") from None
+    except InputError as e:
+        raise MapError(str(e)) from None
     except (OSError, UnicodeDecodeError) as e:
-        raise MapError(f"{p}: cannot read map file ({e})") from None
+        why = getattr(e, "strerror", None) or str(e)
+        raise MapError(f"{p}: cannot read map file ({why})") from None
     return parse_map(text, source=str(p))
 
 
@@ -205,9 +227,12 @@ def available_maps() -> dict[str, Path]:
 def resolve_map(name_or_path: str) -> Path:
     """The file behind a map name (``map_a``) or path; a :class:`MapError` if none."""
     p = Path(name_or_path)
-    if p.suffix == ".txt" or "/" in name_or_path or p.is_file():
+    kind = not_a_file(p)  # a device or FIFO is named by its path; a folder may share a name
+    if p.suffix == ".txt" or "/" in name_or_path or p.is_file() or kind not in (None, "a folder"):
         if p.is_file():
             return p
+        if kind is not None:
+            raise MapError(f"{name_or_path}: is {kind}, not a map file")
         raise MapError(f"{name_or_path}: no such map file")
     known = available_maps()
     if name_or_path in known:

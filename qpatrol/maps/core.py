@@ -25,6 +25,23 @@ ALLOWED = set("#.-oH0123456789")
 #: Dot kinds stored per cell.
 NO_DOT, SMALL_DOT, BIG = 0, 1, 2
 
+#: Most cells a map may have: free cells of a grid, vertices + waypoints of a graph. Every
+#: map (a file, or one ``maps import`` makes) is refused beyond it before its arrays are
+#: built; training needs a cells x cells distance table anyway (2.3 GiB at 12,000 cells).
+MAX_CELLS = 200_000
+#: Most (cell, port) slots of a graph map, cells x D: its neighbour arrays are that large
+#: (a hub of 100,000 edges would give every cell 100,000 ports). 8 ports per cell at
+#: MAX_CELLS.
+MAX_CELL_PORTS = 8 * MAX_CELLS
+#: Most rows x columns of a grid map, walls included (a 2,000 x 2,000 grid).
+MAX_GRID_AREA = 4_000_000
+#: Largest map file read (text grid or graph map).
+MAX_MAP_BYTES = 16 << 20
+#: Largest magnitude of a graph position or edge length: far beyond any floor plan in
+#: any unit, and far enough from float64's limit (1.8e308) that differences, squares and
+#: sums stay finite (a drawing of positions 1e308 apart has an infinite size).
+MAX_MAGNITUDE = 1e100
+
 
 class MapError(ValueError):
     """A map file that cannot be used; the message names file, line and column."""

@@ -36,7 +36,18 @@ from pathlib import Path
 
 import numpy as np
 
-from qpatrol.maps.core import BIG, NO_DOT, SMALL_DOT, Map, MapError, bfs
+from qpatrol.maps.core import (
+    BIG,
+    MAX_CELL_PORTS,
+    MAX_CELLS,
+    MAX_MAGNITUDE,
+    NO_DOT,
+    SMALL_DOT,
+    Map,
+    MapError,
+    bfs,
+)
+from qpatrol.util.inputs import short_repr
 
 __all__ = [
     "GraphSpec",
@@ -84,19 +95,30 @@ def _number(tok: str, where: str, what: str) -> float:
     try:
         x = float(tok)
     except ValueError:
-        raise MapError(f"{where}: {what} {tok!r} is not a number") from None
+        raise MapError(f"{where}: {what} {short_repr(tok, 40)} is not a number") from None
     if not math.isfinite(x):
-        raise MapError(f"{where}: {what} {tok!r} is not a finite number")
+        raise MapError(f"{where}: {what} {short_repr(tok, 40)} is not a finite number")
+    if abs(x) > MAX_MAGNITUDE:
+        raise MapError(
+            f"{where}: {what} {short_repr(tok, 40)} is out of range; allowed: at most "
+            f"{MAX_MAGNITUDE:g} in absolute value"
+        )
     return x
 
 
-def _integer(tok: str, where: str, what: str, low: int) -> int:
+def _integer(tok: str, where: str, what: str, low: int, high: int | None = None) -> int:
+    digits = tok.lstrip("+-").lstrip("0")
+    if len(digits) > 30 and digits.isdigit():
+        # int() of a token of thousands of digits is slow, or an error of its own
+        raise MapError(f"{where}: {what} of {len(digits):,} digits is out of range")
     try:
         x = int(tok)
     except ValueError:
-        raise MapError(f"{where}: {what} {tok!r} is not a whole number") from None
+        raise MapError(f"{where}: {what} {short_repr(tok, 40)} is not a whole number") from None
     if x < low:
         raise MapError(f"{where}: {what} {x} must be at least {low}")
+    if high is not None and x > high:
+        raise MapError(f"{where}: {what} {x:,}; allowed: at most {high:,}")
     return x
 
 
@@ -106,6 +128,7 @@ def parse_graph_spec(text: str, source: str = "<string>") -> GraphSpec:
     description = ""
     vertices: dict[int, tuple[int, float, float, list[str]]] = {}
     edge_rows: list[tuple[int, int, int, int]] = []
+    waypoints = 0  # cells inside the edges so far: refused past MAX_CELLS as they come
     for lineno, raw in enumerate(text.splitlines(), start=1):
         line = raw.strip()
         where = f"{source}:{lineno}"
@@ -122,8 +145,10 @@ def parse_graph_spec(text: str, source: str = "<string>") -> GraphSpec:
         tok = line.split()
         if tok[0] == "v":
             if len(tok) < 4:
-                raise MapError(f"{where}: a vertex line is 'v ID X Y [FLAGS]', got {line!r}")
-            vid = _integer(tok[1], where, "vertex id", 0)
+                raise MapError(
+                    f"{where}: a vertex line is 'v ID X Y [FLAGS]', got {short_repr(line)}"
+                )
+            vid = _integer(tok[1], where, "vertex id", 0, MAX_CELLS - 1)
             if vid in vertices:
                 raise MapError(f"{where}: vertex {vid} repeated (first on line {vertices[vid][0]})")
             x = _number(tok[2], where, "x")
@@ -131,13 +156,28 @@ def parse_graph_spec(text: str, source: str = "<string>") -> GraphSpec:
             vertices[vid] = (lineno, x, y, tok[4:])
         elif tok[0] == "e":
             if len(tok) != 4:
-                raise MapError(f"{where}: an edge line is 'e A B MOVES', got {line!r}")
-            a = _integer(tok[1], where, "vertex", 0)
-            b = _integer(tok[2], where, "vertex", 0)
+                raise MapError(f"{where}: an edge line is 'e A B MOVES', got {short_repr(line)}")
+            a = _integer(tok[1], where, "vertex", 0, MAX_CELLS - 1)
+            b = _integer(tok[2], where, "vertex", 0, MAX_CELLS - 1)
             moves = _integer(tok[3], where, "moves", 1)
+            waypoints += moves - 1
+            if len(vertices) + waypoints > MAX_CELLS:
+                raise MapError(
+                    f"{where}: edge {a}-{b} of {moves:,} moves takes the map to "
+                    f"{len(vertices) + waypoints:,} cells (vertices and waypoints so far); "
+                    f"allowed: at most {MAX_CELLS:,} cells (refused before building them)"
+                )
             edge_rows.append((lineno, a, b, moves))
         else:
-            raise MapError(f"{where}: unknown line kind {tok[0]!r} (allowed: v, e, ; comment)")
+            raise MapError(
+                f"{where}: unknown line kind {short_repr(tok[0], 40)} (allowed: v, e, ; comment)"
+            )
+    if len(vertices) + waypoints > MAX_CELLS:  # vertex lines after the edges
+        raise MapError(
+            f"{source}: {len(vertices):,} vertices and {waypoints:,} waypoints inside the "
+            f"edges make more than {MAX_CELLS:,} cells, the most a map may have (refused "
+            "before building it)"
+        )
     n = len(vertices)
     if n == 0:
         raise MapError(f"{source}: the graph has no vertex")
@@ -174,7 +214,7 @@ def parse_graph_spec(text: str, source: str = "<string>") -> GraphSpec:
                 start_at[k] = (vid, lineno)
             else:
                 raise MapError(
-                    f"{where}: unknown vertex flag {flag!r} "
+                    f"{where}: unknown vertex flag {short_repr(flag, 40)} "
                     "(allowed: station, start=K, big, nodot, label=TEXT)"
                 )
         if station[vid] and dot[vid] == BIG:
@@ -197,6 +237,17 @@ def parse_graph_spec(text: str, source: str = "<string>") -> GraphSpec:
         if key in seen:
             raise MapError(f"{where}: a second edge {a}-{b} (first on line {seen[key]})")
         seen[key] = lineno
+    degree = np.bincount(
+        np.array([v for _, a, b, _ in edge_rows for v in (a, b)], dtype=np.int64), minlength=n
+    )
+    top = int(degree.argmax()) if n else 0
+    d = max(1, int(degree[top]) if n else 0, 2 if waypoints else 1)
+    if (n + waypoints) * d > MAX_CELL_PORTS:
+        raise MapError(
+            f"{source}:{vertices[top][0]}: vertex {top} has {int(degree[top]):,} edges, so each "
+            f"of the {n + waypoints:,} cells gets {d:,} ports ({(n + waypoints) * d:,} in all); "
+            f"allowed: at most {MAX_CELL_PORTS:,} cells x ports (refused before building them)"
+        )
     edges = np.array([(a, b, m) for _, a, b, m in edge_rows], dtype=np.int64).reshape(-1, 3)
     starts = np.array([start_at[k][0] for k in range(len(start_at))], dtype=np.int64)
     return GraphSpec(name, description, xy, edges, dot, station, starts, tuple(labels))
@@ -206,29 +257,27 @@ def build_graph_map(spec: GraphSpec, source: str = "<string>", text: str = "") -
     """The :class:`Map` of a graph: vertices, then each edge's waypoints (module doc)."""
     n = spec.xy.shape[0]
     n_cells = n + int(np.maximum(spec.edges[:, 2] - 1, 0).sum()) if spec.edges.size else n
-    ports: list[list[tuple[int, int]]] = [[] for _ in range(n_cells)]  # (neighbour, edge)
+    # each cell's ports in order: (neighbour, the port of the neighbour leading back)
+    ports: list[list[tuple[int, int]]] = [[] for _ in range(n_cells)]
     xy = np.zeros((n_cells, 2))
     xy[:n] = spec.xy
     nxt = n
     for a, b, m in spec.edges.tolist():
         chain = [a, *range(nxt, nxt + m - 1), b]
-        for i in range(1, m):
-            xy[chain[i]] = spec.xy[a] + (spec.xy[b] - spec.xy[a]) * (i / m)
+        if m > 1:
+            i = np.arange(1, m)[:, None] / m
+            xy[nxt : nxt + m - 1] = spec.xy[a] + (spec.xy[b] - spec.xy[a]) * i
         nxt += m - 1
         for u, v in zip(chain[:-1], chain[1:], strict=True):
-            ports[u].append((v, 0))
-            ports[v].append((u, 0))
+            pu, pv = ports[u], ports[v]
+            pu.append((v, len(pv)))
+            pv.append((u, len(pu) - 1))
     d = max(1, max(len(p) for p in ports))
     neighbors = np.full((n_cells, d), -1, dtype=np.int64)
-    for c, p in enumerate(ports):
-        for i, (v, _) in enumerate(p):
-            neighbors[c, i] = v
     back = np.full((n_cells, d), -1, dtype=np.int64)
-    for c in range(n_cells):
-        for i in range(d):
-            v = neighbors[c, i]
-            if v >= 0:
-                back[c, i] = int(np.flatnonzero(neighbors[v] == c)[0])
+    for c, p in enumerate(ports):
+        if p:
+            neighbors[c, : len(p)], back[c, : len(p)] = zip(*p, strict=True)
     reach = bfs(neighbors, 0)
     if (reach < 0).any():
         bad = int(np.flatnonzero(reach[:n] < 0)[0]) if (reach[:n] < 0).any() else 0

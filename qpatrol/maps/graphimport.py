@@ -5,7 +5,9 @@ into a :class:`SourceGraph`: vertices (with positions, or none), undirected edge
 length each, and the charging stations the file names, if any. :func:`to_graph_map` then
 
 - **lays the graph out** when the file gives no positions (:func:`layout`: classical MDS
-  of the shortest-path length matrix, then stress majorisation), so that it can be drawn;
+  of the shortest-path length matrix, then stress majorisation; above
+  :data:`EXACT_LAYOUT_MAX` vertices the near-linear :func:`pivot_layout`), so that it
+  can be drawn;
 - **cuts each edge into moves**: an edge of length ``l`` becomes
   ``max(1, floor(l / step + 1/2))`` unit moves (``--edge-step``, default the shortest
   edge, so that it is one move), or one move each (``--unit-edges``);
@@ -19,31 +21,50 @@ and writes the map text (:func:`qpatrol.maps.graph.render_graph_map`).
 
 from __future__ import annotations
 
+import heapq
 import math
 from dataclasses import dataclass, field
 from pathlib import Path
 
 import numpy as np
 
-from qpatrol.maps import NO_DOT, SMALL_DOT, Map, MapError, parse_map
+from qpatrol.maps import (
+    MAX_CELLS,
+    MAX_MAGNITUDE,
+    MAX_MAP_BYTES,
+    NO_DOT,
+    SMALL_DOT,
+    Map,
+    MapError,
+    parse_map,
+)
 from qpatrol.maps.graph import GraphSpec, build_graph_map, render_graph_map
 from qpatrol.maps.importer import _bfs, _farthest, default_stations
+from qpatrol.util.inputs import InputError, read_text_capped
 
 __all__ = [
+    "EXACT_LAYOUT_MAX",
     "MAX_CELLS",
+    "MAX_SOURCE_BYTES",
     "GraphImportError",
     "ImportedGraph",
     "SourceGraph",
     "edge_moves",
     "layout",
+    "pivot_layout",
     "shortest_lengths",
     "stress",
     "to_graph_map",
 ]
 
-#: Most cells (vertices + waypoints) an import may make; a smaller --edge-step beyond it
-#: is refused rather than building a huge map.
-MAX_CELLS = 200_000
+#: Largest patrolling_sim or SimPatrol file read (the XML tree takes about 15 times its
+#: size in memory).
+MAX_SOURCE_BYTES = 32 << 20
+#: Largest graph laid out exactly (MDS of the V x V path length matrix, then stress
+#: majorisation: V^3 time, V^2 memory); larger ones get the near-linear pivot layout.
+EXACT_LAYOUT_MAX = 500
+#: Pivots of the large-graph layout (:func:`pivot_layout`).
+LAYOUT_PIVOTS = 12
 
 
 class GraphImportError(MapError):
@@ -162,6 +183,34 @@ def edge_moves(lengths: np.ndarray, step: float | None) -> np.ndarray:
     return np.maximum(1, np.floor(lengths / step + 0.5)).astype(np.int64)
 
 
+def check_cells(g: SourceGraph, step: float | None) -> None:
+    """Raise :class:`GraphImportError` if cutting ``g``'s edges at ``step`` makes more than
+    :data:`MAX_CELLS` cells; counted in floating point, before any integer is made."""
+    unit = f" {g.unit}" if g.unit else ""
+    if g.n > MAX_CELLS:
+        raise GraphImportError(
+            f"{g.path}: {g.n:,} vertices; allowed: at most {MAX_CELLS:,} cells in a map"
+        )
+    if step is None or not g.edges.shape[0]:
+        return
+    moves = np.maximum(1.0, np.floor(g.edges[:, 2] / step + 0.5))
+    total = g.n + float((moves - 1.0).sum())
+    if total > MAX_CELLS:
+        i = int(np.argmax(moves))
+        a, b = int(g.edges[i, 0]), int(g.edges[i, 1])
+        raise GraphImportError(
+            f"{g.path}: edge step {step:g}{unit} makes {_count(total)} cells, more than the "
+            f"{MAX_CELLS:,} a map may have (the longest edge, {g.labels[a]}-{g.labels[b]} of "
+            f"length {g.edges[i, 2]:g}, alone makes {_count(moves[i])} moves); use a larger "
+            "--edge-step, or --unit-edges"
+        )
+
+
+def _count(x: float) -> str:
+    """A whole count held in a float: its digits while exact, else 3 significant ones."""
+    return f"{x:.0f}" if x < 2**53 else f"{x:.3g}"
+
+
 def shortest_lengths(n: int, edges: np.ndarray) -> np.ndarray:
     """float ``[V, V]``: shortest-path length between vertices (inf if unreachable).
 
@@ -181,10 +230,12 @@ def shortest_lengths(n: int, edges: np.ndarray) -> np.ndarray:
 def layout(n: int, edges: np.ndarray, iterations: int = 300) -> np.ndarray:
     """float ``[V, 2]``: vertex positions whose distances follow the path lengths.
 
-    Classical MDS of the shortest-path length matrix (numpy ``eigh``), then stress
-    majorisation (SMACOF, weights ``1/d^2``) until the stress stops falling (at most
-    ``iterations`` rounds); finally centred, turned onto its principal axes and each axis
-    flipped so that its third moment is >= 0. Deterministic: no random start.
+    Up to :data:`EXACT_LAYOUT_MAX` vertices: classical MDS of the shortest-path length
+    matrix (numpy ``eigh``), then stress majorisation (SMACOF, weights ``1/d^2``) until
+    the stress stops falling (at most ``iterations`` rounds). Larger graphs: the
+    near-linear :func:`pivot_layout` (no V x V matrix). Finally centred, turned onto its
+    principal axes and each axis flipped so that its third moment is >= 0.
+    Deterministic: no random start.
 
     Args:
         n: number of vertices (connected by ``edges``).
@@ -192,16 +243,19 @@ def layout(n: int, edges: np.ndarray, iterations: int = 300) -> np.ndarray:
     """
     if n == 1:
         return np.zeros((1, 2))
-    d = shortest_lengths(n, edges)
-    sq = d**2
-    j = np.eye(n) - 1.0 / n
-    b = -0.5 * j @ sq @ j
-    vals, vecs = np.linalg.eigh(b)
-    order = np.argsort(vals)[::-1][:2]
-    x = vecs[:, order] * np.sqrt(np.maximum(vals[order], 0.0))
-    if x.shape[1] < 2:
-        x = np.column_stack([x, np.zeros(n)])
-    x = _smacof(d, x, iterations)
+    if n > EXACT_LAYOUT_MAX:
+        x = pivot_layout(n, edges)
+    else:
+        d = shortest_lengths(n, edges)
+        sq = d**2
+        j = np.eye(n) - 1.0 / n
+        b = -0.5 * j @ sq @ j
+        vals, vecs = np.linalg.eigh(b)
+        order = np.argsort(vals)[::-1][:2]
+        x = vecs[:, order] * np.sqrt(np.maximum(vals[order], 0.0))
+        if x.shape[1] < 2:
+            x = np.column_stack([x, np.zeros(n)])
+        x = _smacof(d, x, iterations)
     x -= x.mean(axis=0)
     cov = x.T @ x
     _, axes = np.linalg.eigh(cov)
@@ -210,6 +264,59 @@ def layout(n: int, edges: np.ndarray, iterations: int = 300) -> np.ndarray:
     scale = np.abs(x).max() or 1.0
     x[:, third < -1e-9 * scale**3 * n] *= -1.0
     return x
+
+
+def pivot_layout(n: int, edges: np.ndarray, pivots: int = LAYOUT_PIVOTS) -> np.ndarray:
+    """float ``[V, 2]``: a layout of a large graph in ``O(pivots x E log V)`` time and
+    ``O(pivots x V)`` memory (pivot MDS, Brandes and Pich 2006).
+
+    Shortest-path lengths (Dijkstra) from ``pivots`` vertices chosen by farthest-point
+    sampling (the first is vertex 0), classical MDS of that ``V x pivots`` block (the top
+    two singular vectors of its double-centred squares), then one scale so that the drawn
+    edges are as long as their lengths in the least-squares sense. Deterministic.
+    """
+    adj: list[list[tuple[int, float]]] = [[] for _ in range(n)]
+    for a, b, w in edges.tolist():
+        adj[int(a)].append((int(b), w))
+        adj[int(b)].append((int(a), w))
+    k = min(pivots, n)
+    cols = np.empty((n, k))
+    near = np.full(n, np.inf)
+    src = 0
+    for i in range(k):
+        cols[:, i] = _dijkstra(adj, src)
+        np.minimum(near, cols[:, i], out=near)
+        src = int(np.argmax(near))
+    sq = cols**2
+    c = -0.5 * (sq - sq.mean(axis=0) - sq.mean(axis=1, keepdims=True) + sq.mean())
+    u, sv, _ = np.linalg.svd(c, full_matrices=False)
+    x = u[:, :2] * sv[:2]
+    if x.shape[1] < 2:
+        x = np.column_stack([x, np.zeros(n)])
+    a = edges[:, 0].astype(np.int64)
+    b = edges[:, 1].astype(np.int64)
+    drawn = np.linalg.norm(x[a] - x[b], axis=1)
+    fit = float((drawn * edges[:, 2]).sum())
+    norm = float((drawn**2).sum())
+    return x * (fit / norm) if norm > 0 and fit > 0 else x
+
+
+def _dijkstra(adj: list[list[tuple[int, float]]], source: int) -> np.ndarray:
+    """float ``[V]``: shortest-path lengths from ``source`` over ``adj`` (inf: unreachable)."""
+    dist = [math.inf] * len(adj)
+    dist[source] = 0.0
+    heap = [(0.0, source)]
+    pop, push = heapq.heappop, heapq.heappush
+    while heap:
+        du, u = pop(heap)
+        if du > dist[u]:
+            continue
+        for v, w in adj[u]:
+            dv = du + w
+            if dv < dist[v]:
+                dist[v] = dv
+                push(heap, (dv, v))
+    return np.array(dist)
 
 
 def stress(d: np.ndarray, x: np.ndarray) -> float:
@@ -285,16 +392,16 @@ def to_graph_map(
         if not (math.isfinite(edge_step) and edge_step > 0):
             raise GraphImportError(f"edge step: {edge_step} is not a length > 0")
         step = float(edge_step)
+    check_cells(g, step)
     moves = edge_moves(lengths, step)
-    n_cells = g.n + int((moves - 1).sum())
-    if n_cells > MAX_CELLS:
-        raise GraphImportError(
-            f"{where}: edge step {step:g}{' ' + g.unit if g.unit else ''} makes {n_cells} "
-            f"cells (more than {MAX_CELLS}); use a larger --edge-step"
-        )
     edges = np.column_stack([g.edges[:, :2].astype(np.int64), moves]).reshape(-1, 3)
     xy = g.xy if g.xy is not None else layout(g.n, g.edges)
     xy = _round6(xy)
+    if not np.all(np.abs(xy) <= MAX_MAGNITUDE):
+        raise GraphImportError(
+            f"{where}: the positions reach {float(np.nanmax(np.abs(xy))):g}; allowed: at most "
+            f"{MAX_MAGNITUDE:g} in absolute value (shorter edges, or a --edge-step)"
+        )
     n = g.n
     labels = g.labels if any(lab != str(i) for i, lab in enumerate(g.labels)) else ("",) * n
     bare = GraphSpec(
@@ -315,6 +422,11 @@ def to_graph_map(
     description = _description(g, step, moves, len(starts), len(homes), how)
     spec = GraphSpec(name, description, xy, edges, dot, station, starts, labels)
     text = render_graph_map(spec)
+    if len(text) > MAX_MAP_BYTES:  # characters: at least one byte each
+        raise GraphImportError(
+            f"{where}: the map text would be {len(text):,} characters, more than the "
+            f"{MAX_MAP_BYTES:,} bytes a map file may have"
+        )
     m = parse_map(text, source=f"<{name}>")
     far = int(_bfs(m.neighbors, list(map(int, homes)))[m.target].max()) if len(homes) else -1
     return ImportedGraph(text=text, spec=spec, map=m, step=step, source=g, farthest_station=far)
@@ -367,7 +479,13 @@ def _description(
             f"edge step {step:g}{unit} (moves = max(1, round(length / step)): "
             f"{moves.min()}-{moves.max()})"
         )
-    pos = "positions as in the file" if g.xy is not None else "positions laid out by MDS"
+    pos = (
+        "positions as in the file"
+        if g.xy is not None
+        else "positions laid out by MDS"
+        if g.n <= EXACT_LAYOUT_MAX
+        else f"positions laid out by pivot MDS ({LAYOUT_PIVOTS} pivots)"
+    )
     st = f"{homes} charging station{'' if homes == 1 else 's'}"
     placed = (
         f"{agents} starts by farthest-point sampling and the file's {st}"
@@ -378,11 +496,15 @@ def _description(
     return "; ".join(parts)
 
 
-def read_text(path: Path) -> str:
-    """A source file's text; a missing or unreadable file is a one-line error."""
+def read_text(path: Path, noun: str = "a graph file") -> str:
+    """A source file's text; a missing or unreadable file, anything but a regular file and
+    a file of more than :data:`MAX_SOURCE_BYTES` are a one-line error."""
     try:
-        return path.read_text(encoding="utf-8")
+        return read_text_capped(path, MAX_SOURCE_BYTES, noun)
     except FileNotFoundError:
         raise GraphImportError(f"{path}: no such file") from None
+    except InputError as e:
+        raise GraphImportError(str(e)) from None
     except (OSError, UnicodeDecodeError) as e:
-        raise GraphImportError(f"{path}: cannot read ({e})") from None
+        why = getattr(e, "strerror", None) or str(e)
+        raise GraphImportError(f"{path}: cannot read ({why})") from None

@@ -43,7 +43,7 @@ from pathlib import Path
 
 import numpy as np
 
-from qpatrol.maps import Map, parse_map
+from qpatrol.maps import MAX_CELLS, MAX_GRID_AREA, Map, parse_map
 from qpatrol.maps.ros import RosMap, RosMapError, read_occupancy
 
 __all__ = [
@@ -232,46 +232,62 @@ def _farthest(neighbors: np.ndarray, allowed: np.ndarray, k: int, chosen: list[i
     allowed[chosen] = False
     if len(chosen) >= k or not allowed.any():
         return chosen
+    adj = _adjacency(neighbors)
     if not chosen:
-        first = _middle(neighbors, allowed)
+        first = _middle(adj, allowed)
         chosen.append(first)
         allowed[first] = False
-    near = np.full(neighbors.shape[0], np.iinfo(np.int64).max, dtype=np.int64)
+    top = int(np.iinfo(np.int64).max)
+    near = np.full(neighbors.shape[0], top, dtype=np.int64)
+    near_list = [top] * neighbors.shape[0]
     for s in chosen:
-        _closer(neighbors, near, s)
+        _closer(adj, near, near_list, s)
     while len(chosen) < k and allowed.any():
         nxt = int(np.argmax(np.where(allowed, near, -1)))
         chosen.append(nxt)
         allowed[nxt] = False
-        _closer(neighbors, near, nxt)
+        _closer(adj, near, near_list, nxt)
     return chosen
 
 
-def _closer(neighbors: np.ndarray, near: np.ndarray, source: int) -> None:
-    """Lower ``near`` (int ``[cells]``, distance to the nearest chosen state) in place
-    for a newly chosen ``source``.
+def _adjacency(neighbors: np.ndarray) -> list[list[int]]:
+    """Each state's neighbours as Python lists (walls left out), for the searches below:
+    a Python breadth-first search costs the same on a corridor of 100,000 cells as on a
+    hall, where one numpy pass per distance would cost 100,000 passes."""
+    return [[v for v in row if v >= 0] for row in neighbors.tolist()]
+
+
+def _closer(adj: list[list[int]], near: np.ndarray, near_list: list[int], source: int) -> None:
+    """Lower ``near`` (int ``[cells]``, distance to the nearest chosen state, and its copy
+    ``near_list``) in place for a newly chosen ``source``.
 
     A breadth-first search that expands only cells it brings closer: a cell not improved
     cannot lead to an improved one, so the search stays within the new state's own
     region of the map and farthest-point sampling costs about one BFS in all.
     """
-    near[source] = 0
-    frontier = np.array([source], dtype=np.int64)
+    near_list[source] = 0
+    changed = [source]
+    frontier = [source]
     d = 0
-    while frontier.size:
+    while frontier:
         d += 1
-        nxt = neighbors[frontier].ravel()
-        nxt = nxt[nxt >= 0]
-        nxt = np.unique(nxt[near[nxt] > d])
-        near[nxt] = d
-        frontier = nxt
+        new = []
+        for c in frontier:
+            for x in adj[c]:
+                if near_list[x] > d:
+                    near_list[x] = d
+                    new.append(x)
+        changed += new
+        frontier = new
+    idx = np.array(changed, dtype=np.int64)
+    near[idx] = np.array([near_list[i] for i in changed], dtype=np.int64)
 
 
-def _middle(neighbors: np.ndarray, allowed: np.ndarray) -> int:
+def _middle(adj: list[list[int]], allowed: np.ndarray) -> int:
     """The allowed state minimising the larger distance to both ends of a double sweep."""
-    a = int(np.argmax(_bfs(neighbors, 0)))
-    dist_a = _bfs(neighbors, a)
-    dist_b = _bfs(neighbors, int(np.argmax(dist_a)))
+    a = int(np.argmax(_bfs_lists(adj, [0])))
+    dist_a = _bfs_lists(adj, [a])
+    dist_b = _bfs_lists(adj, [int(np.argmax(dist_a))])
     spread = np.maximum(dist_a, dist_b)
     return int(np.argmin(np.where(allowed, spread, np.iinfo(np.int64).max)))
 
@@ -323,6 +339,12 @@ def import_map(
         )
     grid, (row0, col0) = crop(region)
     n = int(grid.sum())
+    if n > MAX_CELLS or grid.size > MAX_GRID_AREA:
+        raise RosMapError(
+            f"{ros.yaml_path}: {cell:g} m cells make a grid of {grid.shape[1]:,} x "
+            f"{grid.shape[0]:,} with {n:,} free cells; allowed: at most {MAX_CELLS:,} free "
+            f"cells and {MAX_GRID_AREA:,} in all; use a larger --cell"
+        )
     n_stations = default_stations(n) if stations is None else stations
     starts, homes = place(grid, agents, n_stations)
     name = name or ros.yaml_path.stem
@@ -390,18 +412,25 @@ def _as_map(free: np.ndarray) -> Map:
 def _bfs(neighbors: np.ndarray, sources: int | list[int]) -> np.ndarray:
     """int ``[cells]``: moves from the nearest of ``sources`` to every state (-1: unreachable).
 
-    As :func:`qpatrol.maps.bfs` but from several sources and with one numpy pass per
-    distance instead of a Python loop per cell: imported maps can be large.
+    As :func:`qpatrol.maps.bfs` but from several sources (:func:`_adjacency` says why it
+    walks Python lists).
     """
-    dist = np.full(neighbors.shape[0], -1, dtype=np.int64)
-    frontier = np.unique(np.atleast_1d(np.asarray(sources, dtype=np.int64)))
-    dist[frontier] = 0
-    d = 0
-    while frontier.size:
-        d += 1
-        nxt = neighbors[frontier].ravel()
-        nxt = nxt[nxt >= 0]
-        nxt = np.unique(nxt[dist[nxt] < 0])
-        dist[nxt] = d
-        frontier = nxt
-    return dist
+    return _bfs_lists(_adjacency(neighbors), np.atleast_1d(np.asarray(sources)).tolist())
+
+
+def _bfs_lists(adj: list[list[int]], sources: list[int]) -> np.ndarray:
+    """:func:`_bfs` over :func:`_adjacency` lists."""
+    dist = [-1] * len(adj)
+    queue = deque()
+    for s in sources:
+        if dist[s] < 0:
+            dist[s] = 0
+            queue.append(s)
+    while queue:
+        c = queue.popleft()
+        d = dist[c] + 1
+        for x in adj[c]:
+            if dist[x] < 0:
+                dist[x] = d
+                queue.append(x)
+    return np.array(dist, dtype=np.int64)

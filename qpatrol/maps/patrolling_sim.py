@@ -29,6 +29,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qpatrol.maps.core import MAX_CELLS, MAX_MAGNITUDE
 from qpatrol.maps.graphimport import (
     GraphImportError,
     SourceGraph,
@@ -36,11 +37,15 @@ from qpatrol.maps.graphimport import (
     merge_parallel,
     read_text,
 )
+from qpatrol.util.inputs import short_repr
 
 __all__ = ["DIRECTIONS", "read_patrolling_sim"]
 
 #: The compass letters patrolling_sim writes.
 DIRECTIONS = ("N", "NE", "E", "SE", "S", "SW", "W", "NW")
+#: Largest edge cost (the lengths' bound, :data:`qpatrol.maps.core.MAX_MAGNITUDE`).
+_MAX_COST = 10**100
+assert float(_MAX_COST) <= MAX_MAGNITUDE
 _HEADER = ("vertex count", "image width", "image height", "resolution", "offset x", "offset y")
 
 
@@ -82,14 +87,22 @@ class _Tokens:
 
     def integer(self, what: str, low: int | None = None, high: int | None = None) -> int:
         t, w = self.take(what)
+        digits = t.lstrip("+").lstrip("0")
+        if high is not None and digits.isdigit() and len(digits) > len(str(high)):
+            # int() of a token of thousands of digits is slow, or an error of its own
+            raise GraphImportError(
+                f"{w}: {what} of {len(digits):,} digits must be at most {_big(high)}"
+            )
         try:
             x = int(t)
         except ValueError:
-            raise GraphImportError(f"{w}: {what} {t!r} is not a whole number") from None
+            raise GraphImportError(
+                f"{w}: {what} {short_repr(t, 60)} is not a whole number"
+            ) from None
         if low is not None and x < low:
             raise GraphImportError(f"{w}: {what} {x} must be at least {low}")
         if high is not None and x > high:
-            raise GraphImportError(f"{w}: {what} {x} must be at most {high}")
+            raise GraphImportError(f"{w}: {what} {_big(x)} must be at most {_big(high)}")
         return x
 
     def number(self, what: str) -> float:
@@ -97,10 +110,15 @@ class _Tokens:
         try:
             x = float(t)
         except ValueError:
-            raise GraphImportError(f"{w}: {what} {t!r} is not a number") from None
+            raise GraphImportError(f"{w}: {what} {short_repr(t, 60)} is not a number") from None
         if not np.isfinite(x):
-            raise GraphImportError(f"{w}: {what} {t!r} is not a finite number")
+            raise GraphImportError(f"{w}: {what} {short_repr(t, 60)} is not a finite number")
         return x
+
+
+def _big(x: int) -> str:
+    """An integer as digits, or in e-notation when it has more than 15 of them."""
+    return str(x) if abs(x) < 10**15 else f"{float(x):g}"
 
 
 def _line(where: str) -> str:
@@ -111,10 +129,20 @@ def read_patrolling_sim(path: str | Path) -> SourceGraph:
     """Read a patrolling_sim ``.graph`` file (module doc); :class:`GraphImportError` names
     the file, the line and what is wrong."""
     p = Path(path)
-    t = _Tokens(read_text(p), p)
+    t = _Tokens(read_text(p, "a patrolling_sim graph file"), p)
     if not t.tok:
         raise GraphImportError(f"{p}: empty file (expected a patrolling_sim graph)")
-    n = t.integer(_HEADER[0], low=1)
+    n = t.integer(_HEADER[0], low=1, high=10**15)
+    if n > MAX_CELLS:
+        raise GraphImportError(
+            f"{t.where(0)}: vertex count {n:,}; allowed: at most {MAX_CELLS:,}, the most cells "
+            "a map may have (refused before reading the vertices)"
+        )
+    if 4 * n > len(t.tok) - 6:  # each vertex needs its id, x, y and degree
+        raise GraphImportError(
+            f"{t.where(0)}: vertex count {n:,}, but the file holds only {len(t.tok) - 6:,} "
+            "values after the header, fewer than the 4 (id, x, y, degree) each vertex needs"
+        )
     t.integer(_HEADER[1], low=0)
     t.integer(_HEADER[2], low=0)
     res_at = t.i
@@ -167,14 +195,15 @@ def read_patrolling_sim(path: str | Path) -> SourceGraph:
             d, dw = t.take(f"{what}: direction")
             if d not in DIRECTIONS:
                 raise GraphImportError(
-                    f"{dw}: {what}: direction {d!r} is not one of {' '.join(DIRECTIONS)}"
+                    f"{dw}: {what}: direction {short_repr(d, 60)} is not one of "
+                    f"{' '.join(DIRECTIONS)}"
                 )
-            cost = t.integer(f"{what}: cost", low=1)
+            cost = t.integer(f"{what}: cost", low=1, high=_MAX_COST)
             listed.setdefault((v, nb), []).append((cost, t.where(nb_at)))
     if t.i < len(t.tok):
         raise GraphImportError(
-            f"{t.where()}: unexpected {t.tok[t.i]!r} after the last of the {n} vertices "
-            "the header announces"
+            f"{t.where()}: unexpected {short_repr(t.tok[t.i], 60)} after the last of the {n} "
+            "vertices the header announces"
         )
     pairs: dict[tuple[int, int], list[float]] = {}
     for (a, b), here in listed.items():

@@ -41,6 +41,14 @@ import numpy as np
 import yaml
 
 from qpatrol.maps.images import Image, ImageError, read_image
+from qpatrol.util.inputs import (
+    MAX_YAML_BYTES,
+    BoundedLoader,
+    InputError,
+    YAMLRefused,
+    read_text_capped,
+    short_repr,
+)
 
 MODES = ("trinary", "scale", "raw")
 UNKNOWN, FREE, OCCUPIED = -1, 0, 100
@@ -125,25 +133,29 @@ def read_metadata(path: Path) -> dict[str, Any]:
     """The YAML's keys, checked and typed: image (str), resolution, origin (3 floats),
     negate (bool), occupied_thresh, free_thresh (floats) and mode (str)."""
     try:
-        text = path.read_text(encoding="utf-8")
+        text = read_text_capped(path, MAX_YAML_BYTES, "a map YAML file")
     except FileNotFoundError:
         raise RosMapError(f"{path}: no such map YAML file") from None
+    except InputError as e:
+        raise RosMapError(str(e)) from None
     except (OSError, UnicodeDecodeError) as e:
-        raise RosMapError(f"{path}: cannot read map YAML ({e})") from None
+        why = getattr(e, "strerror", None) or str(e)
+        raise RosMapError(f"{path}: cannot read map YAML ({why})") from None
     try:
-        doc = yaml.safe_load(text)
+        doc = yaml.load(text, Loader=BoundedLoader)  # noqa: S506 (a SafeLoader)
     except yaml.YAMLError as e:
         mark = getattr(e, "problem_mark", None)
         where = f" at line {mark.line + 1}, column {mark.column + 1}" if mark else ""
         problem = getattr(e, "problem", None) or "syntax error"
-        raise RosMapError(f"{path}: not valid YAML{where}: {problem}") from None
+        kind = "refused YAML" if isinstance(e, YAMLRefused) else "not valid YAML"
+        raise RosMapError(f"{path}: {kind}{where}: {problem}") from None
     if not isinstance(doc, dict):
         raise RosMapError(f"{path}: expected a mapping of map_server keys (image, resolution, ...)")
 
     def bad(key: str, allowed: str) -> RosMapError:
         if key not in doc:
             return RosMapError(f"{path}: {key}: missing; expected {allowed}")
-        return RosMapError(f"{path}: {key}: {doc[key]!r} is not {allowed}")
+        return RosMapError(f"{path}: {key}: {short_repr(doc[key])} is not {allowed}")
 
     image = doc.get("image")
     if not isinstance(image, str) or not image.strip():

@@ -35,6 +35,7 @@ from pathlib import Path
 
 import numpy as np
 
+from qpatrol.maps.core import MAX_MAGNITUDE
 from qpatrol.maps.graphimport import (
     GraphImportError,
     SourceGraph,
@@ -42,6 +43,7 @@ from qpatrol.maps.graphimport import (
     merge_parallel,
     read_text,
 )
+from qpatrol.util.inputs import short_repr
 
 __all__ = ["read_simpatrol"]
 
@@ -63,7 +65,7 @@ def _flag(el: ET.Element, keys: tuple[str, ...], where: str) -> bool:
         v = el.get(key)
         if v is not None:
             if v.strip().lower() not in (_TRUE, _FALSE):
-                raise GraphImportError(f"{where}: {key} {v!r} is not true or false")
+                raise GraphImportError(f"{where}: {key} {short_repr(v, 60)} is not true or false")
             return v.strip().lower() == _TRUE
     return False
 
@@ -80,7 +82,7 @@ def read_simpatrol(path: str | Path) -> SourceGraph:
     """Read a SimPatrol graph (module doc); :class:`GraphImportError` names the file and
     the XML element (or the line of an XML syntax error)."""
     p = Path(path)
-    text = read_text(p)
+    text = read_text(p, "a SimPatrol graph file")
     try:
         root = ET.fromstring(text)
     except ET.ParseError as e:
@@ -105,7 +107,9 @@ def read_simpatrol(path: str | Path) -> SourceGraph:
         if nid is None or not nid.strip():
             raise GraphImportError(f"{where}: no id attribute")
         if nid in seen:
-            raise GraphImportError(f"{where}: id {nid!r} repeated (first {seen[nid]})")
+            raise GraphImportError(
+                f"{where}: id {short_repr(nid, 60)} repeated (first {seen[nid]})"
+            )
         seen[nid] = _name(el, k)
         fuel[nid] = _flag(el, ("fuel",), where)
     ids = sorted(seen, key=_natural)
@@ -119,18 +123,27 @@ def read_simpatrol(path: str | Path) -> SourceGraph:
         for keys in (("source", "emitter_id"), ("target", "collector_id")):
             v = _attr(el, keys, where)
             if v not in index:
-                raise GraphImportError(f"{where}: {keys[0]} {v!r} is not the id of a node")
+                raise GraphImportError(
+                    f"{where}: {keys[0]} {short_repr(v, 60)} is not the id of a node"
+                )
             ends.append(index[v])
         a, b = ends
         if a == b:
-            raise GraphImportError(f"{where}: edge from node {ids[a]!r} to itself")
+            raise GraphImportError(f"{where}: edge from node {short_repr(ids[a], 60)} to itself")
         raw = _attr(el, ("length",), where)
         try:
             length = float(raw)
         except ValueError:
-            raise GraphImportError(f"{where}: length {raw!r} is not a number") from None
+            raise GraphImportError(
+                f"{where}: length {short_repr(raw, 40)} is not a number"
+            ) from None
         if not (math.isfinite(length) and length > 0):
-            raise GraphImportError(f"{where}: length {raw!r} is not a number > 0")
+            raise GraphImportError(f"{where}: length {short_repr(raw, 40)} is not a number > 0")
+        if length > MAX_MAGNITUDE:
+            raise GraphImportError(
+                f"{where}: length {short_repr(raw, 40)} is out of range; allowed: a number "
+                f"> 0 and at most {MAX_MAGNITUDE:g}"
+            )
         if _flag(el, ("directed", "oriented"), where):
             directed.setdefault((a, b), []).append((length, name))
         else:

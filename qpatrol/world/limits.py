@@ -160,13 +160,20 @@ def check_config_on_map(cfg: Config, m: Map, available: int | None = None) -> No
         )
     need = estimate_memory(cfg, m)
     have = available if available is not None else available_memory()
+    if have is not None and need.distances > have:  # the map alone is too large
+        c = m.n_cells
+        raise ConfigError(
+            f"memory: runs={cfg['runs']}, steps={cfg['steps']}, agents={cfg['agents']} on map "
+            f"{m.name} ({c:,} cells) need about {_gib(need.total)}, {_gib(need.distances)} of "
+            f"it for the map's all-pairs distances alone (a {c:,} x {c:,} table of moves that "
+            "every run computes before its first step, whatever runs, steps and agents); "
+            f"this machine has {_gib(have)} available; use a map of fewer cells (a larger "
+            "--cell or --edge-step when importing)"
+        )
     if have is not None and need.total > have:
         why = ""
         if need.distances > need.total / 2:
-            why = (
-                f", mostly the all-pairs distances of its {m.n_cells:,} cells, used to place "
-                f"{cfg['agents']} agents on a map with {len(m.starts)} start digits"
-            )
+            why = f", mostly the all-pairs distances of its {m.n_cells:,} cells"
         raise ConfigError(
             f"memory: runs={cfg['runs']}, steps={cfg['steps']}, agents={cfg['agents']} on map "
             f"{m.name} ({m.n_cells:,} cells) need about {_gib(need.total)}{why}; this machine "
