@@ -8,9 +8,14 @@ whose writes :mod:`qpatrol.engines.cachelock` makes safe between processes.
 from __future__ import annotations
 
 import importlib.util
+import os
+import shutil
 import subprocess
 import sys
+import tempfile
+from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import settings
@@ -131,3 +136,62 @@ def compiled_loops_cached(monkeypatch):
 
     monkeypatch.setattr(coldstart, "cached", lambda loop, disp=None, folder=None: True)
     monkeypatch.setattr(coldstart, "warm_in_background", lambda cfg, loop, folder=None: False)
+
+
+def _writable(d: Path) -> bool:
+    try:
+        fd, tmp = tempfile.mkstemp(dir=d)
+    except OSError:
+        return False
+    os.close(fd)
+    os.unlink(tmp)
+    return True
+
+
+@pytest.fixture
+def readonly(tmp_path: Path):
+    """A folder nobody can write into: mode 0555, made immutable when we are root."""
+    d = tmp_path / "ro"
+    d.mkdir()
+    d.chmod(0o555)
+    immutable = False
+    if _writable(d) and shutil.which("chattr"):
+        immutable = subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode == 0
+    try:
+        if _writable(d):
+            if Path("/sys").is_dir() and not _writable(Path("/sys")):
+                yield Path("/sys")  # root without chattr: a real read-only place
+                return
+            pytest.skip("cannot make a read-only folder here")
+        yield d
+    finally:
+        if immutable:
+            subprocess.run(["chattr", "-i", str(d)], capture_output=True)
+        d.chmod(0o755)
+
+
+@dataclass
+class CliResult:
+    """What ``qpatrol ARGS...`` did: exit code, stdout, stderr."""
+
+    code: int
+    out: str
+    err: str
+
+
+@pytest.fixture
+def cli_run(capsys) -> Any:
+    """Run ``qpatrol ARGS...`` in this process, as the console script does."""
+    from qpatrol import cli
+
+    def call(*args: object) -> CliResult:
+        capsys.readouterr()
+        try:
+            cli.main([str(a) for a in args])
+            code = 0
+        except SystemExit as e:
+            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
+        out, err = capsys.readouterr()
+        return CliResult(code, out, err)
+
+    return call

@@ -13,19 +13,16 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
 import struct
 import subprocess
 import sys
-import tempfile
 import zlib
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
 
-from qpatrol import cli
 from qpatrol.maps import graphimport, images
 from qpatrol.maps.core import MAX_CELLS
 
@@ -34,38 +31,20 @@ ROS_KEYS = (
 )
 
 
-@dataclass
-class Result:
-    code: int
-    out: str
-    err: str
-
-
 @pytest.fixture
-def run(capsys, monkeypatch, tmp_path):
+def run(cli_run, monkeypatch, tmp_path):
     """Run ``qpatrol ARGS...`` in this process from ``tmp_path``, as the console script
     does; a crash log would land in ``tmp_path`` too (and so count as written)."""
     monkeypatch.chdir(tmp_path)
     monkeypatch.setenv("QPATROL_LOG_DIR", str(tmp_path / "crash-logs"))
-
-    def call(*args: object) -> Result:
-        capsys.readouterr()
-        try:
-            cli.main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-        out, err = capsys.readouterr()
-        return Result(code, out, err)
-
-    return call
+    return cli_run
 
 
 def tree(root: Path) -> set[str]:
     return {str(p.relative_to(root)) for p in root.rglob("*")}
 
 
-def refused(res: Result, *words: str, limit: int = 400) -> str:
+def refused(res: Any, *words: str, limit: int = 400) -> str:
     """Exit 2 and one short line on stderr holding ``words``; returns the line."""
     assert res.code == 2, (res.code, res.out[-300:], res.err[-300:])
     lines = res.err.strip().splitlines()
@@ -275,38 +254,6 @@ def test_out_under_an_existing_file_exits_2(run, tmp_path):
     res = run("maps", "import", y, "--cell", "0.2", "--out", tmp_path / "ok.pgm" / "x.txt")
     refused(res, "ok.pgm/x.txt", "is a file, not a folder")
     assert tree(tmp_path) == before
-
-
-def _writable(d: Path) -> bool:
-    try:
-        fd, tmp = tempfile.mkstemp(dir=d)
-    except OSError:
-        return False
-    os.close(fd)
-    os.unlink(tmp)
-    return True
-
-
-@pytest.fixture
-def readonly(tmp_path: Path):
-    """A folder nobody can write into: mode 0555, made immutable when we are root."""
-    d = tmp_path / "ro"
-    d.mkdir()
-    d.chmod(0o555)
-    immutable = False
-    if _writable(d) and shutil.which("chattr"):
-        immutable = subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode == 0
-    try:
-        if _writable(d):
-            if Path("/sys").is_dir() and not _writable(Path("/sys")):
-                yield Path("/sys")  # root without chattr: a real read-only place
-                return
-            pytest.skip("cannot make a read-only folder here")
-        yield d
-    finally:
-        if immutable:
-            subprocess.run(["chattr", "-i", str(d)], capture_output=True)
-        d.chmod(0o755)
 
 
 def test_out_in_a_read_only_folder_exits_2(run, tmp_path, readonly):

@@ -8,16 +8,12 @@ from __future__ import annotations
 
 import json
 import os
-import shutil
-import subprocess
-import tempfile
-from dataclasses import dataclass
 from pathlib import Path
+from typing import Any
 
 import pytest
 import yaml
 
-from qpatrol import cli
 from qpatrol.config import from_flat
 from qpatrol.study.sweep import grid_points, points_for, run_sweep
 
@@ -27,28 +23,10 @@ pytestmark = pytest.mark.xdist_group("robustness")
 REPO = Path(__file__).resolve().parent.parent
 
 
-@dataclass
-class Result:
-    code: int
-    out: str
-    err: str
-
-
 @pytest.fixture
-def run(capsys):
+def run(cli_run):
     """Run ``qpatrol ARGS...`` in this process, as the console script does."""
-
-    def call(*args: object) -> Result:
-        capsys.readouterr()
-        try:
-            cli.main([str(a) for a in args])
-            code = 0
-        except SystemExit as e:
-            code = e.code if isinstance(e.code, int) else (0 if e.code is None else 1)
-        out, err = capsys.readouterr()
-        return Result(code, out, err)
-
-    return call
+    return cli_run
 
 
 def tree(root: Path) -> set[str]:
@@ -56,7 +34,7 @@ def tree(root: Path) -> set[str]:
     return {str(p.relative_to(root)) for p in root.rglob("*")}
 
 
-def assert_one_line_error(res: Result, code: int, words: str) -> None:
+def assert_one_line_error(res: Any, code: int, words: str) -> None:
     assert res.code == code, (res.code, res.out, res.err)
     lines = res.err.strip().splitlines()
     assert len(lines) == 1, res.err
@@ -71,38 +49,6 @@ def tiny(tmp_path: Path, name: str = "tiny.yaml", **extra) -> Path:
     p = tmp_path / name
     p.write_text(yaml.safe_dump(cfg))
     return p
-
-
-def _writable(d: Path) -> bool:
-    try:
-        fd, tmp = tempfile.mkstemp(dir=d)
-    except OSError:
-        return False
-    os.close(fd)
-    os.unlink(tmp)
-    return True
-
-
-@pytest.fixture
-def readonly(tmp_path: Path):
-    """A folder nobody can write into: mode 0555, made immutable when we are root."""
-    d = tmp_path / "ro"
-    d.mkdir()
-    d.chmod(0o555)
-    immutable = False
-    if _writable(d) and shutil.which("chattr"):
-        immutable = subprocess.run(["chattr", "+i", str(d)], capture_output=True).returncode == 0
-    try:
-        if _writable(d):
-            if Path("/sys").is_dir() and not _writable(Path("/sys")):
-                yield Path("/sys")  # root without chattr: a real read-only place
-                return
-            pytest.skip("cannot make a read-only folder here")
-        yield d
-    finally:
-        if immutable:
-            subprocess.run(["chattr", "-i", str(d)], capture_output=True)
-        d.chmod(0o755)
 
 
 @pytest.fixture(scope="module")
