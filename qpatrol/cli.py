@@ -413,7 +413,6 @@ def sweep(
             points = sw.points_for(name, sw.parse_values(name, values))
         base = config_mod.load_config(config, overrides)
         target = out or Path("results") / "sweeps" / name
-        sw.check_target(target, force)
         meta = provenance.collect(overrides, config_file=config_mod.find_config(config))
         bar = Bar(f"sweep {name}", unit="runs", quiet=quiet)
         try:
@@ -617,9 +616,6 @@ def reproduce(
         n = jobs if jobs is not None else min(2, limits.cores())
         limits.check_jobs(n, "--jobs")
         target = out or rp.default_out(quick)
-        rp.check_target(target, force)
-        if update_references:
-            rp.check_references(rp.REFERENCES)
     except ConfigError as e:
         fail(str(e))
     bar = Bar("reproduce" + (" --quick" if quick else ""), unit="runs", quiet=quiet)
@@ -781,7 +777,7 @@ def maps_show(
             from qpatrol.study.plots import check_image_path
 
             check_image_path(png)
-            _check_output_file(png, "--png", replace=True)
+            outputs.check_writable_file(png, "--png")
         m = load_map(resolve_map(name))
     except (MapError, ConfigError, ValueError) as e:
         fail(str(e))
@@ -919,7 +915,7 @@ def maps_import(
         fail(f"{target} already exists; pass --force to replace it or --out to choose another")
     if target is not None:
         try:
-            _check_output_file(target, "--out", replace=force)
+            outputs.check_writable_file(target)
         except ConfigError as e:
             fail(str(e))
     name = target.stem if target is not None else None
@@ -936,18 +932,6 @@ def maps_import(
     except OSError as e:
         fail(f"{target}: cannot write ({e.strerror or e})")
     typer.echo(f"wrote {target}: {report}")
-
-
-def _check_output_file(path: Path, label: str, replace: bool) -> None:
-    """Raise ConfigError (one line) unless ``path`` can be written: its folder writable
-    (:func:`qpatrol.run.outputs.check_writable_file`) and, if it exists, a regular file
-    (a device or FIFO is never replaced by the renamed output)."""
-    from qpatrol.util.inputs import not_a_file
-
-    kind = not_a_file(path)
-    if replace and kind is not None and kind != "a folder":
-        raise ConfigError(f"{label} {path}: is {kind}; give the name of a file to write")
-    outputs.check_writable_file(path, label)
 
 
 def _import_ros(

@@ -477,7 +477,7 @@ def write_run(
     config_text = result.config.to_yaml()
 
     def check(old: Path) -> None:  # once more, now that the run is done
-        outputs.check_replaceable(old, ("run",), "--out", "run folder")
+        outputs.check_replaceable(old, ("run",), "--out", "run folder", shown=out)
 
     staged = atomic.staged_dir(out, replace=replace, check=check, discard=outputs.replace_written)
     with staged as tmp:

@@ -16,7 +16,7 @@ from collections.abc import Iterable
 from pathlib import Path
 
 from qpatrol.config import ConfigError
-from qpatrol.util import manifest
+from qpatrol.util import inputs, manifest
 
 
 class OutputError(ConfigError):
@@ -69,6 +69,9 @@ def check_writable_file(path: str | Path, label: str = "--out") -> None:
     p = Path(path)
     if p.is_dir():
         raise OutputError(f"{label} {p}: is a folder; give a file name")
+    kind = inputs.not_a_file(p)  # a device or FIFO is never replaced by the renamed output
+    if kind is not None:
+        raise OutputError(f"{label} {p}: is {kind}; give the name of a file to write")
     anc = nearest_existing(p.parent)
     if not anc.is_dir():
         raise OutputError(f"{label} {p}: {anc} is a file, not a folder")
@@ -82,35 +85,37 @@ def check_replaceable(
     what: str = "folder",
     also: Iterable[str] = (),
     hint: str = "",
+    shown: str | Path | None = None,
 ) -> manifest.Manifest:
     """Check that ``--force`` may remove folder ``path``: qpatrol wrote it (its
     ``manifest.json`` is of one of ``kinds``) and it holds nothing else (but ``also``:
     entries its manifest does not list that qpatrol wrote all the same, see
-    :func:`qpatrol.util.manifest.strays`).
+    :func:`qpatrol.util.manifest.strays`). Messages name ``shown`` (default ``path``).
 
     Raises:
         OutputError: one line naming the first file or folder qpatrol did not write.
     """
     p = Path(path)
+    name = shown if shown is not None else p
     keep = hint or (
         f"--force removes only what qpatrol wrote; move it away or choose another {label}"
     )
     if p.is_symlink() or not p.is_dir():
-        raise OutputError(f"{label} {p}: {_kind_of(p)}, not a {what} qpatrol wrote; {keep}")
+        raise OutputError(f"{label} {name}: {_kind_of(p)}, not a {what} qpatrol wrote; {keep}")
     try:
         m = manifest.read(p)
         if m is None:
             raise OutputError(
-                f"{label} {p}: has no {manifest.MANIFEST_FILE}, so qpatrol did not write it "
+                f"{label} {name}: has no {manifest.MANIFEST_FILE}, so qpatrol did not write it "
                 f"(or a version that kept none did); {keep}"
             )
         if m.kind not in kinds:
-            raise OutputError(f"{label} {p}: a {m.kind} folder, not a {what}; {keep}")
+            raise OutputError(f"{label} {name}: a {m.kind} folder, not a {what}; {keep}")
         extra = manifest.strays(p, also=also)
     except manifest.ManifestError as e:
-        raise OutputError(f"{label} {p}: {e}; {keep}") from None
+        raise OutputError(f"{label} {name}: {e}; {keep}") from None
     if extra:
-        raise OutputError(f"{label} {p}: holds {extra[0]}, which qpatrol did not write; {keep}")
+        raise OutputError(f"{label} {name}: holds {extra[0]}, which qpatrol did not write; {keep}")
     return m
 
 
@@ -122,13 +127,7 @@ def _kind_of(p: Path) -> str:
         mode = p.stat().st_mode
     except OSError:
         return "not readable"
-    if stat.S_ISCHR(mode) or stat.S_ISBLK(mode):
-        return "a device"
-    if stat.S_ISFIFO(mode):
-        return "a FIFO"
-    if stat.S_ISSOCK(mode):
-        return "a socket"
-    return "a file"
+    return "a file" if stat.S_ISREG(mode) else inputs.kind_of(mode)
 
 
 def check_out_path(path: str | Path, label: str = "--out") -> None:
@@ -198,8 +197,6 @@ def check_files(
     it. A folder or a non-file in the way is refused even with ``force``."""
     for path in paths:
         p = Path(path)
-        if p.is_dir() or (p.exists() and not p.is_file()):
-            raise OutputError(f"{label} {p}: is {_kind_of(p) if not p.is_dir() else 'a folder'}")
         check_writable_file(p, label)
         if not (p.exists() or p.is_symlink()) or force:
             continue
