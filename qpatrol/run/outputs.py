@@ -227,25 +227,12 @@ def record_files(
     """After writing ``names`` in ``folder``: list them in its manifest if it has one, or
     start one (of ``kind``) if the folder was new or empty before (``fresh``); a folder
     of someone else's gets no manifest."""
-    folder = Path(folder)
     try:
-        m = manifest.read(folder)
+        if manifest.read(folder) is None and not fresh:
+            return
+        manifest.add(folder, kind, names)
     except manifest.ManifestError:
         return
-    if m is None and not fresh:
-        return
-    files = dict(m.files) if m is not None else {}
-    for n in names:
-        files[n] = manifest.file_entry(folder / n)
-    manifest.write(
-        folder,
-        m.kind if m is not None else kind,
-        [*files, *(m.provenance if m is not None else ())],
-        m.folders if m is not None else (),
-        m.config if m is not None else None,
-        files,
-        m.provenance if m is not None else (),
-    )
 
 
 def is_fresh(folder: str | Path) -> bool:

@@ -624,18 +624,7 @@ def reproduce(
         log(f"wrote {path}")
     mode = "quick" if quick else "full"
     folders = ["figures", *(f"runs/{mode}/{e.name}" for e in EXPERIMENTS)]
-    old = manifest.read(out)
-    keep = {k: v for k, v in (old.files if old is not None else {}).items() if k not in written}
-    keep_dirs = [d for d in (old.folders if old is not None else []) if d not in folders]
-    manifest.write(
-        out,
-        "reproduction",
-        [*keep, *written],
-        [*keep_dirs, *folders],
-        None,
-        keep,
-        provenance=[provenance.META_FILE],
-    )
+    manifest.add(out, "reproduction", written, folders, provenance=[provenance.META_FILE])
     return path
 
 

@@ -653,39 +653,14 @@ class _Ledger:
 
     def __init__(self, out: Path, config: str):
         self.out, self.config = out, config
-        old = manifest.read(out)
-        self.files = dict(old.files) if old is not None else {}
-        self.folders = set(old.folders) if old is not None else set()
 
     def wrote(self, *names: str) -> None:
-        for name in names:
-            self.files[name] = manifest.file_entry(self.out / name)
-        self.save()
+        manifest.add(self.out, "sweep", names, (), self.config, [provenance.META_FILE])
 
     def point(self, pid: str) -> None:
+        """List point ``pid``'s folder or failure record, whichever is there now."""
         rel = f"{POINTS_DIR}/{pid}"
-        if (self.out / rel).is_dir():
-            self.folders.add(rel)
-        else:
-            self.folders.discard(rel)
-        failed = f"{rel}{FAILED_SUFFIX}"
-        if (self.out / failed).is_file():
-            self.files[failed] = manifest.file_entry(self.out / failed)
-        else:
-            self.files.pop(failed, None)
-        self.save()
-
-    def save(self) -> None:
-        self.files = {k: v for k, v in self.files.items() if (self.out / k).is_file()}
-        manifest.write(
-            self.out,
-            "sweep",
-            [*self.files, provenance.META_FILE],
-            self.folders,
-            self.config,
-            self.files,
-            provenance=[provenance.META_FILE],
-        )
+        manifest.add(self.out, "sweep", [rel + FAILED_SUFFIX], [rel], self.config)
 
 
 def adoptable(out: Path) -> list[str]:
@@ -771,11 +746,9 @@ def _open(
     else:
         _check_same_sweep(out, spec)
     ledger = _Ledger(out, manifest.text_digest(json.dumps(spec, sort_keys=True)))
-    for rel in adoptable(out):
-        if (out / rel).is_dir():
-            ledger.folders.add(rel)
-        else:
-            ledger.files[rel] = manifest.file_entry(out / rel)
+    adopted = adoptable(out)
+    if adopted and manifest.read(out) is not None:
+        manifest.add(out, "sweep", [a for a in adopted if (out / a).is_file()], adopted)
     if force or not (out / SWEEP_FILE).exists():
         atomic.write_text(out / SWEEP_FILE, json.dumps(spec, indent=2) + "\n")
     _remove_stray_tmp(out)

@@ -161,7 +161,8 @@ def write(
 ) -> Manifest:
     """Write ``folder``'s manifest (atomically), hashing each of ``files`` (relative
     paths) that exists; ``known`` gives entries already hashed (taken as they are);
-    ``provenance`` files (that exist) are listed without a hash."""
+    ``provenance`` files (that exist) are listed without a hash. Files and folders that
+    are gone are left out."""
     folder = Path(folder)
     known = known or {}
     prov = [rel for rel in provenance if (folder / rel).is_file()]
@@ -169,14 +170,39 @@ def write(
     for rel in files:
         if rel in prov:
             continue
-        if rel in known:
-            entries[rel] = known[rel]
-        elif (folder / rel).is_file():
-            entries[rel] = file_entry(folder / rel)
+        if (folder / rel).is_file():
+            entries[rel] = known[rel] if rel in known else file_entry(folder / rel)
     dirs = [d for d in folders if (folder / d).is_dir()]
     m = Manifest(kind, __version__, config, entries, dirs, prov)
     atomic.write_text(folder / MANIFEST_FILE, m.to_json())
     return m
+
+
+def add(
+    folder: str | Path,
+    kind: str,
+    files: Iterable[str] = (),
+    folders: Iterable[str] = (),
+    config: str | None = None,
+    provenance: Iterable[str] = (),
+) -> Manifest:
+    """List ``files`` (hashed anew), ``folders`` and ``provenance`` files in ``folder``'s
+    manifest, keeping what it listed before (but entries that are gone); a folder
+    without a manifest gets one of ``kind``. ``config`` replaces the recorded one when
+    given."""
+    folder = Path(folder)
+    old = read(folder)
+    files = list(files)
+    known = {k: v for k, v in (old.files if old else {}).items() if k not in files}
+    return write(
+        folder,
+        old.kind if old is not None else kind,
+        [*known, *files],
+        [*(old.folders if old is not None else ()), *folders],
+        config if config is not None else (old.config if old is not None else None),
+        known,
+        [*(old.provenance if old is not None else ()), *provenance],
+    )
 
 
 def seal(
