@@ -195,7 +195,9 @@ def test_out_that_can_never_be_a_qpatrol_folder(tmp_path, out):
 
 
 def test_out_that_is_a_device(tmp_path):
-    one_line(*run("train", tiny(tmp_path), "--out", "/dev/null"), "is a character device, not a folder")
+    one_line(
+        *run("train", tiny(tmp_path), "--out", "/dev/null"), "is a character device, not a folder"
+    )
 
 
 # --------------------------------------------------------------------------------- sweeps
