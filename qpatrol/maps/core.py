@@ -162,6 +162,38 @@ def bfs(neighbors: np.ndarray, source: int) -> np.ndarray:
     return dist
 
 
+def far_targets(
+    neighbors: np.ndarray, back: np.ndarray, target: np.ndarray
+) -> tuple[np.ndarray, np.ndarray]:
+    """``(far, length)``, int ``[C, D]`` each: for a target c and port d, the target at the
+    far end of the way out of c by d (through cells that are not targets: a graph's
+    waypoints) and its length in moves; -1 (both) where c is not a target, d has no move,
+    or the way ends in a dead end before a target. On a grid (every cell a target)
+    ``far`` is ``neighbors`` and ``length`` 1 wherever there is a move.
+
+    ``neighbors``, ``back``: :attr:`Map.neighbors`, :attr:`Map.back`; ``target`` bool
+    ``[C]``: :attr:`Map.target`."""
+    n_cells, n_ports = neighbors.shape
+    # a move straight into a target (every move of a grid's), then the ways through
+    # waypoints, followed one by one
+    step = target[:, None] & (neighbors >= 0) & target[np.maximum(neighbors, 0)]
+    far = np.where(step, neighbors, -1).astype(np.int64)
+    length = np.where(step, 1, -1).astype(np.int64)
+    inside = target[:, None] & (neighbors >= 0) & ~target[np.maximum(neighbors, 0)]
+    for c, d in zip(*(x.tolist() for x in np.nonzero(inside)), strict=True):
+        cur, came, n = int(neighbors[c, d]), int(back[c, d]), 1
+        while cur >= 0 and not target[cur] and n <= n_cells:
+            out = [e for e in range(n_ports) if e != came and neighbors[cur, e] >= 0]
+            if not out:
+                cur = -1
+                break
+            came, cur = int(back[cur, out[0]]), int(neighbors[cur, out[0]])
+            n += 1
+        if cur >= 0 and target[cur]:
+            far[c, d], length[c, d] = cur, n
+    return far, length
+
+
 def all_pairs_distances(neighbors: np.ndarray) -> np.ndarray:
     """int ``[cells, cells]``: BFS distances between all states (-1 if unreachable).
 

@@ -106,14 +106,16 @@ def choose_min(score: np.ndarray, mask: np.ndarray, u: np.ndarray) -> np.ndarray
 
 
 def neighbour_values(values: np.ndarray, obs: Observation, per_group: bool) -> np.ndarray:
-    """float ``[R, K, D]``: a per-cell map read at each robot's D neighbours.
+    """float ``[R, K, D]``: a per-cell map read at the far end of each robot's D ports:
+    the neighbouring cell on a grid, the vertex at the other end of the edge on a patrol
+    graph (:attr:`qpatrol.world.Params.far_cells`; robots choose at vertices only).
 
     Args:
         values: ``[R, G, C]`` (``per_group``: the robot's group map) or ``[R, K, C]``.
         obs: the observation (robots' cells, groups).
     """
     s, p = obs.state, obs.params
-    targets = np.maximum(p.neighbors[s.pos], 0)  # [R, K, D]
+    targets = np.maximum(p.far_cells[s.pos], 0)  # [R, K, D]
     rows = np.arange(s.n_runs)[:, None, None]
     plane = obs.group_of()[None, :, None] if per_group else np.arange(p.n_agents)[None, :, None]
     return values[rows, plane, targets]

@@ -2,7 +2,9 @@
 
 Each robot keeps its own memory of when it last entered each cell (never: step 0) and
 moves to the open neighbour with the oldest entry, ties broken by the run's stream. It
-remembers every cell it enters, on patrol, pushed aside or on its way home.
+remembers every cell it enters, on patrol, pushed aside or on its way home. On a
+patrol graph it chooses at vertices only, among its ports by its memory of the vertex
+at each port's far end.
 """
 
 from __future__ import annotations

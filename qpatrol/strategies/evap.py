@@ -2,7 +2,9 @@
 
 Each robot drops one unit of pheromone on every cell it enters; all pheromone loses
 the share ``evap.evaporation`` every team step; a robot moves to the open neighbour
-with the least pheromone, ties broken by the run's stream. With communication on the
+with the least pheromone, ties broken by the run's stream. On a patrol graph only
+vertices are marked and read: at a vertex a robot takes the open port whose far vertex
+(the other end of the edge) has the least pheromone. With communication on the
 team shares one pheromone map, with it off each robot has its own.
 
 Evaporation is applied lazily, exactly: a cell stores its amount and the step it was
@@ -50,7 +52,8 @@ class Strategy(base.Strategy):
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         for k in range(self.n_agents):
-            rows = np.flatnonzero(out.moved[:, k])
+            # only decision points are marked: every grid cell, a graph's vertices
+            rows = np.flatnonzero(out.moved[:, k] & self.params.target[out.pos[:, k]])
             if rows.size == 0:
                 continue
             g = 0 if self.params.communication else k

@@ -35,6 +35,7 @@ from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
 
+from qpatrol.maps.core import far_targets
 from qpatrol.strategies import base
 from qpatrol.world import battery
 
@@ -49,23 +50,7 @@ def target_neighbours(m: Map) -> tuple[np.ndarray, np.ndarray]:
     far end of the way out of c by d (through waypoints, which are not targets) and its
     length in moves; -1 (both) where c is not a target, d has no move, or the way ends
     in a dead end before a target."""
-    nbrs, back, target = m.neighbors, m.back, m.target
-    n_cells, n_ports = nbrs.shape
-    tnbr = np.full((n_cells, n_ports), -1, dtype=np.int64)
-    tcost = np.full((n_cells, n_ports), -1, dtype=np.int64)
-    for c in np.flatnonzero(target).tolist():
-        for d in range(n_ports):
-            cur, came, n = int(nbrs[c, d]), int(back[c, d]), 1
-            while cur >= 0 and not target[cur] and n <= n_cells:
-                out = [e for e in range(n_ports) if e != came and nbrs[cur, e] >= 0]
-                if not out:
-                    cur = -1
-                    break
-                came, cur = int(back[cur, out[0]]), int(nbrs[cur, out[0]])
-                n += 1
-            if cur >= 0 and target[cur]:
-                tnbr[c, d], tcost[c, d] = cur, n
-    return tnbr, tcost
+    return far_targets(m.neighbors, m.back, m.target)
 
 
 def pick_nth(cand: np.ndarray, u: np.ndarray) -> np.ndarray:

@@ -113,3 +113,37 @@ def update(
     n_after = n_sa + 1
     alpha = np.full(n_after.shape, fixed_alpha) if fixed_alpha > 0 else 1.0 / n_after
     return q_sa + alpha * (target - q_sa), n_after, alpha
+
+
+def pending_transitions(
+    pending: np.ndarray, out, target: np.ndarray, state: np.ndarray
+) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The transitions of a patrol graph's learner completed by a team step; the
+    decisions still travelling stay in ``pending`` (updated in place).
+
+    A transition runs from a decision at a vertex to the arrival at the next vertex. A
+    robot that chose a move and made it starts a decision; one travelling its edge
+    (``out.travelling``) keeps its decision while it moves on as asked or waits; any
+    other (pushed aside, homing, queued, failed, its run ended) drops it. A decision
+    whose robot has just made its move into a vertex completes.
+
+    Args:
+        pending: int ``[R, K, S + 1]``, each robot's decision not yet completed: its
+            state slots (column 0 the cell, -1 for none) and the port chosen (last).
+        out: the step's :class:`~qpatrol.world.Outcome`.
+        target: bool ``[C]``, the vertices (every cell of a grid).
+        state: int ``[R, K, S]``, each robot's state slots before the step (cell first).
+
+    Returns:
+        ``(rows, robots, done)``: int ``[B]``, ``[B]``, ``[B, S + 1]``, the completed
+        transitions in run-then-robot order, each its decision's row of ``pending``.
+    """
+    decided = out.choosing & out.as_asked
+    travel = out.travelling if out.travelling is not None else np.zeros_like(decided)
+    keep = travel & (pending[..., 0] >= 0) & (out.as_asked | ~out.moved)
+    pending[~keep & ~decided] = -1
+    pending[decided] = np.concatenate([state, out.ask[..., None]], axis=-1)[decided]
+    rr, kk = np.nonzero((pending[..., 0] >= 0) & out.as_asked & target[out.pos])
+    done = pending[rr, kk].copy()
+    pending[rr, kk] = -1
+    return rr, kk, done

@@ -12,7 +12,15 @@ it chose and made, ``s -a-> s'`` with the world's reward ``r``::
     N(s,a) <- N(s,a) + 1;  alpha = 1 / N(s,a)
     Q(s,a) <- Q(s,a) + alpha * (r + gamma * max_{a' not into a wall} Q(s',a') - Q(s,a))
 
-A robot that waits, is pushed aside, or moves home does not update. The initial
+A robot that waits, is pushed aside, or moves home does not update.
+
+On a patrol graph a robot decides at vertices only (the world carries it along an
+edge's waypoints): the state is ``(vertex, port arrived by)`` and a transition runs
+from the decision at ``v`` (action: a port) to the arrival at the next vertex ``v'``,
+paid the reward of entering ``v'`` (waypoints are not states and pay nothing). The
+decision waits in ``pending`` until then; it is dropped without an update when the
+robot is pushed, goes home, fails or its run ends. With unit edges (and on a grid)
+every transition completes in the step of its decision, as above. The initial
 table is ``q_init x multiplier`` for every state (North 3, West 2, East 2, South 1); on
 a patrol graph, whose ports have no compass direction, every move starts at
 ``multiplier x`` the largest ``q_init``.
@@ -48,7 +56,7 @@ class Strategy(base.Strategy):
     learns = True
 
     #: The arrays with a leading runs axis (:mod:`qpatrol.run.batching` cuts them per point).
-    per_run = ("q", "n")
+    per_run = ("q", "n", "pending")
     #: The config keys this strategy reads that may differ between a batch's rows.
     RUN_KEYS = (
         "learning.gamma",
@@ -62,6 +70,9 @@ class Strategy(base.Strategy):
         self.use_heading = cfg["learning.state_space"] == "cell_heading"
         self.use_run_values(None)
         self.n = np.zeros(self.q.shape, dtype=np.int32)
+        # int64 [R, K, 3]: each robot's decision travelling a graph's edge (cell, heading,
+        # port) until it reaches the next vertex; -1: none (learner.pending_transitions)
+        self.pending = np.full((self.n_runs, self.n_agents, 3), -1, dtype=np.int64)
 
     def use_run_values(self, values: dict[str, np.ndarray] | None, table: bool = True) -> None:
         """Take the values of :data:`RUN_KEYS` that differ between the batch's rows
@@ -122,15 +133,23 @@ class Strategy(base.Strategy):
         return np.where(can, action, -1).reshape(R, K)
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
-        rr, kk = np.nonzero(out.choosing & out.as_asked)
-        if rr.size == 0:
-            return
         p = self.params
-        ca = out.prev_pos[rr, kk]
-        ha = self._heading(out.prev_head[rr, kk])
-        aa = out.ask[rr, kk]
-        cb = p.neighbors[ca, aa]
-        hb = self._heading(p.entry[ca, aa])  # the heading after the move
+        if p.onward is None:  # every cell decides: each transition is one move
+            rr, kk = np.nonzero(out.choosing & out.as_asked)
+            if rr.size == 0:
+                return
+            ca = out.prev_pos[rr, kk]
+            ha = self._heading(out.prev_head[rr, kk])
+            aa = out.ask[rr, kk]
+        else:  # decisions at a graph's vertices, completed at the next vertex
+            before = np.stack([out.prev_pos, out.prev_head], axis=-1)
+            rr, kk, done = learner.pending_transitions(self.pending, out, p.target, before)
+            if rr.size == 0:
+                return
+            ca, ha, aa = done[:, 0], self._heading(done[:, 1]), done[:, 2]
+        last_c, last_a = out.prev_pos[rr, kk], out.ask[rr, kk]  # the move into s'
+        cb = p.neighbors[last_c, last_a]
+        hb = self._heading(p.entry[last_c, last_a])  # the heading after the move
         reward = out.reward[rr, kk]
         target, bootstrap = learner.td_target(
             reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], per_row(self.gamma, rr)

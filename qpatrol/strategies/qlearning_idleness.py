@@ -9,7 +9,10 @@ State ``(cell, heading, idlest)``: ``heading`` is the direction of the move that
 brought the robot to its cell (as in ``qlearning``; on a patrol graph the port it
 arrived through), ``idlest`` the port (direction, on a grid) of the robot's non-wall
 neighbour visited longest ago on its last-visit map (the team's shared map with
-communication on, its own otherwise), first in port order (N, E, S, W) on a tie.
+communication on, its own otherwise), first in port order (N, E, S, W) on a tie. On a
+patrol graph robots decide at vertices only, and every neighbour read (``idlest``,
+``r(s, a)``) is the vertex at the port's far end; a transition runs from the decision
+at a vertex to the arrival at the next, paid on entering it (``qlearning``'s rule).
 ``qidle.state`` drops a part (ablations): ``cell_heading``, ``cell_idle``.
 
 Reward of entering ``s'`` at team step ``t`` (``qidle.reward``):
@@ -108,7 +111,7 @@ class Strategy(base.Strategy):
 
     name = "qlearning-idleness"
     learns = True
-    per_run = ("q", "n", "last", "dots", "feat")
+    per_run = ("q", "n", "last", "dots", "feat", "pending")
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)
@@ -139,6 +142,9 @@ class Strategy(base.Strategy):
         self.last = np.zeros((self.n_runs, g, p.n_cells), dtype=np.int64)
         self.dots = np.broadcast_to(p.has_dot, (self.n_runs, g, p.n_cells)).copy()
         self.feat = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
+        # int64 [R, K, 4]: each robot's decision travelling a graph's edge (cell,
+        # heading, idlest slot, port) until the next vertex; -1: none
+        self.pending = np.full((self.n_runs, self.n_agents, 4), -1, dtype=np.int64)
 
     # --- state encoding ------------------------------------------------------------------
 
@@ -156,7 +162,7 @@ class Strategy(base.Strategy):
         if not self.use_idle:
             return np.zeros_like(cells)
         maps = self.last[:, self.group()]  # [R, K, C]
-        return idlest(maps, cells, self.params.neighbors)
+        return idlest(maps, cells, self.params.far_cells)
 
     def heading_slot(self, head: np.ndarray) -> np.ndarray:
         return head if self.use_heading else np.zeros_like(head)
@@ -178,7 +184,7 @@ class Strategy(base.Strategy):
         ``t`` (0 without ``qidle.known_reward``; walls: 0, never chosen)."""
         if not self.known:
             return np.zeros((*cells.shape, self.params.neighbors.shape[1]))
-        nb = np.maximum(self.params.neighbors[cells], 0)  # [R, K, D]
+        nb = np.maximum(self.params.far_cells[cells], 0)  # [R, K, D]
         rows = np.arange(self.n_runs)[:, None, None]
         return self.reward_of(nb, self.group()[None, :, None], rows, t)
 
@@ -222,14 +228,23 @@ class Strategy(base.Strategy):
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         reward = self.rewards(out)
-        learns = out.choosing & out.as_asked
+        p = self.params
+        # the decision of each transition: this step's (every cell decides) or, on a
+        # graph with waypoints, the one taken at the vertex the robot left
+        start = np.stack([out.prev_pos, out.prev_head, self.feat, out.ask], axis=-1)
+        if p.onward is None:
+            learns = out.choosing & out.as_asked
+        else:
+            rr, kk, done = learner.pending_transitions(self.pending, out, p.target, start[..., :3])
+            learns = np.zeros(out.moved.shape, dtype=bool)
+            learns[rr, kk] = True
+            start[rr, kk] = done
         if not learns.any():
             return
-        p = self.params
         cb = out.pos
         next_feat = self.features(cb)
         next_known = self.known_rewards(cb, out.t + 1)  # [R, K, D]
-        ha = self.heading_slot(out.prev_head)
+        ha = self.heading_slot(start[..., 1])
         # the heading after the move (Map.entry: the move's direction on a grid)
         hb = self.heading_slot(p.entry[out.prev_pos, np.maximum(out.ask, 0)])
         planes = self.plane()
@@ -240,7 +255,7 @@ class Strategy(base.Strategy):
             if rr.size == 0:
                 continue
             pk = planes[k]
-            ca, aa, fa = out.prev_pos[rr, k], out.ask[rr, k], self.feat[rr, k]
+            ca, fa, aa = start[rr, k, 0], start[rr, k, 2], start[rr, k, 3]
             c2 = cb[rr, k]
             q_next = self.q[rr, pk, c2, hb[rr, k], next_feat[rr, k]] + next_known[rr, k]
             target, bootstrap = learner.td_target(

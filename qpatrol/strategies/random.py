@@ -2,6 +2,7 @@
 
 Open moves are those not into a wall nor into a cell another robot stands in; a robot
 hemmed in picks among all its non-wall moves, so that the world can make room for it.
+On a patrol graph it picks among a vertex's ports and travels the edge to its end.
 """
 
 from __future__ import annotations

@@ -1,7 +1,9 @@
 """``shared-conscientious``: go to the neighbour the *team* visited longest ago.
 
 The same rule as ``conscientious``, over the team's shared last-visit map (with
-``team.communication: off`` each robot only has its own map, and the two coincide).
+``team.communication: off`` each robot only has its own map, and the two coincide). On
+a patrol graph: at a vertex, the port whose far vertex the map says was visited
+longest ago.
 """
 
 from __future__ import annotations

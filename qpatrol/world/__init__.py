@@ -41,6 +41,7 @@ import numpy as np
 
 from qpatrol.config import Config, ConfigError
 from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
+from qpatrol.maps.core import far_targets
 from qpatrol.world import battery, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
@@ -90,6 +91,13 @@ class Params:
     max_episode_steps: int  # 0 = no limit
     episodes: int  # 0 = no limit
     failures_at: int = 0  # the team step at whose end State.failed robots fail (0: none)
+    # int [C, D]: on a graph's waypoint, for each heading (the port arrived by), the port
+    # that continues the edge (the other one); -1 on vertices, every grid cell and unused
+    # headings (onward_ports). None: no waypoint (every cell decides)
+    onward: np.ndarray | None = None
+    # int [C, D]: the target at the far end of each port of a target, through waypoints
+    # (maps.core.far_targets; on a grid the neighbour); -1 elsewhere. None: neighbors
+    far: np.ndarray | None = None
 
     @property
     def n_targets(self) -> int:
@@ -97,9 +105,30 @@ class Params:
         return int(self.target.sum())
 
     @property
+    def far_cells(self) -> np.ndarray:
+        """int ``[C, D]``: :attr:`far`, or :attr:`neighbors` where there is no waypoint."""
+        return self.neighbors if self.far is None else self.far
+
+    @property
     def n_groups(self) -> int:
         """Dot maps per run: 1 shared map with communication, one per robot without."""
         return 1 if self.communication else self.n_agents
+
+
+def onward_ports(m: Map) -> np.ndarray | None:
+    """int ``[C, D]``: for a robot on a patrol graph's waypoint ``c`` that arrived by port
+    ``h``, the port ``onward[c, h]`` that continues its edge (the other port); -1 on
+    vertices and for a heading that is no port of ``c``. None on a grid and on a graph
+    without waypoints (no cell but decides)."""
+    inside = ~m.target
+    if not m.is_graph or not inside.any():
+        return None
+    onward = np.full(m.neighbors.shape, -1, dtype=np.int64)
+    for c in np.flatnonzero(inside).tolist():
+        ports = np.flatnonzero(m.neighbors[c] >= 0).tolist()
+        if len(ports) == 2:
+            onward[c, ports[0]], onward[c, ports[1]] = ports[1], ports[0]
+    return onward
 
 
 def make_params(cfg: Config, m: Map) -> Params:
@@ -169,6 +198,7 @@ def make_params(cfg: Config, m: Map) -> Params:
     if battery_on and cfg["team.avoid_collisions"]:
         check_battery_room(k, m, pocket_of, station_of, home_dir, pocket_entry)
     dist = m.distances()
+    onward = onward_ports(m)
     return Params(
         n_cells=c,
         n_agents=k,
@@ -204,6 +234,8 @@ def make_params(cfg: Config, m: Map) -> Params:
         max_episode_steps=int(cfg["max_episode_steps"] or 0),
         episodes=int(cfg["episodes"] or 0),
         failures_at=int(cfg["failures.at"]) if cfg["failures.robots"] else 0,
+        onward=onward,
+        far=far_targets(m.neighbors, m.back, m.target)[0] if onward is not None else None,
     )
 
 
@@ -385,6 +417,8 @@ class Outcome:
         eaten: bool, a dot was eaten on entering.
         blocked_by: int, the robot standing in the asked cell when the move failed, -1.
         episodes: the episodes that ended this step.
+        travelling: bool, the robot was patrolling on a graph's waypoint and asked for
+            the port that continues its edge (:attr:`Observation.travel`; not choosing).
     """
 
     t: int
@@ -401,6 +435,7 @@ class Outcome:
     eaten: np.ndarray
     blocked_by: np.ndarray
     episodes: EpisodeEnds
+    travelling: np.ndarray | None = None
 
 
 def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
@@ -484,6 +519,10 @@ class Observation:
             start of the step, and not into the pocket of a station another robot holds
             (:mod:`qpatrol.world.battery`); for the robot holding the right of way, every legal
             move outside such pockets.
+        travel: int ``[R, K]``, on a patrol graph the port a patrolling robot standing
+            on a waypoint asks for, the one that continues its edge (:func:`onward_ports`;
+            it is not choosing, and no strategy is asked); -1 for every other robot.
+            None where the map has no waypoint.
     """
 
     t: int
@@ -492,6 +531,7 @@ class Observation:
     choosing: np.ndarray
     legal: np.ndarray
     open: np.ndarray
+    travel: np.ndarray | None = None
 
     def group_of(self) -> np.ndarray:
         """int ``[K]``: the dot/last-visit map each robot uses."""
@@ -523,7 +563,23 @@ def begin_step(state: State, p: Params) -> Observation:
     choosing = s.active[:, None] & (s.mode == PATROL)
     if p.battery:
         choosing &= ~battery.shut_in(s, p)
-    return Observation(t=s.t + 1, state=s, params=p, choosing=choosing, legal=legal, open=open_)
+    travel = None
+    if p.onward is not None:
+        choosing, travel = travelling(s, p, choosing)
+    return Observation(
+        t=s.t + 1, state=s, params=p, choosing=choosing, legal=legal, open=open_, travel=travel
+    )
+
+
+def travelling(s: State, p: Params, patrolling: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """The decision points of a patrol graph: ``(choosing, travel)``, bool and int
+    ``[R, K]``. A ``patrolling`` robot (bool ``[R, K]``) on a vertex chooses; one on a
+    waypoint does not, and asks for the port that continues its edge, the other port
+    than its heading (the port it arrived by, or was pushed in by): ``travel``, -1 for
+    every other robot."""
+    onward = p.onward[s.pos, s.head]  # [R, K]
+    on_edge = patrolling & (onward >= 0)
+    return patrolling & ~on_edge, np.where(on_edge, onward, -1)
 
 
 def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outcome:
@@ -547,6 +603,9 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         obs.legal, np.maximum(choice, 0)[..., None], axis=2
     )[..., 0]
     ask = np.where(legal_choice, choice, -1)
+    on_edge = np.zeros((R, K), dtype=bool) if obs.travel is None else obs.travel >= 0
+    if obs.travel is not None:  # travelling on an edge: its onward port (begin_step)
+        ask = np.where(on_edge, obs.travel, ask)
     if p.battery:
         # a held pocket is closed: no robot but its holder moves deeper into it
         cell = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
@@ -556,7 +615,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     if p.battery:
         # patrolling robots that do not choose are those shut in a held pocket
         # (begin_step): they step out, like queued ones
-        queued = queued | (active[:, None] & (s.mode == PATROL) & ~obs.choosing)
+        queued = queued | (active[:, None] & (s.mode == PATROL) & ~obs.choosing & ~on_edge)
     held_back = yielding = np.zeros((R, K), dtype=bool)
     if homing.any():
         home_ask, held_back, yielding = battery.homing_ask(s, p)
@@ -633,6 +692,7 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         eaten=eaten,
         blocked_by=blocked_by,
         episodes=ends,
+        travelling=on_edge,
     )
 
 
