@@ -24,6 +24,7 @@ from qpatrol import strategies, world
 from qpatrol.config import from_flat
 from qpatrol.engines.numpy_loop import advance
 from qpatrol.maps import parse_map
+from qpatrol.maps.core import far_targets
 from qpatrol.strategies.qlearning import Strategy as QLearning
 from qpatrol.world.rng import Streams, run_seeds
 
@@ -197,7 +198,10 @@ def _heading_after_entering(engine: str) -> tuple[int, int, int]:
     assert s.head[0, 0] == 0  # port 0 before the first move
     port_to_1 = int(np.flatnonzero(m.neighbors[wp] == 1)[0])
     if engine == "numpy":
+        # it came along the edge from vertex 2's side, so it travels on to leaf 1
+        s.head[0, 0] = 1 - port_to_1
         obs = world.begin_step(s, p)
+        assert not obs.choosing[0, 0] and obs.travel[0, 0] == port_to_1
         world.step(s, p, obs, np.array([[port_to_1]]))
         return int(s.pos[0, 0]), int(s.head[0, 0]), int(m.back[wp, port_to_1])
     from qpatrol.engines.compiled import bundles, enter
@@ -226,9 +230,10 @@ def test_heading_after_entering_a_vertex_is_the_port_entered_through(engine):
 
 @pytest.mark.skipif(not HAS_NUMBA, reason="numba not installed")
 def test_compiled_learner_headings_are_ports_on_a_graph(tmp_path):
-    """A lone learner on the wheel: every Q-update row's next heading is the port of
-    the next cell that leads back to the cell it came from (both engines write these
-    rows to the byte: test above; here the rule itself, on the compiled rows)."""
+    """A lone learner on the wheel: every Q-update row runs from a vertex to the vertex
+    at the far end of the port chosen, and its next heading is the port of that vertex
+    that leads back along the edge (both engines write these rows to the byte: test
+    above; here the rule itself, on the compiled rows)."""
     from qpatrol.run import simulate
 
     path = write(tmp_path, "wheel")
@@ -237,8 +242,13 @@ def test_compiled_learner_headings_are_ports_on_a_graph(tmp_path):
     result = simulate(from_flat({**flat, "engine": "numba"}))
     tr = result.transitions
     assert len(tr) > 50
+    far, moves = far_targets(m.neighbors, m.back, m.target)
     for c, a, c1, h1 in tr[["cell", "action", "next_cell", "next_heading"]].to_numpy():
-        assert m.neighbors[c, a] == c1 and m.back[c, a] == h1
+        assert m.target[c] and far[c, a] == c1
+        # the cell before c1 on the edge: c itself, or the edge's last waypoint
+        before = c if moves[c, a] == 1 else m.neighbors[c1, h1]
+        assert m.target[before] == (moves[c, a] == 1)
+        assert m.neighbors[before, m.back[c1, h1]] == c1
 
 
 def test_learner_tables_have_d_heading_slots_on_a_graph():

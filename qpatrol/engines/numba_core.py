@@ -473,8 +473,12 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             if spec == SPEC_ANY and battery:
                 stations.begin(r, t, p, s, w)
             moves.open_moves(r, tok, battery, avoid, p, s, w)
+            if spec == SPEC_ANY and p.travels:
+                moves.travellers(r, p, s, w)
             if spec == SPEC_ANY:
                 compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
+                if p.travels:
+                    moves.travel_asks(w)
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(
                     w.uniforms, s.pos[r], s.head[r], w.open_mask, w.choosing, w.ask,
@@ -610,7 +614,9 @@ class Loop:
         bp = bundles.Params(
             *consts, np.int64(n_dots), reward_w, *rules, p.episodes, *battery, *pockets,
             p.capacity, p.margin, p.charge_steps, p.target, np.int64(p.n_targets),
-            np.int64(p.failures_at),
+            np.int64(p.failures_at), p.onward is not None,
+            p.onward if p.onward is not None else np.full((1, 1), -1, dtype=np.int64),
+            p.far_cells,
         )  # fmt: skip
         bs = bundles.World(*(getattr(s, f) for f in bundles.World._fields))
         bm = bundles.Meas(
@@ -646,7 +652,9 @@ class Loop:
         ]
         self.n_runs = n_runs
         self.spec = SPEC_ANY
+        # (a graph with waypoints, whose learners decide at vertices: the general loop)
         plain = not p.battery and self.timeline is None and not p.failures_at
+        plain = plain and p.onward is None
         if self.code == compiled.QLEARNING and plain:
             self.spec = SPEC_QLEARNING
             if not rec.wants_updates:

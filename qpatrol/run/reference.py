@@ -8,6 +8,8 @@ per agent-step, with no numpy in the loop. It follows the core's arithmetic to t
 (or ``team.avoid_collisions: off``) it gives the core's Q-table. With more agents and
 collisions avoided it moves robots in index order into cells empty at that moment (no
 right of way), which is the same work per agent-step but not the core's traffic rules.
+On a patrol graph with waypoints an agent chooses at vertices only, travels each edge
+to its end, and learns each transition from its decision to the next vertex.
 """
 
 from __future__ import annotations
@@ -85,6 +87,11 @@ def run(
     ep_start = [0] * groups
     q: dict[tuple[int, int, int], list[float]] = {}
     n: dict[tuple[int, int, int], list[int]] = {}
+    # a graph's waypoints: the port that continues the edge by heading (world.Params)
+    onward = p.onward.tolist() if p.onward is not None else None
+    vertex = p.target.tolist()
+    pending: list[tuple[tuple[int, int, int], int] | None] = [None] * k_agents
+    travelling = [False] * k_agents
     steps = len(uu)
     for t in range(1, steps + 1):
         ut = uu[t - 1]
@@ -92,6 +99,11 @@ def run(
         want = [-1] * k_agents
         for k in range(k_agents):
             c = pos[k]
+            travelling[k] = onward is not None and onward[c][head[k]] >= 0
+            if travelling[k]:  # on an edge: on to its end, no choice
+                want[k] = onward[c][head[k]]
+                continue
+            pending[k] = None  # (a decision not made good is dropped)
             s = (k, c, head[k] if use_heading else 0)
             row = q.get(s) or q_init
             legal = legal_dirs[c]
@@ -137,6 +149,11 @@ def run(
             pos[k] = c1
             s = (k, c0, head[k] if use_heading else 0)
             head[k] = h = entry[c0][a]
+            if not travelling[k]:
+                pending[k] = (s, a)
+            if not vertex[c1] or pending[k] is None:
+                continue  # a waypoint is no state: the transition goes on
+            (s, a), pending[k] = pending[k], None
             nxt = q.get((k, c1, h if use_heading else 0)) or q_init
             bootstrap = gamma * max([nxt[d] for d in legal_dirs[c1]])
             target = reward + bootstrap

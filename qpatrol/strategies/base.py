@@ -14,6 +14,7 @@ own stream, whether used or not, so a run never depends on its batch; strategies
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import TYPE_CHECKING, ClassVar
 
 import numpy as np
@@ -74,6 +75,16 @@ class Strategy:
     def describe(self) -> dict[str, object]:
         """Facts about this strategy for summary.json (e.g. a walk's length)."""
         return {}
+
+
+def walking(obs: Observation) -> Observation:
+    """``obs`` with the robots travelling a patrol graph's edge (``obs.travel``) counted
+    as choosing: a walk follower keeps its plan (its target on its walk) up to date at
+    every cell of its walk, waypoints included, though the world moves a robot on a
+    waypoint by its edge whatever it asks (the next cell of a walk along the edge)."""
+    if obs.travel is None:
+        return obs
+    return replace(obs, choosing=obs.choosing | (obs.travel >= 0))
 
 
 def prefer_open(obs: Observation) -> np.ndarray:

@@ -130,6 +130,7 @@ class WalkFollower(base.Strategy):
             arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
+        obs = base.walking(obs)
         self._exchange_head_on(obs.choosing)
         self._advance(obs, obs.choosing)
         self._skip_held_pockets(obs)

@@ -59,7 +59,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from qpatrol.maps import walks
-from qpatrol.strategies import follow
+from qpatrol.strategies import base, follow
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -127,6 +127,7 @@ class Strategy(follow.WalkFollower):
         self.reference = walks.closed_walk(m).size
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
+        obs = base.walking(obs)
         if self.learn_steps < 0 or obs.t < self.learn_steps:  # else it keeps its route
             x = np.floor(u[..., 0] * DRAW).astype(np.int64)  # [R, K]
             R, G = self.order.shape[:2]

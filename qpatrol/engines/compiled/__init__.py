@@ -124,7 +124,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r,
             t,
             ur,
-            nbrs,
+            p.far,
             p.dot_value,
             p.communication,
             pos,
@@ -138,18 +138,21 @@ def act(code, r, t, ur, battery, p, s, w, sp):
     elif code == RANDOM:
         random.act(ur, open_mask, choosing, ask)
     elif code == CONSCIENTIOUS:
-        conscientious.act(r, ur, nbrs, pos, open_mask, choosing, ask, sp.cell_i, w.score)
+        conscientious.act(r, ur, p.far, pos, open_mask, choosing, ask, sp.cell_i, w.score)
     elif code == SHARED_CONSCIENTIOUS:
         shared_conscientious.act(
-            r, ur, nbrs, p.communication, pos, s.last, open_mask, choosing, ask, w.score
+            r, ur, p.far, p.communication, pos, s.last, open_mask, choosing, ask, w.score
         )
     elif code == EVAP:
         evap.act(
-            r, t, ur, nbrs, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
+            r, t, ur, p.far, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
             sp.cell_i, sp.fpar, w.score,
         )  # fmt: skip
     elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
         walk, length = sp.table_i, sp.row_i
+        if p.travels:  # a walk follower keeps its plan on a graph's waypoints too
+            for k in range(choosing.shape[0]):
+                choosing[k] = choosing[k] or w.travel[k] >= 0
         if code == LEARNED_TOUR:  # learned routes: each run's own
             tour.learn_routes(
                 r, t, ur, nbrs, choosing, sp.ipar, sp.robot_i, sp.cell_i, sp.table_i, sp.dist
@@ -159,6 +162,9 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, nbrs, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask, sp.ipar,
             sp.robot_i, walk, length, sp.dist,
         )  # fmt: skip
+        if p.travels:  # (base.walking: the world's choosing again)
+            for k in range(choosing.shape[0]):
+                choosing[k] = choosing[k] and w.travel[k] < 0
     elif code >= HCR and code <= SEBS:
         goals.act(
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
@@ -190,13 +196,18 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
     ``r``)."""
     if code == QLEARNING:
         gamma, _, use_heading, q_f, n_f = qlearning.tables(sp, r)
-        n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
+        if p.travels:  # decisions at a graph's vertices, completed at the next vertex
+            n_up = qlearning.learn_pending(
+                r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, sp.robot_i[r]
+            )
+        else:
+            n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
     elif code == QLEARNING_IDLENESS:
         n_up = qlearning_idleness.learn(r, t, p, s, w, sp, o, n_up)
     elif code == CONSCIENTIOUS:
         conscientious.learn(r, t, s.pos, w.moved, sp.cell_i)
     elif code == EVAP:
-        evap.learn(r, t, p.communication, s.pos, w.moved, sp.cell_f, sp.cell_i, sp.fpar)
+        evap.learn(r, t, p.communication, s.pos, w.moved, p.target, sp.cell_f, sp.cell_i, sp.fpar)
     elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
         follow.learn(r, w.blocked_by, sp.robot_i)
     elif code >= HCR and code <= SEBS:

@@ -49,6 +49,11 @@ class Params(NamedTuple):
         target: bool ``[C]``, the cells the measures count; n_targets: their number.
         fail_at: the team step at whose end the robots ``failed`` ``[R, F]`` of the
             world fail (0: none; :mod:`qpatrol.engines.compiled.fail`).
+        travels: the map is a patrol graph with waypoints, where robots decide at
+            vertices only; onward: int64 ``[C, D]``, the port that continues an edge
+            from a waypoint by heading (:attr:`qpatrol.world.Params.onward`; ``[1, 1]``
+            without waypoints); far: int64 ``[C, D]``, the target at each port's far
+            end (:attr:`qpatrol.world.Params.far_cells`).
     """
 
     nbrs: np.ndarray
@@ -79,6 +84,9 @@ class Params(NamedTuple):
     target: np.ndarray
     n_targets: int
     fail_at: int
+    travels: bool
+    onward: np.ndarray
+    far: np.ndarray
 
 
 #: The runs' state: the arrays of :class:`qpatrol.world.State` (all its fields but the
@@ -180,7 +188,8 @@ class Work(NamedTuple):
     ``uniforms`` float64 ``[K, 2]``: each robot's two uniforms of the step (epsilon,
     tie-break), drawn by the loop (:func:`qpatrol.engines.compiled.pcg.step_uniforms`);
     ``sink`` float64 ``[1]`` keeps a warming read; ``score`` float64 ``[K, D]``: each
-    robot's score of each move (a strategy's scratch)."""
+    robot's score of each move (a strategy's scratch); ``travel`` ``[K]``: the port a
+    robot travelling a graph's edge asks for (``Observation.travel``), -1 for none."""
 
     want: np.ndarray
     ask: np.ndarray
@@ -205,6 +214,7 @@ class Work(NamedTuple):
     uniforms: np.ndarray
     sink: np.ndarray
     score: np.ndarray
+    travel: np.ndarray
 
 
 def compiled_entry(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray | None:
@@ -238,4 +248,5 @@ def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:
         np.zeros((k, 2), np.float64),
         np.zeros(1, np.float64),
         np.zeros((k, n_ports), np.float64),
+        np.full(k, -1, i8),
     )

@@ -77,11 +77,12 @@ def act(r, t, ur, nbrs, communication, pos, open_mask, choosing, ask, amount, si
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, t, communication, pos, moved, amount, since, pw):
-    """Each robot that entered a cell at step ``t`` (``moved`` bool ``[K]``), in index
-    order, adds one unit to its group's evaporated pheromone there."""
+def learn(r, t, communication, pos, moved, target, amount, since, pw):
+    """Each robot that entered a target cell at step ``t`` (``moved`` bool ``[K]``;
+    ``target`` bool ``[C]``: every grid cell, a graph's vertices), in index order, adds
+    one unit to its group's evaporated pheromone there."""
     for k in range(moved.shape[0]):
-        if not moved[k]:
+        if not moved[k] or not target[pos[r, k]]:
             continue
         g = 0 if communication else k
         c = pos[r, k]

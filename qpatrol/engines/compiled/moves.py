@@ -230,6 +230,28 @@ def open_moves(r, tok, battery, avoid, p, s, w):
         w.as_asked[k] = False
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def travellers(r, p, s, w):
+    """world.travelling of run ``r`` on a patrol graph with waypoints: a choosing robot
+    on a waypoint does not choose (``w.choosing`` False) and asks for the port that
+    continues its edge, ``w.travel[k] = p.onward[cell, heading]``; -1 for the others."""
+    for k in range(s.pos.shape[1]):
+        w.travel[k] = -1
+        if w.choosing[k]:
+            on = p.onward[s.pos[r, k], s.head[r, k]]
+            if on >= 0:
+                w.choosing[k] = False
+                w.travel[k] = on
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def travel_asks(w):
+    """After the strategy's choice: each travelling robot asks for its onward port."""
+    for k in range(w.travel.shape[0]):
+        if w.travel[k] >= 0:
+            w.ask[k] = w.travel[k]
+
+
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
     """:func:`qpatrol.world.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for

@@ -7,7 +7,9 @@ operation: greedy over the open moves, ties and epsilon from the run's uniforms;
 Pack (see :mod:`qpatrol.engines.compiled`): ``q`` float64 and ``n`` int32
 ``[R, K, C, H, D]`` (``H`` = D headings, ``D`` ports: 4 on a grid); ``row_f``
 float64 ``[R, 2]``: each run's ``[gamma, epsilon]`` (they may differ between the runs of a batch);
-``ipar = [use_heading]``.
+``ipar = [use_heading]``; ``robot_i`` int64 ``[R, K, 3]``: the strategy's own
+``pending`` decisions on a patrol graph with waypoints (cell, heading, port; -1: none),
+completed at the next vertex (:func:`learn_pending`).
 """
 
 from __future__ import annotations
@@ -35,6 +37,7 @@ def pack(strategy) -> Pack:
         ipar=np.array([1 if strategy.use_heading else 0], dtype=np.int64),
         q=strategy.q,
         n=strategy.n,
+        robot_i=strategy.pending,
     )
 
 
@@ -47,7 +50,13 @@ def _row_f(strategy) -> np.ndarray:
 
 
 def unpack(p: Pack, strategy) -> None:
-    """Nothing to copy back: ``q`` and ``n`` are the strategy's own arrays."""
+    """Nothing to copy back: ``q``, ``n`` and ``pending`` are the strategy's own arrays."""
+
+
+def sat_out(strategy, state) -> None:
+    """A run that stopped before the batch's last step (episode quota) dropped its
+    robots' pending decisions in the steps it sat out (the numpy engine's learn)."""
+    strategy.pending[state.steps_done < state.t] = -1
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -187,5 +196,44 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
         if wanted(o, ca):
             ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
             floats = (w.reward[k], alpha, q_sa, q_f[at + aa], gamma * top)
+            n_up = record(o, n_up, ints, floats, q_f[at : at + nd])
+    return n_up
+
+
+@njit(cache=True, nogil=True, _nrt=False)
+def learn_pending(r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, pend):
+    """:func:`learn` on a patrol graph with waypoints (``learner.pending_transitions``):
+    a robot that chose a move and made it starts a decision (``pend`` int64 ``[K, 3]``:
+    cell, heading, port; -1: none); one travelling its edge (``w.travel``) keeps it
+    while it moves on as asked or waits; any other drops it. A decision whose robot has
+    just entered a vertex completes: ``Q(s, a)`` of the decision is updated towards
+    ``r + gamma max Q(s', .)``, ``r`` the reward of entering the vertex, ``s'`` (the
+    vertex, the port arrived by). Returns the number of update rows now written."""
+    n_cells, nd = p.nbrs.shape[0], ports_of(p.entry, p.nbrs.shape[1])
+    for k in range(w.prev_pos.shape[0]):
+        decided = w.as_asked[k] and w.choosing[k]
+        keep = w.travel[k] >= 0 and pend[k, 0] >= 0 and (w.as_asked[k] or not w.moved[k])
+        if not keep and not decided:
+            pend[k, 0], pend[k, 1], pend[k, 2] = -1, -1, -1
+        if decided:
+            pend[k, 0], pend[k, 1], pend[k, 2] = w.prev_pos[k], w.prev_head[k], w.ask[k]
+        if pend[k, 0] < 0 or not w.as_asked[k] or not p.target[s.pos[r, k]]:
+            continue
+        ca = pend[k, 0]
+        ha = pend[k, 1] if use_heading else 0
+        aa = pend[k, 2]
+        pend[k, 0], pend[k, 1], pend[k, 2] = -1, -1, -1
+        c_last, a_last = w.prev_pos[k], w.ask[k]  # the move into the vertex
+        cb = p.nbrs[c_last, a_last]
+        hb = heading_of(p.entry, c_last, a_last) if use_heading else 0
+        at = ((k * n_cells + ca) * nd + ha) * nd  # Q(ca, ha, .), flat
+        at1 = ((k * n_cells + cb) * nd + hb) * nd  # Q(cb, hb, .)
+        reward = w.reward[k]
+        top, alpha, q_sa = update(
+            q_f, n_f, at + aa, at1, p.cell_moves[cb], reward, gamma, p.entry, nd
+        )
+        if wanted(o, ca):
+            ints = (r, t, k, ca, ha, aa, cb, hb, 1 if w.eaten[k] else 0)
+            floats = (reward, alpha, q_sa, q_f[at + aa], gamma * top)
             n_up = record(o, n_up, ints, floats, q_f[at : at + nd])
     return n_up

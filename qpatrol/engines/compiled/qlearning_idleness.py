@@ -15,9 +15,11 @@ Pack (see :mod:`qpatrol.engines.compiled`):
   ``h * F + f`` for heading ``h`` and idlest port ``f``; ``D`` ports, 4 on a grid);
 * ``cell_i`` int64 ``[R, G, C]``: the strategy's own last-visit maps (``last``);
 * ``cell_b`` bool ``[R, G, C]``: the strategy's own dot maps (``dots``);
-* ``robot_i`` int64 ``[R, K, 3]``: per robot, the idlest-neighbour slot at its last
+* ``robot_i`` int64 ``[R, K, 7]``: per robot, the idlest-neighbour slot at its last
   choice, the slot it would see next once its run stopped (episode quota), and the
   team step of its last choice (-1: none yet); :func:`unpack` makes ``feat`` of them;
+  then its ``pending`` decision on a patrol graph with waypoints (cell, heading,
+  idlest slot, port; -1: none), completed at the next vertex;
 * ``cell_f`` float64 ``[R, 1, K]``: working array, the robots' rewards of this step,
   a row per run (per-run like the tables, so that the runs of a batch share nothing
   they write and may run in threads at once: :mod:`qpatrol.engines.threads`);
@@ -71,7 +73,9 @@ def pack(strategy) -> Pack:
         n=_slots(s.n),
         cell_i=s.last,
         cell_b=s.dots,
-        robot_i=np.stack([s.feat, s.feat, np.full_like(s.feat, -1)], axis=2).astype(np.int64),
+        robot_i=np.concatenate(
+            [np.stack([s.feat, s.feat, np.full_like(s.feat, -1)], axis=2), s.pending], axis=2
+        ).astype(np.int64),
         cell_f=np.zeros((s.q.shape[0], 1, s.n_agents), dtype=np.float64),
     )
 
@@ -84,6 +88,13 @@ def unpack(p: Pack, strategy) -> None:
     f = p.robot_i
     t_last = f[:, :, 2].max(initial=-1)
     strategy.feat = np.where(f[:, :, 2] == t_last, f[:, :, 0], f[:, :, 1])
+    strategy.pending = f[:, :, 3:7].copy()
+
+
+def sat_out(strategy, state) -> None:
+    """A run that stopped before the batch's last step (episode quota) dropped its
+    robots' pending decisions in the steps it sat out (the numpy engine's learn)."""
+    strategy.pending[state.steps_done < state.t] = -1
 
 
 @njit(cache=True, nogil=True, _nrt=False)
@@ -164,7 +175,7 @@ def learn(r, t, p, s, w, sp, o, n_up):
     group's episode ended (every dot back); ``s.active`` bool ``[R]``: a run that
     stopped keeps the slots its robots would see next. Returns the number of update
     rows now written."""
-    nbrs, wall_legal, dot_value, has_dot = p.nbrs, p.wall_legal, p.dot_value, p.has_dot
+    nbrs, wall_legal, dot_value, has_dot = p.far, p.wall_legal, p.dot_value, p.has_dot
     communication, pos, active, moved, ended = p.communication, s.pos, s.active, w.moved, w.ended
     prev_pos, prev_head, ask, as_asked, choosing = (
         w.prev_pos,
@@ -200,16 +211,29 @@ def learn(r, t, p, s, w, sp, o, n_up):
     gamma, alpha_par = fpar[GAMMA], fpar[ALPHA]
     paid = 0.0 if ipar[KNOWN] != 0 else 1.0
     for k in range(n_agents):  # a shared entry sees every update
-        if not as_asked[k] or not choosing[k]:
+        decided = as_asked[k] and choosing[k]
+        ca, ha, fa, aa = prev_pos[k], prev_head[k], feat[r, k, 0], ask[k]
+        if p.travels:  # decisions at a graph's vertices (learner.pending_transitions)
+            keep = w.travel[k] >= 0 and feat[r, k, 3] >= 0 and (as_asked[k] or not moved[k])
+            if not keep and not decided:
+                for j in range(3, 7):
+                    feat[r, k, j] = -1
+            if decided:
+                feat[r, k, 3], feat[r, k, 4], feat[r, k, 5], feat[r, k, 6] = ca, ha, fa, aa
+            if feat[r, k, 3] < 0 or not as_asked[k] or not p.target[pos[r, k]]:
+                continue
+            ca, ha, fa, aa = feat[r, k, 3], feat[r, k, 4], feat[r, k, 5], feat[r, k, 6]
+            for j in range(3, 7):
+                feat[r, k, j] = -1
+        elif not decided:
             continue
         pk = 0 if shared else k
         g = 0 if communication else k
-        ca = prev_pos[k]
-        ha = prev_head[k] if use_heading else 0
-        aa = ask[k]
-        sa = ha * n_feat + feat[r, k, 0]
+        ha = ha if use_heading else 0
+        sa = ha * n_feat + fa
         cb = pos[r, k]
-        hb = heading_of(p.entry, ca, aa) if use_heading else 0  # the heading after the move
+        # the heading after the move into cb
+        hb = heading_of(p.entry, prev_pos[k], ask[k]) if use_heading else 0
         sb = hb * n_feat + (_idlest(nbrs, last, r, g, cb) if use_idle else 0)
         top = -np.inf
         for d in range(nbrs.shape[1]):

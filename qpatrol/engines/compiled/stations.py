@@ -179,7 +179,7 @@ def ask(r, p, s, w):
                 w.held_back[k] = held
                 w.yielding[k] = yld and out >= 0
             w.ask[k] = direction
-        elif s.mode[r, k] == PATROL and w.choosing[k]:
+        elif s.mode[r, k] == PATROL and (w.choosing[k] or (p.travels and w.travel[k] >= 0)):
             # a held pocket is closed: no robot but its holder moves deeper into it
             d = w.ask[k]
             if d >= 0 and closed(r, k, c, nbrs[c, d], True, pocket_of, pocket_depth, reserved):
