@@ -885,3 +885,50 @@ def test_a_table_that_misses_a_pair_is_refused():
         assert not covers_every_pair(CLASSIC_TEAMS[:k] + CLASSIC_TEAMS[k + 1 :], domains)
     with pytest.raises(AssertionError):
         pairs([(1, 2), (True, False)], [(1, True), (2, False)])
+
+
+#: A patrol graph of long edges (waypoints; D = 4, as record.transitions needs): robots
+#: decide at its vertices only, and the learners' transitions run vertex to vertex.
+LONG_GRAPH = """\
+; name: longedges
+; kind: graph
+v 0 0 0 start=0
+v 1 4 0
+v 2 2 3
+v 3 0 4
+v 4 5 4 station
+e 0 1 3
+e 1 2 2
+e 2 0 4
+e 0 3 1
+e 3 2 2
+e 1 4 3
+e 0 4 4
+"""
+
+
+@pytest.mark.parametrize(
+    "policy, agents, avoid, battery, extra",
+    [
+        ("qlearning", 1, True, False, {"record.transitions": True}),
+        ("qlearning", 3, True, True, {"record.transitions": True}),
+        ("qlearning", 2, False, False, {"episodes": 3, "max_episode_steps": 40}),
+        ("qlearning-idleness", 3, True, False, {"record.transitions": True}),
+        ("qlearning-idleness", 2, True, True, {"qidle.share": True, "episodes": 2}),
+        ("evap", 3, True, True, {}),
+        ("conscientious", 2, False, False, {}),
+        ("cyclic", 3, True, True, {}),
+    ],
+)
+def test_compiled_decisions_at_vertices_on_graphs(tmp_path, policy, agents, avoid, battery, extra):
+    """Both engines alike, strategy arrays included (the learners' pending decisions),
+    on a graph with waypoints: battery on and off, pushes, quotas, Q-update rows."""
+    path = tmp_path / "longedges.txt"
+    path.write_text(LONG_GRAPH)
+    flat = {
+        "map": str(path), "policy": policy, "agents": agents, "runs": 3, "seed": 4,
+        "steps": 300, "record.trajectory": 300, "team.avoid_collisions": avoid,
+        "battery.enabled": battery, "battery.capacity": 60, "battery.charge_steps": 3,
+        **extra,
+    }  # fmt: skip
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
