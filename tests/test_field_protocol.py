@@ -50,3 +50,23 @@ def test_intervals_cover_the_window(times: list[int], start: int, extra: int) ->
     assert sum(iv) == end - start + 1
     assert len(iv) == sum(start <= t <= end for t in times) + 1
     assert all(i >= 0 for i in iv)
+
+
+def test_example_quick_table() -> None:
+    # examples/simplepatrol_map_a.py in its quick mode: one row per strategy and team
+    import importlib.util
+    from pathlib import Path
+
+    path = Path(__file__).parent.parent / "examples" / "simplepatrol_map_a.py"
+    spec = importlib.util.spec_from_file_location("simplepatrol_map_a", path)
+    mod = importlib.util.module_from_spec(spec)
+    spec.loader.exec_module(mod)
+    rows = mod.main(["--quick", "--engine", "numpy"])
+    assert len(rows) == len(mod.STRATEGIES) * len(mod.TEAMS)
+    assert [(r["strategy"], r["robots"]) for r in rows] == [
+        (s, k) for s in mod.STRATEGIES for k in mod.TEAMS
+    ]
+    for r in rows:
+        assert r["qmi"] > 0 and r["field_qmi"] > 0
+        # the field's maximum interval is at least the shortest possible, 1
+        assert r["field_max_interval"] >= 1
