@@ -35,7 +35,7 @@ import numpy as np
 
 from qpatrol.config import load_config
 from qpatrol.maps import get_map
-from qpatrol.measures.field import simpatrol_measures, visit_times
+from qpatrol.measures.field import simpatrol_measures, trajectory_visits
 from qpatrol.run import simulate
 
 STRATEGIES = ("conscientious", "shared-conscientious")
@@ -53,19 +53,14 @@ def import_xml(xml: Path, out: Path) -> str:
 
 
 def field_row(result, warmup: int, steps: int) -> list[dict[str, float]]:
-    """SimPatrol's measures of each run, from its trajectory over ``[warmup, steps]``.
-
-    A robot visits a target at step t when its cell at t is a target and differs from
-    its cell at t - 1 (the trajectory starts at ``warmup`` for that)."""
+    """SimPatrol's measures of each run, from its trajectory over ``[warmup, steps]``
+    (one step before the window, to see who entered at its first step)."""
     m = result.map
-    index = np.cumsum(m.target) - 1  # cell -> target number
     out = []
     for _, run in result.trajectory.groupby("run"):
         k = int(run["agent"].max()) + 1
-        cells = run["cell"].to_numpy().reshape(-1, k)  # [S, K], steps warmup..steps
-        entered = (cells[1:] != cells[:-1]) & m.target[cells[1:]]
-        pos = np.where(entered, index[cells[1:]], -1)
-        times = visit_times(pos, m.n_targets, first_step=warmup + 1)
+        cells = run["cell"].to_numpy().reshape(-1, k)  # [S + 1, K], steps warmup..steps
+        times = trajectory_visits(cells, m.target, warmup + 1)
         out.append(simpatrol_measures(times, warmup + 1, steps))
     return out
 

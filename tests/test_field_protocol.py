@@ -3,10 +3,16 @@
 import math
 
 import numpy as np
+import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
 
-from qpatrol.measures.field import simpatrol_intervals, simpatrol_measures, visit_times
+from qpatrol.measures.field import (
+    simpatrol_intervals,
+    simpatrol_measures,
+    trajectory_visits,
+    visit_times,
+)
 
 # a 3-vertex line 0 - 1 - 2, one robot entering 1, 2, 1, 0, 1, 2, 1, 0 at steps 1..8
 LINE = np.array([[1], [2], [1], [0], [1], [2], [1], [0]])
@@ -70,3 +76,44 @@ def test_example_quick_table() -> None:
         assert r["qmi"] > 0 and r["field_qmi"] > 0
         # the field's maximum interval is at least the shortest possible, 1
         assert r["field_max_interval"] >= 1
+
+
+@pytest.mark.parametrize("policy", ["conscientious", "shared-conscientious"])
+def test_trajectory_visits_are_qpatrol_visits(policy: str) -> None:
+    # qpatrol's own QMI, recounted from the visits read off the trajectory, to the bit:
+    # the recount sees the same visits the loop counted (simultaneous entries included)
+    from qpatrol.config import load_config
+    from qpatrol.run import simulate
+
+    steps, warmup = 400, 150
+    cfg = load_config(
+        "field",
+        [
+            "map=ps_example",
+            "agents=5",
+            f"policy={policy}",
+            "team.avoid_collisions=off",
+            f"steps={steps}",
+            f"record.warmup={warmup}",
+            "runs=2",
+            f"record.trajectory={steps}",
+            "engine=numpy",
+        ],
+    )
+    res = simulate(cfg)
+    for (_, run), s in zip(res.trajectory.groupby("run"), res.summary, strict=True):
+        cells = run["cell"].to_numpy().reshape(-1, 5)  # steps 1..steps
+        cells = np.vstack([res.map.starts[:5][None, :], cells])  # step 0: the starts
+        times = trajectory_visits(cells, res.map.target, 1)
+        iv = [b - a for t in times for a, b in zip(t[:-1], t[1:], strict=True) if b > warmup]
+        assert math.sqrt(sum(i * i for i in iv) / len(iv)) == s["qmi"]
+
+
+def test_trajectory_visits_by_hand() -> None:
+    # cells 0 1 2 3, cell 2 a waypoint (no target); robot 0 stays, then moves; robot 1
+    # enters cell 1 at step 2 with robot 0 (two visits) and passes the waypoint
+    target = np.array([True, True, False, True])
+    cells = np.array([[0, 3], [0, 2], [1, 1], [1, 2], [0, 3]])  # steps 0..4
+    v = trajectory_visits(cells, target, 1)
+    # targets: cell 0 -> 0, cell 1 -> 1, cell 3 -> 2
+    assert [t.tolist() for t in v] == [[4], [2, 2], [4]]

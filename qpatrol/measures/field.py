@@ -73,3 +73,17 @@ def visit_times(positions: np.ndarray, n_targets: int, first_step: int = 1) -> l
     steps, robots = np.nonzero(positions >= 0)
     cells = positions[steps, robots]
     return [np.sort(steps[cells == c]) + first_step for c in range(n_targets)]
+
+
+def trajectory_visits(cells: np.ndarray, target: np.ndarray, first_step: int) -> list[np.ndarray]:
+    """Each target's visit steps from a run's trajectory (``record.trajectory``).
+
+    ``cells``: int ``[S + 1, K]``, every robot's cell at steps ``first_step - 1 ..
+    first_step + S - 1``; ``target``: bool ``[C]``, the map's targets. A robot visits a
+    target at step t when its cell at t is a target and differs from its cell at t - 1
+    (qpatrol's visits: two robots entering a target at one step are two visits). Returns
+    T int arrays, by target number (the order of the targets among the cells)."""
+    index = np.cumsum(target) - 1  # cell -> target number
+    entered = (cells[1:] != cells[:-1]) & target[cells[1:]]
+    pos = np.where(entered, index[cells[1:]], -1)
+    return visit_times(pos, int(target.sum()), first_step)
