@@ -932,3 +932,32 @@ def test_compiled_decisions_at_vertices_on_graphs(tmp_path, policy, agents, avoi
         **extra,
     }  # fmt: skip
     assert both(flat, tmp_path, strategy=True) == ("numba", "")
+
+
+#: A patrol graph whose vertices have at most 3 edges (D = 3).
+TRIANGLE_GRAPH = """\
+; name: triangle
+; kind: graph
+v 0 0 0 start=0
+v 1 4 0
+v 2 2 3
+v 3 0 4
+e 0 1 2
+e 1 2 3
+e 2 0 2
+e 0 3 1
+"""
+
+
+def test_transitions_on_a_graph_of_fewer_than_four_ports(tmp_path):
+    """Q-update rows on a map with D = 3 (watch.csv, which holds four Q values, is
+    refused there; transitions.csv is not): both engines alike, one row per update."""
+    path = tmp_path / "triangle.txt"
+    path.write_text(TRIANGLE_GRAPH)
+    flat = {
+        "map": str(path), "policy": "qlearning", "agents": 2, "runs": 2, "seed": 3,
+        "steps": 200, "record.transitions": True, "battery.enabled": False,
+    }  # fmt: skip
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+    rows = (tmp_path / "numba" / "transitions.csv").read_text().splitlines()
+    assert len(rows) > 50 and rows[0].startswith("run,step,agent,cell,heading,action")

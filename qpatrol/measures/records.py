@@ -90,7 +90,7 @@ class Recorder:
         ``runs``, ``agents``: int ``[B]`` batch rows and robots; ``cols`` holds ``[B]``
         arrays cell, heading, action, reward, next_cell, next_heading, alpha, q_before,
         q_after, bootstrap (gamma max Q(s')), dot (a dot was eaten on entering s') and
-        ``q_row`` ``[B, 4]`` (after).
+        ``q_row`` ``[B, D]`` (after; the first four written, NaN for actions past D).
         """
         if not self.transitions:
             keep = np.isin(cols["cell"], self.watch)
@@ -99,7 +99,9 @@ class Recorder:
             runs, agents = runs[keep], agents[keep]
             cols = {name: x[keep] for name, x in cols.items()}
         m = runs.size
-        q_row = cols["q_row"]
+        q_row = np.full((m, 4), np.nan)  # actions past the map's D have no value
+        k = min(4, cols["q_row"].shape[1])
+        q_row[:, :k] = cols["q_row"][:, :k]
         self._updates.append(
             [self.run_ids[runs], np.full(m, t), agents]
             + [cols[name] for name in WATCH_COLUMNS[3:13]]

@@ -3,6 +3,7 @@
 
 from __future__ import annotations
 
+import numpy as np
 from numba import njit
 
 
@@ -18,14 +19,14 @@ def record(o, n_up, ints, floats, q_row):
     """Write an update as row ``n_up`` of ``o.up_int`` and ``o.up_float``: ``ints`` (run,
     step, agent, cell, heading, action, next cell, next heading, dot eaten as 0/1),
     ``floats`` (reward, alpha, q_before, q_after, bootstrap) and ``q_row``, the state's
-    values after the update (the first four: N, E, S, W on a grid). Returns the number
-    of rows now written."""
+    values after the update (the first four: N, E, S, W on a grid; NaN for actions past
+    the map's D). Returns the number of rows now written."""
     ri = o.up_int[n_up]
     for j in range(9):
         ri[j] = ints[j]
     rf = o.up_float[n_up]
     for j in range(5):
         rf[j] = floats[j]
-    for d in range(min(4, q_row.shape[0])):
-        rf[5 + d] = q_row[d]
+    for d in range(4):
+        rf[5 + d] = q_row[d] if d < q_row.shape[0] else np.nan
     return n_up + 1
