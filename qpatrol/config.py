@@ -104,6 +104,14 @@ POLICIES: tuple[str, ...] = (
     "cbls",
     "learned-tour",
 )
+#: How robots meet (``team.interaction``): one per cell (the paper's avoiding), passing
+#: each other with patrolling_sim's interference stops, or ignoring each other.
+INTERACTIONS: tuple[str, ...] = ("exclusive", "interference", "none")
+#: Keys read as another key (``alias -> (key, {alias value: key value})``): the old
+#: ``team.avoid_collisions`` switch is ``team.interaction`` exclusive or none.
+ALIASES: dict[str, tuple[str, dict[bool, str]]] = {
+    "team.avoid_collisions": ("team.interaction", {True: "exclusive", False: "none"}),
+}
 QL = ("qlearning",)
 QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
@@ -232,7 +240,44 @@ SCHEMA: tuple[Field, ...] = (
         True,
         "share one dot map and one last-visit map (off: each agent has private ones)",
     ),
-    F("team.avoid_collisions", "bool", True, "mask moves into occupied or claimed cells"),
+    F(
+        "team.interaction",
+        "choice",
+        "exclusive",
+        "how robots meet: `exclusive` (one robot per cell, never a swap: the paper's "
+        "avoiding, with right of way and pushes), `interference` (robots pass each other; "
+        "one that comes within `interference_radius` of a lower-numbered robot stops, as "
+        "in patrolling_sim) or `none` (robots ignore each other, as in SimPatrol); "
+        "`team.avoid_collisions: on/off` is read as exclusive/none",
+        choices=INTERACTIONS,
+    ),
+    F(
+        "team.interference_radius",
+        "int",
+        2,
+        "interference: moves (shortest path) within which a robot meets a lower-numbered "
+        "one (patrolling_sim's 2 m, at 1 m a move)",
+        low=0,
+        high=16,
+    ),
+    F(
+        "team.interference_steps",
+        "int",
+        3,
+        "interference: team steps a robot stops after it meets another "
+        "(patrolling_sim's 3 s, at 1 m/s and 1 m a move)",
+        low=1,
+        high=10**6,
+    ),
+    F(
+        "team.interference_cooldown",
+        "int",
+        10,
+        "interference: team steps from one stop of a robot before it may meet again "
+        "(patrolling_sim's 10 s); more than interference_steps",
+        low=2,
+        high=10**6,
+    ),
     F("battery.enabled", "bool", True, "simulate battery, homing and charging"),
     F("battery.capacity", "int", 1000, "moves on a full charge", low=1),
     F("battery.margin", "int", 5, "spare moves kept when deciding to go home", low=0),
@@ -530,7 +575,7 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
         if not isinstance(k, str):
             raise ConfigError(f"{prefix}{short_repr(k)}: keys must be strings")
         key = f"{prefix}{k}"
-        is_group = any(f.startswith(key + ".") for f in FIELDS)
+        is_group = any(f.startswith(key + ".") for f in FIELDS) and key not in ALIASES
         if key == "battery" and isinstance(v, bool):  # shorthand `battery: off`
             flat["battery.enabled"] = v
         elif is_group and key not in FIELDS:
@@ -563,7 +608,11 @@ def check_value(key: str, value: Any) -> Any:
     """Validate and normalise one value; raise :class:`ConfigError` naming ``key``."""
     if key not in FIELDS:
         raise _unknown(key)
-    f = FIELDS[key]
+    return _check(FIELDS[key], key, value)
+
+
+def _check(f: Field, key: str, value: Any) -> Any:
+    """:func:`check_value` of ``value`` for field ``f`` (named ``key`` in errors)."""
     original = value
 
     def bad(why: str = "") -> ConfigError:
@@ -629,6 +678,8 @@ def parse_assignment(text: str) -> tuple[str, Any]:
         value = yaml.load(raw, Loader=BoundedLoader) if raw.strip() else None  # noqa: S506
     except yaml.YAMLError:
         value = raw
+    if key in ALIASES:
+        return key, value
     if key not in FIELDS:
         raise _unknown(key)
     kind = FIELDS[key].kind
@@ -649,11 +700,15 @@ class Config:
     values: Mapping[str, Any]
 
     def __getitem__(self, key: str) -> Any:
+        if key in ALIASES:  # an old switch, read off the key it stands for
+            target, meaning = ALIASES[key]
+            return self.values[target] == meaning[True]
         return self.values[key]
 
     def replace(self, **changes: Any) -> Config:
-        """A copy with keys (dotted names given as ``**{"learning.gamma": 0.5}``) changed."""
-        return from_flat({**self.values, **changes})
+        """A copy with keys (dotted names given as ``**{"learning.gamma": 0.5}``) changed;
+        an alias (:data:`ALIASES`) changes the key it stands for."""
+        return from_flat({**self.values, **_translate(changes, given=changes)})
 
     def with_overrides(self, assignments: Iterable[str]) -> Config:
         """A copy with ``KEY=VALUE`` strings applied."""
@@ -675,9 +730,32 @@ class Config:
         return hashlib.sha256(blob).hexdigest()[:10]
 
 
+def _translate(flat: Mapping[str, Any], given: Mapping[str, Any]) -> dict[str, Any]:
+    """``flat`` with each alias (:data:`ALIASES`) replaced by the key it stands for;
+    :class:`ConfigError` when ``given`` (the keys the user gave together) sets both to
+    different values."""
+    out = dict(flat)
+    for alias, (target, meaning) in ALIASES.items():
+        if alias not in out:
+            continue
+        value = out.pop(alias)
+        field = Field(alias, "bool", True, "")
+        checked = _check(field, alias, value)
+        mapped = meaning[checked]
+        if target in given and given[target] != mapped:
+            raise ConfigError(
+                f"{alias}: {short_repr(value)} means {target} {mapped}, but {target} is "
+                f"{short_repr(given[target])}; allowed: one of the two keys, or both agreeing"
+            )
+        out[target] = mapped
+    return out
+
+
 def from_flat(flat: Mapping[str, Any]) -> Config:
-    """Validate a flat ``{key: value}`` mapping on top of the defaults."""
+    """Validate a flat ``{key: value}`` mapping on top of the defaults (an alias of
+    :data:`ALIASES` sets the key it stands for)."""
     values = defaults()
+    flat = _translate(flat, given=flat)
     for key, v in flat.items():
         values[key] = check_value(key, v)
     check_together(values)
@@ -706,6 +784,12 @@ def check_together(values: Mapping[str, Any]) -> None:
         raise ConfigError(
             f"failures.at: got {values['failures.at']} with failures.robots {fail}; allowed: "
             f"a team step in 1..{values['steps'] - 1} (less than steps)"
+        )
+    if values["team.interference_cooldown"] <= values["team.interference_steps"]:
+        raise ConfigError(
+            f"team.interference_cooldown: got {values['team.interference_cooldown']} with "
+            f"team.interference_steps {values['team.interference_steps']}; allowed: more "
+            "than interference_steps (a robot moves between two stops)"
         )
     mult = values["learning.multiplier"]
     for d in ("north", "east", "south", "west"):

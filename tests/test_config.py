@@ -2,7 +2,15 @@ from pathlib import Path
 
 import pytest
 
-from qpatrol.config import KEYS, ConfigError, defaults, from_flat, from_mapping, load_config
+from qpatrol.config import (
+    ALIASES,
+    KEYS,
+    ConfigError,
+    defaults,
+    from_flat,
+    from_mapping,
+    load_config,
+)
 
 REQUIRED = [
     "map",
@@ -36,7 +44,8 @@ REQUIRED = [
 
 
 def test_every_issue_key_exists_with_paper_defaults():
-    assert set(REQUIRED) <= set(KEYS)
+    # team.avoid_collisions is read as team.interaction (an alias, below)
+    assert set(REQUIRED) <= set(KEYS) | set(ALIASES)
     d = defaults()
     assert d["learning.gamma"] == 0.1
     assert d["learning.multiplier"] == 100
@@ -112,3 +121,35 @@ def _ok(tmp_path: Path) -> Path:
 def test_set_reads_exponent_numbers(tmp_path: Path):
     cfg = load_config(_ok(tmp_path), ["learning.epsilon=1e-3", "steps=2e3"])
     assert cfg["learning.epsilon"] == 0.001 and cfg["steps"] == 2000
+
+
+def test_avoid_collisions_is_read_as_the_interaction(tmp_path: Path):
+    """The old switch sets ``team.interaction``: on is exclusive, off is none; reading it
+    back tells whether the interaction is exclusive; given with a different
+    ``team.interaction`` in one file it is refused, and a later ``--set`` replaces either."""
+    assert defaults()["team.interaction"] == "exclusive"
+    assert from_flat({"team.avoid_collisions": False})["team.interaction"] == "none"
+    assert from_flat({"team.avoid_collisions": "on"})["team.interaction"] == "exclusive"
+    assert from_flat({"team.interaction": "interference"})["team.avoid_collisions"] is False
+    assert "avoid_collisions" not in from_flat({"team.avoid_collisions": False}).to_yaml()
+    p = tmp_path / "c.yaml"
+    p.write_text("team:\n  avoid_collisions: off\n")
+    assert load_config(p)["team.interaction"] == "none"
+    cfg = load_config(p, ["team.interaction=interference"])
+    assert cfg["team.interaction"] == "interference"
+    assert load_config(p, ["team.avoid_collisions=on"])["team.interaction"] == "exclusive"
+    p.write_text("team:\n  avoid_collisions: off\n  interaction: exclusive\n")
+    with pytest.raises(ConfigError, match="team.avoid_collisions: False means team.interaction"):
+        load_config(p)
+    p.write_text("team:\n  avoid_collisions: off\n  interaction: none\n")
+    assert load_config(p)["team.interaction"] == "none"
+    with pytest.raises(ConfigError, match="team.avoid_collisions: got 'sometimes'"):
+        from_flat({"team.avoid_collisions": "sometimes"})
+
+
+def test_interference_keys_are_checked_together():
+    assert from_flat({"team.interference_steps": 9, "team.interference_cooldown": 10})
+    with pytest.raises(ConfigError, match="team.interference_cooldown: got 3 .* more than"):
+        from_flat({"team.interference_steps": 3, "team.interference_cooldown": 3})
+    with pytest.raises(ConfigError, match="team.interaction: got 'pass'"):
+        from_flat({"team.interaction": "pass"})

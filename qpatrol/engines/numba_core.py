@@ -352,7 +352,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                 w.prev_head[k] = head_r[k]
                 moved[k] = False
                 as_asked[k] = False
-            push_failed = moves.resolve(r, tok, t_mod, waiting == 0, False, avoid, p, s, w)
+            push_failed = moves.resolve(r, t, tok, t_mod, waiting == 0, False, avoid, p, s, w)
             # each robot that moved enters its cell; one that made the move it chose
             # learns. Robot after robot: each touches only its group's dots and its own
             # Q-table, and the measures their own arrays, in robot order
@@ -363,7 +363,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
                     )
         observe.intruders(r, t, w.prev_pos, pos_r, moved, p.target, m, s.mode[r], False)
-        waiting, longest = moves.waits(r, False, s, w, unchanged)
+        waiting, longest = moves.waits(r, False, avoid, s, w, unchanged)
         if avoid:
             tok, held = moves.pass_token(
                 r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w
@@ -488,12 +488,14 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 stations.ask(r, p, s, w)
             for k in range(n_agents):
                 w.want[k] = p.nbrs[s.pos[r, k], w.ask[k]] if w.ask[k] >= 0 else -1
-            push_failed = moves.resolve(r, tok, t_mod, False, battery, avoid, p, s, w)
+            push_failed = moves.resolve(r, t, tok, t_mod, False, battery, avoid, p, s, w)
+            if p.interaction == bundles.INTERFERENCE:
+                moves.meet(r, t, p, s, w)
             enter.all_enter(r, t, p, s, w)
             if spec == SPEC_ANY and battery:
                 stations.pay(r, p, s, w)
                 stations.end(r, p, s, w)
-            waiting, longest = moves.waits(r, battery, s, w)
+            waiting, longest = moves.waits(r, battery, avoid, s, w)
             if avoid and n_agents > 1:
                 s.token[r], s.token_held[r] = moves.pass_token(
                     r, tok, s.token_held[r], push_failed, t_next_mod, p.diameter, waiting, s, w
@@ -616,7 +618,7 @@ class Loop:
             p.capacity, p.margin, p.charge_steps, p.target, np.int64(p.n_targets),
             np.int64(p.failures_at), p.onward is not None,
             p.onward if p.onward is not None else np.full((1, 1), -1, dtype=np.int64),
-            p.far_cells,
+            p.far_cells, *bundles.interaction_args(p),
         )  # fmt: skip
         bs = bundles.World(*(getattr(s, f) for f in bundles.World._fields))
         bm = bundles.Meas(
@@ -654,7 +656,7 @@ class Loop:
         self.spec = SPEC_ANY
         # (a graph with waypoints, whose learners decide at vertices: the general loop)
         plain = not p.battery and self.timeline is None and not p.failures_at
-        plain = plain and p.onward is None
+        plain = plain and p.onward is None and p.ball is None  # (no interference stops)
         if self.code == compiled.QLEARNING and plain:
             self.spec = SPEC_QLEARNING
             if not rec.wants_updates:

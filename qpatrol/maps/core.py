@@ -220,3 +220,27 @@ def all_pairs_distances(neighbors: np.ndarray) -> np.ndarray:
         dist[s, c] = d
         frontier_src, frontier_cell = s, c
     return dist
+
+
+def balls(neighbors: np.ndarray, radius: int) -> np.ndarray:
+    """int ``[C, B]``: for each cell, the cells within ``radius`` moves of it (shortest
+    path; the cell itself included), ascending, padded with -1 to the largest ball ``B``.
+    Grown one move at a time: a ball of radius r + 1 is the ball of radius r and its
+    cells' neighbours, deduplicated row by row (no ``[C, C]`` table)."""
+    c = neighbors.shape[0]
+    ball = np.arange(c, dtype=np.int64)[:, None]
+    for _ in range(radius):
+        step = neighbors[np.maximum(ball, 0)]  # [C, B, D]
+        step[ball < 0] = -1  # a padding slot has no neighbours
+        grown = np.concatenate([ball, step.reshape(c, -1)], axis=1)
+        grown.sort(axis=1)
+        dup = np.zeros(grown.shape, dtype=bool)
+        dup[:, 1:] = grown[:, 1:] == grown[:, :-1]
+        keep = ~dup & (grown >= 0)
+        width = int(keep.sum(axis=1).max())
+        # the kept cells of each row first (a stable sort of "not kept"), then padding
+        order = np.argsort(~keep, axis=1, kind="stable")[:, :width]
+        ball = np.where(
+            np.take_along_axis(keep, order, axis=1), np.take_along_axis(grown, order, axis=1), -1
+        )
+    return ball

@@ -38,7 +38,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol.world import Outcome, Params
+from qpatrol.world import Outcome, Params, interference
 
 
 def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray, target: np.ndarray | None = None):
@@ -330,21 +330,35 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
 def wait_bound(p: Params) -> int:
     """The longest wait a live team may show.
 
-    Without battery, ``(K - 1)(diameter + 1) + 1``: a theorem for the strategies that
-    choose among their open moves (``docs/model.md``, "What is proven": the right of way
-    reaches a blocked robot after at most K - 1 holders of at most ``diameter + 1``
-    steps each, and a holder makes its move). With the battery on, a robot may queue
-    behind every other robot of the team, each of which travels to a station (it waits
-    for the right of way at most one holder's tenure, ``diameter + 1`` steps, then makes
-    at most ``diameter`` moves), charges (``charge_steps``) and clears the station's
-    pocket (``2 x depart_len``); then it crosses the map. So ``K x (charge_steps + 2 x
-    max depart_len + 2 x diameter + 1) + diameter``: a yardstick, not a theorem, as the
-    wait for the right of way is not proven to be one tenure (docs/model.md).
+    Collisions avoided (``team.interaction: exclusive``), without battery, ``(K - 1)
+    (diameter + 1) + 1``: a theorem for the strategies that choose among their open
+    moves (``docs/model.md``, "What is proven": the right of way reaches a blocked robot
+    after at most K - 1 holders of at most ``diameter + 1`` steps each, and a holder
+    makes its move). With the battery on, a robot may queue behind every other robot of
+    the team, each of which travels to a station (it waits for the right of way at most
+    one holder's tenure, ``diameter + 1`` steps, then makes at most ``diameter`` moves),
+    charges (``charge_steps``) and clears the station's pocket (``2 x depart_len``);
+    then it crosses the map. So ``K x (charge_steps + 2 x max depart_len + 2 x diameter
+    + 1) + diameter``: a yardstick, not a theorem, as the wait for the right of way is
+    not proven to be one tenure (docs/model.md).
+
+    Robots passing each other (``interference``, ``none``): no move is refused but a
+    stopped robot's, so without battery the bound is a stop, ``stop_steps`` (0 under
+    ``none``); with it, the same queue as above with ``diameter`` moves taking at most
+    :func:`qpatrol.world.interference.travel_steps` steps (a theorem: docs/model.md,
+    "Passing robots").
     """
+    if p.avoid_collisions:
+        if not p.battery:
+            return (p.n_agents - 1) * (p.diameter + 1) + 1
+        turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * p.diameter + 1
+        return p.n_agents * turnaround + p.diameter
+    stop = p.stop_steps if p.ball is not None else 0
     if not p.battery:
-        return (p.n_agents - 1) * (p.diameter + 1) + 1
-    turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * p.diameter + 1
-    return p.n_agents * turnaround + p.diameter
+        return stop
+    trip = interference.travel_steps(p.diameter, p)
+    turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * trip + 1
+    return max(stop, p.n_agents * turnaround + trip)
 
 
 def summarize(

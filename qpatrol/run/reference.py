@@ -5,7 +5,7 @@ per agent-step, with no numpy in the loop. It follows the core's arithmetic to t
 (greedy over open moves with ties and epsilon drawn from the run's uniforms, reward
 ``dot + incremental_value x min(1, idle / idle_horizon) + lambda x dots / visits``,
 ``Q <- Q + (1/N) (r + gamma max Q(s') - Q)``), so with the same uniforms and one agent
-(or ``team.avoid_collisions: off``) it gives the core's Q-table. With more agents and
+(or ``team.interaction: none``) it gives the core's Q-table. With more agents and
 collisions avoided it moves robots in index order into cells empty at that moment (no
 right of way), which is the same work per agent-step but not the core's traffic rules.
 On a patrol graph with waypoints an agent chooses at vertices only, travels each edge
@@ -74,6 +74,8 @@ def run(
     groups = 1 if p.communication else k_agents
     inc, horizon, lam = p.incremental_value, p.idle_horizon, p.lambda_weight
     max_ep = p.max_episode_steps
+    if p.interaction == "interference":
+        raise ValueError("the plain-Python reference has no interference stops")
     avoid = p.avoid_collisions
     uu = u.tolist()
     pos = list(starts)

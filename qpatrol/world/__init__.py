@@ -39,13 +39,14 @@ from dataclasses import dataclass, replace
 
 import numpy as np
 
-from qpatrol.config import Config, ConfigError
+from qpatrol.config import INTERACTIONS, Config, ConfigError
 from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
-from qpatrol.maps.core import far_targets
-from qpatrol.world import battery, traffic
+from qpatrol.maps.core import balls, far_targets
+from qpatrol.world import battery, interference, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
 GONE = battery.GONE
+EXCLUSIVE, INTERFERENCE, NONE = INTERACTIONS
 
 
 @dataclass(frozen=True)
@@ -82,7 +83,10 @@ class Params:
     idle_horizon: float | np.ndarray
     lambda_weight: float | np.ndarray
     communication: bool
-    avoid_collisions: bool
+    # how robots meet (team.interaction): EXCLUSIVE (one robot per cell, right of way,
+    # pushes; :mod:`qpatrol.world.traffic`), INTERFERENCE (robots pass each other and stop
+    # when they meet, :mod:`qpatrol.world.interference`) or NONE (they ignore each other)
+    interaction: str
     battery: bool
     capacity: int
     margin: int
@@ -98,6 +102,19 @@ class Params:
     # int [C, D]: the target at the far end of each port of a target, through waypoints
     # (maps.core.far_targets; on a grid the neighbour); -1 elsewhere. None: neighbors
     far: np.ndarray | None = None
+    # interference: a robot that comes within ``radius`` moves of a lower-numbered robot
+    # stops for ``stop_steps`` team steps, at most once per ``cooldown`` steps; ``ball``
+    # int [C, B], the cells within ``radius`` moves of each cell (maps.core.balls), None
+    # under the other interactions
+    radius: int = 0
+    stop_steps: int = 0
+    cooldown: int = 1
+    ball: np.ndarray | None = None
+
+    @property
+    def avoid_collisions(self) -> bool:
+        """One robot per cell, never a swap (``team.interaction: exclusive``)."""
+        return self.interaction == EXCLUSIVE
 
     @property
     def n_targets(self) -> int:
@@ -135,7 +152,9 @@ def make_params(cfg: Config, m: Map) -> Params:
     """Build :class:`Params`; raise :class:`ConfigError` if config and map do not fit."""
     k = cfg["agents"]
     c = m.n_cells
-    if cfg["team.avoid_collisions"] and 2 * k > c:
+    interaction = cfg["team.interaction"]
+    exclusive = interaction == EXCLUSIVE
+    if exclusive and 2 * k > c:
         raise ConfigError(
             f"agents: {k} robots on map {m.name} ({c} free cells) leave no room to yield; "
             f"allowed: at most {c // 2} (half the free cells)"
@@ -177,7 +196,12 @@ def make_params(cfg: Config, m: Map) -> Params:
         ],
         dtype=np.int64,
     )
-    pocket_of, pocket_depth, pocket_entry = battery.station_pockets(m.neighbors, homes)
+    if exclusive:
+        pocket_of, pocket_depth, pocket_entry = battery.station_pockets(m.neighbors, homes)
+    else:  # robots pass each other: a held station closes no pocket (docs/model.md)
+        pocket_of = np.full(c, -1, dtype=np.int64)
+        pocket_depth = np.zeros(c, dtype=np.int64)
+        pocket_entry = np.full(homes.size, -1, dtype=np.int64)
     battery_on = bool(cfg["battery.enabled"])
     if battery_on:
         if not homes.size:
@@ -195,7 +219,7 @@ def make_params(cfg: Config, m: Map) -> Params:
                 f"allowed: > {need} (farthest cell {int(nearest.max())} moves from H, plus "
                 f"battery.margin, plus 1, plus {leave} moves leaving a station)"
             )
-    if battery_on and cfg["team.avoid_collisions"]:
+    if battery_on and exclusive:
         check_battery_room(k, m, pocket_of, station_of, home_dir, pocket_entry)
     dist = m.distances()
     onward = onward_ports(m)
@@ -225,7 +249,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         idle_horizon=float(cfg["reward.idle_horizon"]),
         lambda_weight=float(cfg["reward.lambda"]),
         communication=bool(cfg["team.communication"]),
-        avoid_collisions=bool(cfg["team.avoid_collisions"]),
+        interaction=interaction,
         battery=battery_on,
         capacity=int(cfg["battery.capacity"]),
         margin=int(cfg["battery.margin"]),
@@ -236,6 +260,12 @@ def make_params(cfg: Config, m: Map) -> Params:
         failures_at=int(cfg["failures.at"]) if cfg["failures.robots"] else 0,
         onward=onward,
         far=far_targets(m.neighbors, m.back, m.target)[0] if onward is not None else None,
+        radius=int(cfg["team.interference_radius"]),
+        stop_steps=int(cfg["team.interference_steps"]),
+        cooldown=int(cfg["team.interference_cooldown"]),
+        ball=balls(m.neighbors, cfg["team.interference_radius"])
+        if interaction == INTERFERENCE
+        else None,
     )
 
 
@@ -349,6 +379,9 @@ class State:
         token_held: int ``[R]``, consecutive steps the token has been with that robot.
         active: bool ``[R]``, run still going (False once its episode quota is met).
         steps_done: int ``[R]``, team steps the run has taken.
+        met: int ``[R, K]``, under ``team.interaction: interference`` the team step at
+            whose end the robot last met another and stopped (:mod:`qpatrol.world.interference`;
+            a large negative number if never): it stops in the ``stop_steps`` steps after.
         failed: int ``[R, F]``, the robots that fail at team step ``Params.failures_at``
             (:mod:`qpatrol.world.failures`; ``F = 0`` without failures).
     """
@@ -379,6 +412,7 @@ class State:
     active: np.ndarray
     steps_done: np.ndarray
     failed: np.ndarray
+    met: np.ndarray
 
     @property
     def n_runs(self) -> int:
@@ -501,6 +535,7 @@ def init_state(p: Params, start_cells: np.ndarray, failed: np.ndarray | None = N
             if failed is None
             else np.array(failed, dtype=np.int64).reshape(r, -1)
         ),
+        met=np.full((r, k), interference.NEVER, dtype=np.int64),
     )
 
 
@@ -630,6 +665,8 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     prev_pos = s.pos.copy()
     prev_head = s.head.copy()
     res = traffic.resolve(s, p, want)
+    if p.interaction == INTERFERENCE:
+        interference.meet(s, p, prev_pos, res.moved)
 
     # --- what entering a cell does: dots, visits, reward, heading, charge ----------------
     moved = res.moved
@@ -673,7 +710,9 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
     waiting_station = (active[:, None] & (s.mode == QUEUED)) | held_back
     failed = (asked & ~res.as_asked) | waiting_station
     s.wait = np.where(failed, s.wait + 1, 0)
-    blocked_by = np.where(asked & ~res.as_asked, s.occ[ar, np.maximum(want, 0)], -1)
+    # the robot standing in the asked cell (with robots passing each other, none)
+    blocked = asked & ~res.as_asked & p.avoid_collisions
+    blocked_by = np.where(blocked, s.occ[ar, np.maximum(want, 0)], -1)
     traffic.pass_token(s, p, want, res, blocked_by)
     s.steps_done[active] = t
     ends = _end_episodes(s, p)

@@ -23,8 +23,9 @@ The moves are resolved in three parts:
 
 The holder sees every legal move as open (:func:`qpatrol.world.begin_step`), so it
 insists on its way instead of fleeing, and a blocked robot always gets the token within
-a few steps. With ``team.avoid_collisions: off`` none of this applies: every asked move
-is made and robots may share cells (an ablation).
+a few steps. Under the other interactions (``team.interaction: interference`` or
+``none``) none of this applies: robots share cells and pass each other, and every asked
+move is made but a stopped robot's (:mod:`qpatrol.world.interference`).
 """
 
 from __future__ import annotations
@@ -35,7 +36,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol.world import battery
+from qpatrol.world import battery, interference
 
 if TYPE_CHECKING:
     from qpatrol.world import Params, State
@@ -104,8 +105,8 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     as_asked = np.zeros((R, K), dtype=bool)
     push_failed = np.zeros(R, dtype=bool)
     want = np.where(s.active[:, None], want, -1)
-    if not p.avoid_collisions:
-        go = want >= 0
+    if not p.avoid_collisions:  # robots pass each other; a stopped one does not move
+        go = (want >= 0) & ~interference.stopped(s, p)
         s.pos[go] = want[go]
         return Resolution(go, go.copy(), push_failed)
 

@@ -39,7 +39,8 @@ class Params(NamedTuple):
         dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
         reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
             idle horizon, lambda).
-        communication, avoid: one dot group for the team; collision avoidance.
+        communication, avoid: one dot group for the team; collision avoidance
+            (``team.interaction: exclusive``).
         diameter, max_ep, quota: right-of-way limit, episode steps (0: none),
             episodes per run (0: none).
         battery ... charge_steps: the battery's rules (:mod:`qpatrol.world.battery`):
@@ -54,6 +55,10 @@ class Params(NamedTuple):
             from a waypoint by heading (:attr:`qpatrol.world.Params.onward`; ``[1, 1]``
             without waypoints); far: int64 ``[C, D]``, the target at each port's far
             end (:attr:`qpatrol.world.Params.far_cells`).
+        interaction: :data:`EXCLUSIVE`, :data:`INTERFERENCE` or :data:`NONE`
+            (``team.interaction``); radius, stop_steps, cooldown, ball: the interference
+            rule's (:mod:`qpatrol.world.interference`; ``ball`` int64 ``[C, B]``, ``[1,
+            1]`` under the other interactions).
     """
 
     nbrs: np.ndarray
@@ -87,6 +92,29 @@ class Params(NamedTuple):
     travels: bool
     onward: np.ndarray
     far: np.ndarray
+    interaction: int
+    radius: int
+    stop_steps: int
+    cooldown: int
+    ball: np.ndarray
+
+
+#: ``Params.interaction``'s codes, in :data:`qpatrol.config.INTERACTIONS` order.
+EXCLUSIVE, INTERFERENCE, NONE = 0, 1, 2
+
+
+def interaction_args(p) -> tuple:
+    """The interaction's fields of :class:`Params` from the world's parameters ``p``."""
+    from qpatrol.config import INTERACTIONS
+
+    ball = p.ball if p.ball is not None else np.full((1, 1), -1, dtype=np.int64)
+    return (
+        INTERACTIONS.index(p.interaction),
+        p.radius,
+        p.stop_steps,
+        p.cooldown,
+        np.ascontiguousarray(ball, dtype=np.int64),
+    )
 
 
 #: The runs' state: the arrays of :class:`qpatrol.world.State` (all its fields but the
@@ -189,7 +217,9 @@ class Work(NamedTuple):
     tie-break), drawn by the loop (:func:`qpatrol.engines.compiled.pcg.step_uniforms`);
     ``sink`` float64 ``[1]`` keeps a warming read; ``score`` float64 ``[K, D]``: each
     robot's score of each move (a strategy's scratch); ``travel`` ``[K]``: the port a
-    robot travelling a graph's edge asks for (``Observation.travel``), -1 for none."""
+    robot travelling a graph's edge asks for (``Observation.travel``), -1 for none;
+    ``mark`` ``[C]`` and ``stamp`` ``[1]``: the cells of the robots already looked at
+    when robots meet (a cell is marked when ``mark`` holds the current ``stamp``)."""
 
     want: np.ndarray
     ask: np.ndarray
@@ -215,6 +245,8 @@ class Work(NamedTuple):
     sink: np.ndarray
     score: np.ndarray
     travel: np.ndarray
+    mark: np.ndarray
+    stamp: np.ndarray
 
 
 def compiled_entry(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray | None:
@@ -249,4 +281,6 @@ def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:
         np.zeros(1, np.float64),
         np.zeros((k, n_ports), np.float64),
         np.full(k, -1, i8),
+        np.zeros(n_cells, i8),
+        np.zeros(1, i8),
     )

@@ -11,8 +11,9 @@ from __future__ import annotations
 
 from numba import njit
 
+from qpatrol.engines.compiled.bundles import INTERFERENCE
 from qpatrol.engines.compiled.choice import ports_of
-from qpatrol.engines.compiled.stations import CHARGING, PATROL, QUEUED, closed, kept_out
+from qpatrol.engines.compiled.stations import CHARGING, GONE, PATROL, QUEUED, closed, kept_out
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -253,9 +254,10 @@ def travel_asks(w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
-    """:func:`qpatrol.world.traffic.resolve` of run ``r`` (each robot's ``w.want``, -1 for
-    none): without collision avoidance every robot moves as asked; with it the holder
+def resolve(r, t, tok, t_mod, by_turn, battery, avoid, p, s, w):
+    """:func:`qpatrol.world.traffic.resolve` of run ``r`` at step ``t`` (each robot's
+    ``w.want``, -1 for none): without collision avoidance every robot moves as asked
+    but a stopped one (:func:`stopped`); with it the holder
     ``tok`` of the right of way moves first (:func:`holder_moves`), then the others
     in priority order (``by_turn``: every robot patrols and none waits, so by turn
     alone, robot ``t % K`` first), each into a cell empty at that moment. Sets
@@ -266,7 +268,7 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
     push_failed = False
     if not avoid:
         for k in range(n_agents):
-            if want[k] >= 0:
+            if want[k] >= 0 and not stopped(t, s.met[r, k], p):
                 pos_r[k] = want[k]
                 moved[k] = True
                 as_asked[k] = True
@@ -299,7 +301,7 @@ def resolve(r, tok, t_mod, by_turn, battery, avoid, p, s, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def waits(r, battery, s, w, unchanged=False):
+def waits(r, battery, avoid, s, w, unchanged=False):
     """After the moves: each robot that asked and did not move as asked waits one step
     more (``s.wait``), and ``w.blocked_by`` names the robot in its way; a queued or
     held-back robot waits too (battery). ``unchanged``: a caller's promise that no wait
@@ -310,7 +312,8 @@ def waits(r, battery, s, w, unchanged=False):
     longest = 0
     for k in range(0 if unchanged else s.pos.shape[1]):
         failed = w.ask[k] >= 0 and not w.as_asked[k]
-        w.blocked_by[k] = s.occ[r, w.want[k]] if failed else -1
+        # the robot standing in the asked cell (with robots passing each other, none)
+        w.blocked_by[k] = s.occ[r, w.want[k]] if failed and avoid else -1
         if battery and (s.mode[r, k] == QUEUED or w.held_back[k]):
             failed = True
         wk = s.wait[r, k] + 1 if failed else 0
@@ -352,6 +355,46 @@ def pass_token(r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w):
         elif push_failed and blocker_waits:
             new = blocker
     return new, (held + 1 if (new == tok and new >= 0) else 0)
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def stopped(t, met, p):
+    """:func:`qpatrol.world.interference.stopped`: a robot that met another at the end of
+    step ``met`` does not move in the ``p.stop_steps`` steps after (interference only)."""
+    return p.interaction == INTERFERENCE and t - met <= p.stop_steps
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def meet(r, t, p, s, w):
+    """:func:`qpatrol.world.interference.meet` of run ``r`` at the end of step ``t``: each
+    robot that moved (``w.moved``), is off its cooldown and stands within ``p.radius``
+    moves of a robot of lower index (``p.ball`` of its cell holds that robot's cell,
+    marked in ``w.mark`` with this call's ``w.stamp``), or swapped cells with one (radius
+    0), stops: ``s.met[r, k] = t``. Failed robots stand nowhere."""
+    w.stamp[0] += 1
+    stamp = w.stamp[0]
+    ball, mark = p.ball, w.mark
+    for j in range(s.pos.shape[1]):
+        if s.mode[r, j] == GONE:
+            continue
+        c = s.pos[r, j]
+        if w.moved[j] and t - s.met[r, j] >= p.cooldown:
+            hit = False
+            for b in range(ball.shape[1]):
+                x = ball[c, b]
+                if x < 0:
+                    break
+                if mark[x] == stamp:
+                    hit = True
+                    break
+            if not hit and p.radius == 0:
+                for i in range(j):
+                    if s.mode[r, i] != GONE and w.prev_pos[i] == c and s.pos[r, i] == w.prev_pos[j]:
+                        hit = True
+                        break
+            if hit:
+                s.met[r, j] = t
+        mark[c] = stamp
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
