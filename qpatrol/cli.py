@@ -466,7 +466,7 @@ def plot(
         typer.Argument(
             metavar="FIGURE",
             help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6, team-size, "
-            "strategies, policies, learning, field, security, security-failures or "
+            "strategies, policies, learning, field, field-models, security, security-failures or "
             "security-recovery.",
         ),
     ],

@@ -43,6 +43,7 @@ from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
 from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour
 from qpatrol.measures import FIELD_MEASURES
 from qpatrol.run import prepare
+from qpatrol.study.sweep import FIELD_INTERACTIONS
 from qpatrol.util.csvio import read_csv
 from qpatrol.util.provenance import MAP_FILE, read_meta
 from qpatrol.world.battery import MODE_NAMES
@@ -511,17 +512,23 @@ POLICY_MEASURES = (
 
 
 def policies_data(
-    sweep_dir: str | Path, level: float = 0.95, measures: Iterable[str] = POLICY_MEASURES
+    sweep_dir: str | Path,
+    level: float = 0.95,
+    measures: Iterable[str] = POLICY_MEASURES,
+    by_interaction: bool = False,
 ) -> pd.DataFrame:
     """Map x strategy x team size: mean and 95% t-interval over runs of each measure.
 
-    As :func:`strategies_data`, grouped by ``map``, ``policy`` and ``agents``, with each
-    map's closed walk: ``walk_length`` L and ``walk_lower_bound`` (from the cyclic
-    strategy's summary on that map) and ``bound_per_robot`` = L / K. Also ``warmup``
-    and ``window`` (team steps measured) of each group, and ``learns`` (the strategy
-    learns as it patrols).
+    As :func:`strategies_data`, grouped by ``map``, ``policy`` and ``agents`` (and
+    ``interaction``, how robots meet, with ``by_interaction``), with each map's closed
+    walk: ``walk_length`` L and ``walk_lower_bound`` (from the cyclic strategy's summary
+    on that map) and ``bound_per_robot`` = L / K. Also ``warmup`` and ``window`` (team
+    steps measured) of each group, and ``learns`` (the strategy learns as it patrols).
     """
-    df = grouped_data(sweep_dir, {"policy": str, "agents": int}, measures, level)
+    keys: dict[str, type] = {"policy": str, "agents": int}
+    if by_interaction:
+        keys["interaction"] = str
+    df = grouped_data(sweep_dir, keys, measures, level)
     sw = read_sweep(Path(sweep_dir))
     names = [folder_map(p, c).name for p, c in zip(sw["path"], sw["config"], strict=True)]
     walks = _walks(sw, names)
@@ -545,8 +552,13 @@ def policies_data(
     df["_order"] = [order.get(m, len(order)) for m in df["map"]]
     names = {n: i for i, n in enumerate(strategies.NAMES)}
     df["_policy"] = [names.get(p, len(names)) for p in df["policy"]]
-    df = df.sort_values(["_order", "agents", "_policy"], kind="stable")
-    return df.drop(columns=["_order", "_policy"]).reset_index(drop=True)
+    by = ["_order", "agents", "_policy"]
+    if by_interaction:  # the field's interactions in the sweep's order
+        ways = {how: i for i, how in enumerate(FIELD_INTERACTIONS)}
+        df["_how"] = [ways.get(h, len(ways)) for h in df["interaction"]]
+        by = ["_how", *by]
+    df = df.sort_values(by, kind="stable")
+    return df.drop(columns=[c for c in df.columns if c.startswith("_")]).reset_index(drop=True)
 
 
 #: The field's benchmark: the policies study's measures and the patrolling field's.
@@ -562,10 +574,67 @@ FIELD_STUDY_MEASURES = (
 
 
 def field_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
-    """The field's benchmark: graph x strategy x team size, the mean and 95% t-interval
-    over runs of each of :data:`FIELD_STUDY_MEASURES`, with each graph's closed walk, as
-    :func:`policies_data`."""
-    return policies_data(sweep_dir, level, FIELD_STUDY_MEASURES)
+    """The field's benchmark: interaction x graph x strategy x team size, the mean and 95%
+    t-interval over runs of each of :data:`FIELD_STUDY_MEASURES`, with each graph's
+    closed walk, as :func:`policies_data`."""
+    return policies_data(sweep_dir, level, FIELD_STUDY_MEASURES, by_interaction=True)
+
+
+#: A run *went wrong* in the field's benchmark when a target stayed unvisited for its
+#: whole window (coverage below 1) or its robots were blocked (a move asked and not
+#: made) in more than this share of their robot-steps.
+BLOCKED_SHARE = 0.5
+
+
+def bad_runs(res: pd.DataFrame) -> pd.DataFrame:
+    """The runs of a sweep's ``results.csv`` (``res``) that went wrong: a target never
+    visited in the window (``unvisited``) or blocked in more than :data:`BLOCKED_SHARE`
+    of their robot-steps (``blocked``); columns of ``res`` plus ``blocked_share``,
+    ``unvisited`` and ``blocked``."""
+    window = pd.to_numeric(res["steps"]) - pd.to_numeric(res["record.warmup"])
+    share = pd.to_numeric(res["interferences"]) / (pd.to_numeric(res["agents"]) * window)
+    out = res.assign(
+        blocked_share=share,
+        unvisited=pd.to_numeric(res["coverage"]) < 1,
+        blocked=share > BLOCKED_SHARE,
+    )
+    return out[out["unvisited"] | out["blocked"]]
+
+
+def field_models_data(sweep_dir: str | Path) -> pd.DataFrame:
+    """Does the ranking of strategies depend on how robots meet? One row per graph,
+    interaction, team size and strategy: ``avg_idleness_mean`` and ``qmi_mean`` over
+    runs, ``rank`` of the strategy by average idleness among those of its graph,
+    interaction and team size (1: lowest; ties share the lower rank), ``runs`` and
+    ``bad_runs`` (:func:`bad_runs`: a vertex never visited in the window or blocked in
+    more than half the robot-steps), ``unvisited`` and ``blocked`` among them."""
+    df = field_data(sweep_dir)
+    res = _read_csv(Path(sweep_dir) / "results.csv", "per-run results of the sweep")
+    res = res.assign(_map=[m.split("/")[-1].removesuffix(".txt") for m in res["map"].astype(str)])
+    bad = bad_runs(res)
+    keys = ["_map", "team.interaction", "agents", "policy"]
+    counts = {
+        key: (len(g), int(g["unvisited"].sum()), int(g["blocked"].sum()))
+        for key, g in bad.groupby(keys, sort=False)
+    }
+    out = df[["map", "interaction", "agents", "policy", "runs"]].copy()
+    out["avg_idleness_mean"] = df["avg_idleness_mean"]
+    out["qmi_mean"] = df["qmi_mean"]
+    out["rank"] = (
+        df.groupby(["map", "interaction", "agents"])["avg_idleness_mean"]
+        .rank(method="min")
+        .astype("Int64")
+    )
+    got = [
+        counts.get((m, h, k, p), (0, 0, 0))
+        for m, h, k, p in zip(
+            out["map"], out["interaction"], out["agents"], out["policy"], strict=True
+        )
+    ]
+    out["bad_runs"] = [g[0] for g in got]
+    out["unvisited"] = [g[1] for g in got]
+    out["blocked"] = [g[2] for g in got]
+    return out.reset_index(drop=True)
 
 
 def learning_data(sweep_dir: str | Path, level: float = 0.95) -> pd.DataFrame:
@@ -629,17 +698,23 @@ def tour_ratio_at(run: dict[str, Any], step: int) -> float:
     return n / run["reference"]
 
 
+#: Columns of the figures' tables named for a config key: ``communication``,
+#: ``interaction``.
+SHORT_KEYS = {"communication": "team.communication", "interaction": "team.interaction"}
+
+
 def grouped_data(
     sweep_dir: str | Path,
     keys: dict[str, type],
     measures: Iterable[str],
     level: float = 0.95,
 ) -> pd.DataFrame:
-    """Per-run results of a sweep pooled by ``keys`` (config key or ``communication``)."""
+    """Per-run results of a sweep pooled by ``keys`` (a config key, or a short name of
+    :data:`SHORT_KEYS`)."""
     d = Path(sweep_dir)
     points = read_sweep(d)
     res = _read_csv(d / "results.csv", "per-run results of the sweep")
-    config_key = {k: ("team.communication" if k == "communication" else k) for k in keys}
+    config_key = {k: SHORT_KEYS.get(k, k) for k in keys}
     swept: list[str] = []
     for ov in points["overrides"]:
         swept += [k for k in ov if k not in swept and k not in config_key.values()]

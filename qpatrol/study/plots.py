@@ -957,21 +957,91 @@ FIELD_PANELS = (
 )
 
 
+#: How robots meet in the field's benchmark, as the figures name it.
+INTERACTION_TITLES = {
+    "interference": "robots pass, and stop on an interference (patrolling_sim)",
+    "none": "robots ignore each other (SimPatrol)",
+    "exclusive": "one robot per cell (the paper's avoiding)",
+}
+
+
 def field(csv: str | Path, out: str | Path) -> Path:
-    """The field's benchmark: one row per patrol graph, the field's measures against team
-    size for every strategy (mean over runs, 95% t-interval), with the cyclic bound."""
+    """The field's benchmark in the field's world (robots pass each other and stop on an
+    interference, when the table has an ``interaction`` column): one row per patrol
+    graph, the field's measures against team size for every strategy (mean over runs,
+    95% t-interval), with the cyclic bound."""
+    how = "interference"
     return _per_map(
         csv,
         out,
         FIELD_PANELS,
         "patrolling_sim's graphs, at the vertices ({runs}{window} after warm-up; battery "
-        "off). L: the closed walk through every vertex.",
+        f"off; {INTERACTION_TITLES[how]}). L: the closed walk through every vertex.",
+        select=lambda df: df[df["interaction"] == how] if "interaction" in df.columns else df,
     )
 
 
-def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Path:
+def field_models(csv: str | Path, out: str | Path) -> Path:
+    """Does the ranking depend on how robots meet? One row per patrol graph, one column
+    per interaction: every strategy's average idleness against team size (mean over
+    runs), and in each panel's title the runs that went wrong there (a vertex never
+    visited in the window, or blocked in more than half the robot-steps)."""
+    cols = ["map", "interaction", "agents", "policy", "avg_idleness_mean", "bad_runs", "runs"]
+    df = _read(csv, cols)
+    maps = list(dict.fromkeys(df["map"]))
+    ways = [h for h in INTERACTION_TITLES if h in set(df["interaction"])]
+    names = _policy_order(set(df["policy"]))
+    ks = sorted(df["agents"].unique())
+    fig, axes = plt.subplots(
+        len(maps), len(ways), figsize=(5.2 * len(ways), 3.3 * len(maps)), squeeze=False
+    )
+    for r, mname in enumerate(maps):
+        top = df[df["map"] == mname]["avg_idleness_mean"]
+        lo, hi = float(top[top > 0].min()), float(top.max())
+        for c, how in enumerate(ways):
+            ax = axes[r, c]
+            d = df[(df["map"] == mname) & (df["interaction"] == how)]
+            for i, name in enumerate(names):
+                q = d[d["policy"] == name].sort_values("agents")
+                colour, marker = _style(name, i)
+                lw = (
+                    1.5
+                    if name in ("cyclic", "learned-tour") or name.startswith("qlearning")
+                    else 0.9
+                )
+                ax.plot(q["agents"], q["avg_idleness_mean"], color=colour, marker=marker,
+                        ms=3.5, lw=lw, label=name)  # fmt: skip
+            ax.set_xscale("log", base=2)
+            ax.set_ylim(lo / 1.3, hi * 1.3)
+            _log_y(ax, "average idleness (team steps)" if c == 0 else "average idleness")
+            ax.set_xticks(ks, [str(k) for k in ks])
+            ax.xaxis.set_minor_formatter(NullFormatter())
+            ax.grid(alpha=0.3, lw=0.4, which="both")
+            if r == len(maps) - 1:
+                ax.set_xlabel("team size K (robots)")
+            bad, runs = int(d["bad_runs"].sum()), int(d["runs"].sum())
+            ax.set_title(f"{mname}, {how}: {bad} of {runs} runs went wrong", fontsize=9.5)
+    rows = _strategy_legend(fig, names)
+    titles = "; ".join(f"{h}: {INTERACTION_TITLES[h]}" for h in ways)
+    fig.suptitle(
+        f"The field's benchmark under each way robots meet ({titles}); battery off, mean over runs",
+        fontsize=10,
+        y=1.0 + 0.025 * rows,
+    )
+    fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.3 * 4 / fig.get_figheight()))
+    return _save(fig, out)
+
+
+def _per_map(
+    csv: str | Path,
+    out: str | Path,
+    panels: tuple,
+    title: str,
+    select: Callable[[pd.DataFrame], pd.DataFrame] | None = None,
+) -> Path:
     """One row per map, one column per panel ``(measure, label, divisor of L/K or 0,
-    log y)``: each measure against team size for every strategy, with the bound."""
+    log y)``: each measure against team size for every strategy, with the bound
+    (``select``: the table's rows to draw, all by default)."""
     panels = tuple((*p, True)[:4] for p in panels)
     cols = [
         "map",
@@ -980,6 +1050,8 @@ def _per_map(csv: str | Path, out: str | Path, panels: tuple, title: str) -> Pat
         *(f"{m}_{s}" for m, *_ in panels for s in "mean lo hi".split()),
     ]
     df = _read(csv, cols)
+    if select is not None:
+        df = select(df)
     maps = list(dict.fromkeys(df["map"]))
     names = _policy_order(set(df["policy"]))
     ks = sorted(df["agents"].unique())

@@ -741,9 +741,21 @@ def _episodes_note(res: pd.DataFrame | None) -> str:
     )
 
 
-def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
-    """The field's benchmark: every strategy on patrolling_sim's graphs, at the vertices."""
-    fig = fig.copy()
+#: How robots meet in the field's benchmark, in the report's words.
+INTERACTION_WORDS = {
+    "interference": "robots pass each other and stop on an interference (patrolling_sim's "
+    "physical robots: the higher-numbered of two robots within 2 moves stops 3 steps, at "
+    "most once per 10)",
+    "none": "robots ignore each other (SimPatrol, SimplePatrol)",
+    "exclusive": "one robot per cell, never a swap (the paper's avoiding: right of way and pushes)",
+}
+
+
+def _field_table(fig: pd.DataFrame) -> tuple[str, dict[str, dict[str, int]], int]:
+    """The field's table of one interaction (``fig``: its rows of the figure table): per
+    graph and team size the best average idleness, worst average idleness and QMI, and
+    cyclic's; with the tallies of who is best (measure -> strategy -> cells) and the
+    number of cells."""
     rows = []
     wins: dict[str, dict[str, int]] = {m: {} for m, _ in FIELD_RANKED}
     cells = 0
@@ -784,78 +796,161 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             *rows,
         ]
     )
-    tallies = []
-    for col, label in FIELD_RANKED:
-        order = sorted(wins[col].items(), key=lambda kv: (-kv[1], kv[0]))
-        tallies.append(
-            f"Best {label}: "
-            + ", ".join(f"{n} in {c} of {cells}" for n, c in order)
-            + " graph and team-size cells."
+    return table, wins, cells
+
+
+def _bad_runs_text(how: str, res: pd.DataFrame) -> str:
+    """The runs of one interaction (``res``: its rows of ``results.csv``) that went wrong
+    (:func:`qpatrol.study.figures.bad_runs`), counted per strategy and named: each run
+    where there are few, else each point with its count."""
+    from qpatrol.study.figures import BLOCKED_SHARE, bad_runs
+
+    bad = bad_runs(res)
+    if not len(bad):
+        return f"{how}: none of {len(res)}."
+    parts = []
+    for name, g in bad.groupby("policy", sort=False):
+        blocked = int(g["blocked"].sum())
+        where = []
+        for (m, k), gk in g.groupby(["map", "agents"], sort=False):
+            runs = ", ".join(str(int(r)) for r in gk["run"])
+            why = "blocked" if gk["blocked"].all() else "unvisited"
+            if gk["blocked"].any() and not gk["blocked"].all():
+                why = "unvisited or blocked"
+            where.append(
+                f"{m} K = {int(k)} run{'s' * (len(gk) > 1)} {runs} ({why})"
+                if len(bad) <= 40
+                else f"{m} K = {int(k)}: {len(gk)}"
+            )
+        parts.append(
+            f"{name} {len(g)}{f' ({blocked} blocked)' if blocked else ''} [{'; '.join(where)}]"
         )
+    share = f"{BLOCKED_SHARE:.0%}"
+    return (
+        f"{how}: {len(bad)} of {len(res)} (a vertex unvisited for the whole window, or robots "
+        f"blocked in more than {share} of their robot-steps): " + "; ".join(parts) + "."
+    )
+
+
+def _mean_ranks(fig: pd.DataFrame, ways: list[str]) -> tuple[str, int, int]:
+    """Each strategy's mean rank by average idleness over the graph and team-size cells,
+    under each interaction (a table); and in how many cells the best strategy is the
+    same under every interaction, of how many."""
+    ranked = fig.assign(
+        rank=fig.groupby(["interaction", "map", "agents"])["avg_idleness_mean"].rank(method="min")
+    )
+    names = list(dict.fromkeys(fig["policy"]))
+    lines = [
+        "| strategy | " + " | ".join(f"mean rank, {h}" for h in ways) + " |",
+        "|---|" + "---|" * len(ways),
+    ]
+    for n in names:
+        q = ranked[ranked["policy"] == n]
+        cells = [q[q["interaction"] == h]["rank"].mean() for h in ways]
+        lines.append(f"| {n} | " + " | ".join(_fmt(c, 2) for c in cells) + " |")
+    same = total = 0
+    for _, d in ranked.groupby(["map", "agents"], sort=False):
+        best = {
+            h: set(d[(d["interaction"] == h) & (d["rank"] == 1)]["policy"])
+            for h in ways
+            if (d["interaction"] == h).any()
+        }
+        if len(best) == len(ways):
+            total += 1
+            same += bool(set.intersection(*best.values()))
+    return "\n".join(lines), same, total
+
+
+def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
+    """The field's benchmark: every strategy on patrolling_sim's graphs, at the vertices,
+    under each way robots meet (the table's ``interaction``; one way when it has none)."""
+    fig = fig.copy()
+    if "interaction" not in fig.columns:
+        fig["interaction"] = "exclusive"
+    ways = [h for h in INTERACTION_WORDS if h in set(fig["interaction"])]
+    main = "interference" if "interference" in ways else ways[0]
+    if res is not None and "team.interaction" not in res.columns:
+        res = res.assign(**{"team.interaction": "exclusive"})
+    table, _, cells = _field_table(fig[fig["interaction"] == main])
+    tallies, wrong = [], []
+    for how in ways:
+        _, wins, n = _field_table(fig[fig["interaction"] == how])
+        for col, label in FIELD_RANKED:
+            order = sorted(wins[col].items(), key=lambda kv: (-kv[1], kv[0]))
+            tallies.append(
+                f"{how}, best {label}: "
+                + ", ".join(f"{name} in {c}" for name, c in order)
+                + f" of {n} graph and team-size cells."
+            )
+        if res is not None and len(res):
+            wrong.append(_bad_runs_text(how, res[res["team.interaction"] == how]))
+    ranks, same, total = _mean_ranks(fig, ways)
     runs = int(fig["runs"].min())
     window = int(fig["window"].min())
-    frozen = int(fig["frozen"].sum()) if "frozen" in fig.columns else 0
+    frozen = ", ".join(
+        f"{how} {int(fig[fig['interaction'] == how]['frozen'].sum())}" for how in ways
+    )
     missing = int((fig["runs"] - fig["avg_idleness_n"]).sum())
     uncovered = ""
-    parts = _low_coverage(fig)
-    if parts:
+    for how in ways:
+        parts = _low_coverage(fig[fig["interaction"] == how])
+        if parts:
+            uncovered += f" {how}: " + "; ".join(parts) + "."
+    if uncovered:
         uncovered = (
             " Points where some run left a vertex unvisited for the whole window (mean "
-            "coverage below 1): " + "; ".join(parts) + "."
+            "coverage below 1), by interaction:" + uncovered
         )
-    interf = fig.sort_values("interferences_mean", kind="stable").iloc[-1]
-    jams = ""
-    if res is not None and len(res) and "interferences" in res.columns:
-        r = res.copy()
-        steps = pd.to_numeric(r["steps"]) - pd.to_numeric(r["record.warmup"])
-        share = pd.to_numeric(r["interferences"]) / (pd.to_numeric(r["agents"]) * steps)
-        cov = pd.to_numeric(r["coverage"])
-        bad = r[(share > 0.5) | (cov < 1)]
-        if len(bad):
-            parts = []
-            for name, g in bad.groupby("policy", sort=False):
-                gs = share[g.index]
-                parts.append(f"{name} {len(g)} ({int((gs > 0.5).sum())} blocked)")
-            jams = (
-                f" Runs that left a vertex unvisited for the whole window or whose robots "
-                f"were blocked in more than half of their robot steps: {len(bad)} of "
-                f"{len(r)}: " + ", ".join(parts) + ". Blocking is congestion in dense teams "
-                "or a livelock of robots that insist on their path (docs/model.md, goal "
-                "followers): two robots whose goals lie past each other in a one-wide edge "
-                "or dead end push each other back and forth, each move refused or undone, "
-                "and no wait ever reaches `wait_bound`, so `live` does not see it (seen "
-                "step by step: `cc`, ps_cumberland, K = 2, two robots shuttling by a dead "
-                "end for the whole run)."
-            )
+    interf = []
+    for how in ways:
+        d = fig[fig["interaction"] == how].sort_values("interferences_mean", kind="stable")
+        top = d.iloc[-1]
+        interf.append(
+            f"{how}: {top.policy} on {top['map']} with K = {int(top.agents)} "
+            f"({_fmt(top.interferences_mean)} per run)"
+        )
+    main_res = res[res["team.interaction"] == main] if res is not None else None
     episodes = _episodes_note(res)
     return Section(
         "Beyond the paper: the field's benchmark on patrolling_sim's graphs",
-        ["figures/field.png"],
+        ["figures/field.png", "figures/field-models.png"],
         "The paper uses a grid maze; the multi-robot patrolling field compares strategies on "
         "patrol graphs with its own measures (patrolling_sim's monitor; QMI of Sampaio and "
-        "Ramalho).",
+        "Ramalho), in simulators whose robots pass each other or ignore each other.",
         "measured",
         [
             f"{runs} runs per point on patrolling_sim's grid, example, cumberland and "
             "DIAG_floor1 graphs (shipped as `ps_*`, edges cut into moves of the shortest "
-            "edge's length), 1 to 12 robots; battery off, collisions avoided, communication "
-            f"on. Every point measures {window:,} team steps after the policies study's "
-            "warm-up, at the vertices only (waypoints inside edges are in transit). L/K: K "
-            "robots evenly spaced on the closed walk of length L through every vertex.",
-            f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`), "
-            f"{missing} without an idleness value.{uncovered}{jams}{episodes}"
-            f"{_wide_spread(res)} Most "
-            f"interferences: {interf.policy} on {interf['map']} with K = "
-            f"{int(interf.agents)} ({_fmt(interf.interferences_mean)} per run).",
-            "Cells give the mean over runs and the strategy that reaches it. Every measure "
-            "of every strategy with its 95% t-interval (median and spread of the vertices' "
-            "average idleness, visit-frequency spread, complete cycles, interferences): "
-            "`figures/field.csv`.",
+            "edge's length), 1 to 12 robots; battery off, communication on; robots decide "
+            "at vertices. Every point measures "
+            f"{window:,} team steps after the policies study's warm-up, at the vertices only "
+            "(waypoints inside edges are in transit). Each point runs under each way robots "
+            "meet (`team.interaction`): "
+            + "; ".join(f"**{h}**, {INTERACTION_WORDS[h]}" for h in ways)
+            + f". The table and the first figure are {main}'s; the second figure and the "
+            "ranks below compare the three. L/K: K robots evenly spaced on the closed walk "
+            "of length L through every vertex.",
+            f"Runs that went wrong, by interaction: frozen (a wait longer than `wait_bound`): "
+            f"{frozen}; {missing} without an idleness value.{uncovered} "
+            + " ".join(wrong)
+            + f"{episodes}{_wide_spread(main_res)} Most interferences: "
+            + "; ".join(interf)
+            + ".",
+            f"Cells give {main}'s mean over runs and the strategy that reaches it. Every "
+            "measure of every strategy under every interaction with its 95% t-interval "
+            "(median and spread of the vertices' average idleness, visit-frequency spread, "
+            "complete cycles, interferences): `figures/field.csv`; each strategy's rank and "
+            "bad runs per graph, interaction and team size: `figures/field-models.csv`.",
             table,
             "*QMI only among strategies whose every run entered every vertex in the window: "
             "QMI averages the intervals that ended, so a vertex never entered adds none and "
             "a strategy that neglects vertices can score low.",
             *tallies,
+            f"Does the ranking depend on how robots meet? The strategy with the best average "
+            f"idleness is the same under every interaction in {same} of {total} graph and "
+            "team-size cells. Each strategy's rank by average idleness (1: best), averaged "
+            f"over the {cells} cells:",
+            ranks,
         ],
         "no paper numbers to compare with; mean over runs.",
     )

@@ -376,6 +376,13 @@ def _figures() -> dict[str, Figure]:
             Figure("policies", "policies", fd.policies_data, plots.policies, sweep_key="policy"),
             Figure("learning", "learning", fd.learning_data, plots.learning, sweep_key="policy"),
             Figure("field", "field", fd.field_data, plots.field, sweep_key="policy"),
+            Figure(
+                "field-models",
+                "field",
+                fd.field_models_data,
+                plots.field_models,
+                sweep_key="policy",
+            ),  # fmt: skip
             Figure("security", "security", fd.security_data, plots.security, sweep_key="policy"),
             Figure(
                 "security-failures",
@@ -407,6 +414,7 @@ FIGURE_NAMES = (
     "policies",
     "learning",
     "field",
+    "field-models",
     "security",
     "security-failures",
     "security-recovery",

@@ -281,19 +281,23 @@ def policies_overrides(quick: bool = False) -> list[dict[str, Any]]:
     return _every_strategy(maps, teams, 500 if quick else POLICY_WINDOW, quick)
 
 
-#: The field's benchmark (``qpatrol sweep field``): patrolling_sim's graphs, its team sizes.
+#: The field's benchmark (``qpatrol sweep field``): patrolling_sim's graphs, its team sizes,
+#: and how robots meet: patrolling_sim's physical robots first (the default), then robots
+#: that ignore each other (SimPatrol, SimplePatrol) and the paper's exclusive cells.
 FIELD_MAPS = ("ps_grid", "ps_example", "ps_cumberland", "ps_diag_floor1")
 FIELD_TEAMS = (1, 2, 4, 6, 8, 12)
+FIELD_INTERACTIONS = ("interference", "none", "exclusive")
 
 
 def field_overrides(quick: bool = False) -> list[dict[str, Any]]:
-    """Every strategy x patrolling_sim graph x team size (where the team fits), each
-    with the policies study's warm-up and window.
+    """Every interaction x strategy x patrolling_sim graph x team size, each with the
+    policies study's warm-up and window.
 
     ``quick``: two graphs, K = 1 and 4, and short runs (a smoke test, not a result).
     """
     maps, teams = (("ps_grid", "ps_example"), (1, 4)) if quick else (FIELD_MAPS, FIELD_TEAMS)
-    return _every_strategy(maps, teams, 500 if quick else POLICY_WINDOW, quick)
+    points = _every_strategy(maps, teams, 500 if quick else POLICY_WINDOW, quick)
+    return [{**p, "team.interaction": how} for how in FIELD_INTERACTIONS for p in points]
 
 
 #: The security study (``qpatrol sweep security``): its maps, team sizes and failures,
