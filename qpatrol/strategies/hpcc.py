@@ -120,9 +120,7 @@ class Strategy(goals.GoalFollower):
             near = np.where(
                 l_max > 0, (l_max - moves).astype(np.float64) / l_max.astype(np.float64), 0.0
             )
-            share = np.where(
-                i_max > 0, idle.astype(np.float64) / i_max.astype(np.float64), 0.0
-            )
+            share = np.where(i_max > 0, idle.astype(np.float64) / i_max.astype(np.float64), 0.0)
         return self.weight[1] * near + self.weight[0] * share
 
     def plan(self, obs: Observation, k: int, rows: np.ndarray, u: np.ndarray) -> np.ndarray:
