@@ -15,7 +15,7 @@ import importlib.util
 
 import numpy as np
 import pytest
-from test_field_strategies import GRAPH, decide, graph_file, idle_at, setup
+from test_field_strategies import GRAPH, decide, decide_anywhere, graph_file, idle_at, setup
 from test_liveness import drive
 
 from qpatrol import strategies, world
@@ -133,6 +133,21 @@ def test_distances_are_shortest_paths_in_moves_and_maxima_over_every_target():
     u = strat.utility(obs, 0, np.array([0]), np.array([0]))[0]
     # L: 1, 2, 3 (L_max 3); I: 3, 3, 3 (I_max 9, the robot's own cell)
     assert u[1:4] == pytest.approx([2 / 3 + 1 / 3, 1 / 3 + 1 / 3, 0 + 1 / 3])
+
+
+def test_asked_off_a_target_it_heads_for_its_goal_without_a_route():
+    """The world asks no strategy on a waypoint; asked all the same (inside the edge
+    from the hub to 0, one move from each), the robot scores the targets from there
+    (L_max 5: U(3) = 3/5 + 1 = 1.6 the greatest), plans no route and heads for its goal
+    by a shortest path (through the hub: port 0 of a waypoint leads to the edge's first
+    vertex)."""
+    m = parse_map(GRAPH)
+    way = int(m.neighbors[1, 0])
+    p, s, strat = setup(m, "hpcc", [way])
+    idle_at(s, 20, HUB_IDLE)
+    ask = decide_anywhere(p, s, strat, 20, 0.0)
+    assert strat.goal[0, 0] == 3 and strat.hop[0, 0] == 3
+    assert (strat.route[0, 0] == -1).all() and ask[0] == 0
 
 
 #: Vertex 0 reaches 2 by an edge of 5 moves and through 1 in 2; 3 hangs off 2.
