@@ -103,6 +103,7 @@ POLICIES: tuple[str, ...] = (
     "dta-ssi-part",
     "cbls",
     "learned-tour",
+    "hpcc",
 )
 #: How robots meet (``team.interaction``): one per cell (the paper's avoiding), passing
 #: each other with patrolling_sim's interference stops, or ignoring each other.
@@ -411,6 +412,26 @@ SCHEMA: tuple[Field, ...] = (
         low=-1000.0,
         high=1000.0,
         used_by=("dta-ssi", "dta-ssi-part"),
+    ),
+    F(
+        "hpcc.idleness_weight",
+        "float",
+        1.0,
+        "hpcc: the weight of a target's normalised idleness in its goal's utility and of its "
+        "normalised staleness in the route's arc costs (patrolling_sim: 1)",
+        low=0.0,
+        high=1000.0,
+        used_by=("hpcc",),
+    ),
+    F(
+        "hpcc.distance_weight",
+        "float",
+        1.0,
+        "hpcc: the weight of a target's normalised nearness in its goal's utility and of an "
+        "arc's normalised length in the route's arc costs (patrolling_sim: 1)",
+        low=0.0,
+        high=1000.0,
+        used_by=("hpcc",),
     ),
     F(
         "qidle.gamma",

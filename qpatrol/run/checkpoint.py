@@ -107,6 +107,7 @@ CLASSES: frozenset[str] = frozenset(
         "qpatrol.strategies.evap:Strategy",
         "qpatrol.strategies.gbs:Strategy",
         "qpatrol.strategies.hcr:Strategy",
+        "qpatrol.strategies.hpcc:Strategy",
         "qpatrol.strategies.learned_tour:Strategy",
         "qpatrol.strategies.partition:Strategy",
         "qpatrol.strategies.qlearning:Strategy",

@@ -830,6 +830,7 @@ STRATEGY_STYLE = {
     "dta-greedy": ("teal", "d"),
     "dta-ssi": ("slategray", "X"),
     "dta-ssi-part": ("darkgreen", "1"),
+    "hpcc": ("indigo", "H"),
     # beyond the paper, like qlearning-idleness
     "learned-tour": ("magenta", "8"),
 }
