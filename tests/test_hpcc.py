@@ -15,7 +15,7 @@ import importlib.util
 
 import numpy as np
 import pytest
-from test_field_strategies import GRAPH, decide, decide_anywhere, graph_file, idle_at, setup
+from test_field_strategies import GRAPH, decide, decide_anywhere, graph_file, setup
 from test_liveness import drive
 
 from qpatrol import strategies, world
@@ -55,6 +55,15 @@ def move(s, k: int, cell: int) -> None:
     s.occ[0, cell] = k
 
 
+def idle_at(strat, t: int, idle: dict[int, int], robot: int | None = None) -> None:
+    """Set the own record of ``robot`` (every robot of run 0 if None) so that cell c has
+    idleness ``idle[c]`` at step t (hpcc reads each robot's own visits)."""
+    robots = range(strat.n_agents) if robot is None else [robot]
+    for k in robots:
+        for c, i in idle.items():
+            strat.memory[0, k, c] = t - i
+
+
 # --------------------------------------------------------------- a patrol graph, by hand
 
 #: Idleness at step 20 of the hub graph's vertices (the robot stands on 0). Waypoints
@@ -73,7 +82,7 @@ def test_goal_and_route_by_hand_on_a_graph():
     path 0-1-3 (3 moves): vertex 0 leaves by port 1 (to 5), not port 0 (to 1)."""
     m = parse_map(GRAPH)
     p, s, strat = setup(m, "hpcc", [0])
-    idle_at(s, 20, HUB_IDLE)
+    idle_at(strat, 20, HUB_IDLE)
     dist = m.distances()
     assert [int(dist[0, v]) for v in range(1, 7)] == [2, 5, 3, 4, 2, 6]
     assert dist[m.neighbors[0, 0], 3] == dist[0, 3] - 1  # port 0 starts the shortest path
@@ -93,14 +102,14 @@ def test_the_route_is_kept_to_the_goal():
     plan would now take the very idle 6; on 3 it plans again, and takes 6."""
     m = parse_map(GRAPH)
     p, s, strat = setup(m, "hpcc", [0])
-    idle_at(s, 20, HUB_IDLE)
+    idle_at(strat, 20, HUB_IDLE)
     decide(p, s, strat, 20, 0.0)
     move(s, 0, 5)
-    idle_at(s, 24, {**HUB_IDLE, 6: 40, 0: 4, 5: 1})
+    idle_at(strat, 24, {**HUB_IDLE, 6: 40, 0: 4, 5: 1})
     assert decide(p, s, strat, 24, 0.0)[0] == 1  # 5's port 1 leads to 3
     assert strat.goal[0, 0] == 3 and strat.hop[0, 0] == 3
     move(s, 0, 3)
-    idle_at(s, 26, {**HUB_IDLE, 6: 40, 0: 4, 5: 1, 3: 1})
+    idle_at(strat, 26, {**HUB_IDLE, 6: 40, 0: 4, 5: 1, 3: 1})
     decide(p, s, strat, 26, 0.0)
     assert strat.goal[0, 0] == 6
 
@@ -111,7 +120,7 @@ def test_off_its_route_a_robot_heads_for_its_hop():
     follows its route again."""
     m = parse_map(GRAPH)
     p, s, strat = setup(m, "hpcc", [0])
-    idle_at(s, 20, HUB_IDLE)
+    idle_at(strat, 20, HUB_IDLE)
     decide(p, s, strat, 20, 0.0)
     move(s, 0, 1)
     assert decide(p, s, strat, 21, 0.0)[0] == 2  # port 2 of the hub leads to 3
@@ -127,7 +136,7 @@ def test_distances_are_shortest_paths_in_moves_and_maxima_over_every_target():
     m = parse_map(SHORTCUT)
     p, s, strat = setup(m, "hpcc", [0])
     assert m.distances()[0, 2] == 2
-    idle_at(s, 10, {0: 9, 1: 3, 2: 3, 3: 3})  # (the edge's waypoints: never visited, 10)
+    idle_at(strat, 10, {0: 9, 1: 3, 2: 3, 3: 3})  # (the edge's waypoints: never visited, 10)
     s.t = 9
     obs = world.begin_step(s, p)
     u = strat.utility(obs, 0, np.array([0]), np.array([0]))[0]
@@ -144,7 +153,7 @@ def test_asked_off_a_target_it_heads_for_its_goal_without_a_route():
     m = parse_map(GRAPH)
     way = int(m.neighbors[1, 0])
     p, s, strat = setup(m, "hpcc", [way])
-    idle_at(s, 20, HUB_IDLE)
+    idle_at(strat, 20, HUB_IDLE)
     ask = decide_anywhere(p, s, strat, 20, 0.0)
     assert strat.goal[0, 0] == 3 and strat.hop[0, 0] == 3
     assert (strat.route[0, 0] == -1).all() and ask[0] == 0
@@ -174,7 +183,7 @@ def test_a_goal_in_a_held_pocket_is_never_taken():
     s = world.init_state(p, start)
     strat = strategies.make("hpcc", cfg, m, p, start)
     assert p.pocket_of[4] == 0
-    idle_at(s, 10, {0: 1, 2: 1, 3: 1, 4: 9, 5: 1, 6: 1, 1: 1})
+    idle_at(strat, 10, {0: 1, 2: 1, 3: 1, 4: 9, 5: 1, 6: 1, 1: 1})
     decide(p, s, strat, 10, 0.0)
     assert strat.goal[0, 0] == 4 and route_of(strat, 0, 1, 4) == [1, 4]
     s.reserved[0, 0] = 1
@@ -193,7 +202,7 @@ def test_the_route_goes_the_long_way_round_idle_cells():
     south first (a shortest path goes east)."""
     m = parse_map(RING)
     p, s, strat = setup(m, "hpcc", [0])
-    idle_at(s, 30, {0: 1, 1: 1, 2: 20, 3: 14, 4: 20, 5: 18, 6: 20, 7: 20})
+    idle_at(strat, 30, {0: 1, 1: 1, 2: 20, 3: 14, 4: 20, 5: 18, 6: 20, 7: 20})
     ask = decide(p, s, strat, 30, 0.0)
     assert strat.goal[0, 0] == 2
     assert route_of(strat, 0, 0, 2) == [0, 3, 5, 6, 7, 4, 2]
@@ -208,12 +217,12 @@ def test_goal_ties_go_to_the_stream_and_route_ties_to_the_first_path_found():
     m = parse_map(RING)
     for u, goal in ((0.0, 4), (0.99, 6)):
         p, s, strat = setup(m, "hpcc", [0])
-        idle_at(s, 30, {0: 1, 1: 2, 2: 2, 3: 2, 4: 20, 5: 2, 6: 20, 7: 2})
+        idle_at(strat, 30, {0: 1, 1: 2, 2: 2, 3: 2, 4: 20, 5: 2, 6: 20, 7: 2})
         decide(p, s, strat, 30, u)
         assert strat.goal[0, 0] == goal
     for u in (0.0, 0.99):
         p, s, strat = setup(m, "hpcc", [0])
-        idle_at(s, 30, {0: 1, 1: 4, 2: 4, 3: 4, 4: 4, 5: 4, 6: 4, 7: 20})
+        idle_at(strat, 30, {0: 1, 1: 4, 2: 4, 3: 4, 4: 4, 5: 4, 6: 4, 7: 20})
         ask = decide(p, s, strat, 30, u)
         assert strat.goal[0, 0] == 7
         assert route_of(strat, 0, 0, 7) == [0, 1, 2, 4, 7] and ask[0] == EAST
@@ -224,7 +233,7 @@ def test_a_blocked_robot_insists_on_its_route():
     rather than the open south."""
     m = parse_map(RING)
     p, s, strat = setup(m, "hpcc", [0, 1])
-    idle_at(s, 30, {0: 1, 1: 1, 2: 20, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2})
+    idle_at(strat, 30, {0: 1, 1: 1, 2: 20, 3: 2, 4: 2, 5: 2, 6: 2, 7: 2})
     obs = world.begin_step(s, p)
     assert not obs.open[0, 0, EAST] and obs.open[0, 0, SOUTH]
     ask = decide(p, s, strat, 30, 0.0)
@@ -233,17 +242,32 @@ def test_a_blocked_robot_insists_on_its_route():
 
 
 @pytest.mark.parametrize("communication", [True, False])
-def test_the_group_map_is_read(communication):
-    """Robot 1 on 7 reads the team's map with communication on (cell 0 idlest there) and
-    its own without (cell 1 idlest there)."""
+def test_each_robot_reads_its_own_record(communication):
+    """As patrolling_sim's cognitive agents (their messages carry nothing), each robot
+    reads its own record of its visits, communication on or off: robot 1 on 7 takes
+    cell 1, idlest in its record, though the team's map says cell 0 and robot 0's
+    record says cell 2."""
     m = parse_map(RING)
     p, s, strat = setup(m, "hpcc", [3, 7], **{"team.communication": communication})
     rest = dict.fromkeys(range(8), 2)
-    idle_at(s, 30, {**rest, 0: 25}, group=0)
-    if not communication:
-        idle_at(s, 30, {**rest, 1: 25}, group=1)
+    for c, i in {**rest, 0: 25}.items():
+        s.last[0, 0, c] = 30 - i
+    idle_at(strat, 30, {**rest, 2: 25}, robot=0)
+    idle_at(strat, 30, {**rest, 1: 25}, robot=1)
     decide(p, s, strat, 30, 0.0)
-    assert strat.goal[0, 1] == (0 if communication else 1)
+    assert strat.goal[0, 1] == 1
+
+
+def test_a_robot_remembers_the_cells_it_enters():
+    """``learn``: each robot that moved records the step in its own memory, and nothing
+    else changes."""
+    m = parse_map(RING)
+    p, s, strat = setup(m, "hpcc", [0, 7])
+    obs = world.begin_step(s, p)
+    out = world.step(s, p, obs, np.array([[1, 3]]))
+    strat.learn(out)
+    assert strat.memory[0, 0].tolist() == [0, out.t, 0, 0, 0, 0, 0, 0]
+    assert strat.memory[0, 1].tolist() == [0, 0, 0, 0, 0, 0, out.t, 0]
 
 
 @pytest.mark.parametrize(
@@ -264,7 +288,7 @@ def test_the_weights(weights, u, goal, route):
     for 3, above 2.5 for 2."""
     m = parse_map(RING)
     p, s, strat = setup(m, "hpcc", [0], **weights)
-    idle_at(s, 30, {0: 1, 1: 1, 2: 20, 3: 14, 4: 20, 5: 18, 6: 20, 7: 20})
+    idle_at(strat, 30, {0: 1, 1: 1, 2: 20, 3: 14, 4: 20, 5: 18, 6: 20, 7: 20})
     decide(p, s, strat, 30, u)
     assert strat.goal[0, 0] == goal and route_of(strat, 0, 0, goal) == route
 

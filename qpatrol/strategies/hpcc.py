@@ -10,8 +10,9 @@ scores every target x but c (outside another robot's held pocket) by
          + hpcc.idleness_weight x I(x) / I_max
 
 (the idleness term 0 when ``I_max`` is 0), ``L`` moves on shortest paths, ``I`` the
-idleness on the robot's group map (the team's shared map with communication on, its own
-without), the maxima over every target of the map; the greatest wins, ties to the j-th
+idleness by the robot's own record of the cells it entered (as ``cc``: patrolling_sim's
+cognitive agents exchange nothing, so communication changes nothing), the maxima over
+every target of the map; the greatest wins, ties to the j-th
 tied target in cell order, ``j = floor(u x ties)``. Its route to the goal is the
 cheapest path over the arcs between targets (a port of a target and the target at its
 far end) with the costs
@@ -46,7 +47,8 @@ from qpatrol.world import battery
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.world import Observation, Params
+    from qpatrol.measures.records import Recorder
+    from qpatrol.world import Observation, Outcome, Params
 
 
 class Strategy(goals.GoalFollower):
@@ -57,6 +59,7 @@ class Strategy(goals.GoalFollower):
     hop: int ``[R, K]``, the target of its route each robot makes for (-1: none).
     route: int ``[R, K, C]``, the port by which each robot leaves each target of its
         route (-1 off the route, and on the goal).
+    memory: int ``[R, K, C]``, the step at which robot k last entered cell c (0: never).
     """
 
     name = "hpcc"
@@ -75,6 +78,15 @@ class Strategy(goals.GoalFollower):
         self.span = span
         self.hop = np.full((self.n_runs, self.n_agents), -1, dtype=np.int64)
         self.route = np.full((self.n_runs, self.n_agents, p.n_cells), -1, dtype=np.int64)
+        self.memory = np.zeros((self.n_runs, self.n_agents, p.n_cells), dtype=np.int64)
+
+    def idleness(self, obs: Observation, k: int, rows: np.ndarray, cells: np.ndarray) -> np.ndarray:
+        """int, the shape of ``cells``: ``t`` minus robot k's own last visit."""
+        return obs.t - self.memory[rows.reshape(rows.shape + (1,) * (cells.ndim - 1)), k, cells]
+
+    def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
+        rr, kk = np.nonzero(out.moved)
+        self.memory[rr, kk, out.pos[rr, kk]] = out.t
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         s, p = obs.state, obs.params

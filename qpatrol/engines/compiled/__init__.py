@@ -220,6 +220,8 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
         follow.learn(r, w.blocked_by, sp.robot_i)
     elif code >= HCR and code <= SEBS:
         goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
+    elif code == HPCC:
+        hpcc.learn(r, t, s.pos, w.moved, sp.cell_i)
     elif code == CBLS:
         cbls.learn(r, t, p.communication, s.pos, w.moved, sp.row_i, sp.cell_i, sp.cell_f)
     return n_up

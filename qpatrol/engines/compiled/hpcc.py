@@ -7,14 +7,15 @@ without one) choose a goal (utilities in float64 in the twin's order, ties by
 ``u[k, 1]``) and its route (the twin's Dijkstra: arc costs in float64 in its order,
 targets settled by cost then cell, arcs relaxed in port order, strict improvements
 only); then follow the route's port (insisting; -1 deeper into a held pocket), or, off
-the route, travel to the hop as :mod:`~qpatrol.engines.compiled.goals`. Nothing is
-learned (the idleness is the world's last-visit map).
+the route, travel to the hop as :mod:`~qpatrol.engines.compiled.goals`. Each robot's
+idleness is its own record of the cells it entered (:func:`learn`).
 
 Pack: ``ipar = [least, greatest arc length]``; ``fpar = [idleness weight, distance
 weight]``; ``robot_i`` int64 ``[R, K, 2]`` each robot's goal and hop (copied, and back
-by :func:`unpack`); ``cell_i`` int64 ``[R, K + 1, C]`` each robot's route (copied, and
+by :func:`unpack`); ``cell_i`` int64 ``[R, 2 K + 1, C]`` each robot's route (copied, and
 back), then a scratch row (each target's predecessor on the cheapest path found, as
-``cell x D + port``); ``cell_f`` float64 ``[R, 2, C]`` scratch (the candidates'
+``cell x D + port``), then each robot's memory (the step it last entered each cell;
+copied, and back); ``cell_f`` float64 ``[R, 2, C]`` scratch (the candidates'
 utilities, the pathfinder's costs); ``cell_b`` bool ``[R, 1, C]`` scratch (the settled
 targets); ``table_i`` int64 ``[C, 2 D]`` = ``tnbr | tcost``; ``row_i`` int64 ``[C]``
 the targets (0/1); ``dist`` int64 ``[C, C]``. The scratch rows are written and read
@@ -36,8 +37,9 @@ def pack(strategy) -> Pack:
     from qpatrol.strategies.hpcc import arc_extremes
 
     n_runs, n_agents, n_cells = strategy.route.shape
-    cells = np.zeros((n_runs, n_agents + 1, n_cells), dtype=np.int64)
+    cells = np.zeros((n_runs, 2 * n_agents + 1, n_cells), dtype=np.int64)
     cells[:, :n_agents] = strategy.route
+    cells[:, n_agents + 1 :] = strategy.memory
     return dummy_pack(
         ipar=np.array(arc_extremes(strategy.tcost), dtype=np.int64),
         fpar=strategy.weight.astype(np.float64),
@@ -54,31 +56,47 @@ def pack(strategy) -> Pack:
 
 
 def unpack(p: Pack, strategy) -> None:
-    """Copy the goals, hops and routes back."""
+    """Copy the goals, hops, routes and memories back."""
     n_agents = strategy.route.shape[1]
     strategy.goal = p.robot_i[..., 0].copy()
     strategy.hop = p.robot_i[..., 1].copy()
     strategy.route = p.cell_i[:, :n_agents].copy()
+    strategy.memory = p.cell_i[:, n_agents + 1 :].copy()
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _maxima(r, k, t, c, communication, last, is_target, dist):
-    """``(I_max, L_max)``: the greatest idleness on robot k's group map and the greatest
+def _last(r, k, x, route):
+    """The step at which robot k of run r last entered cell x (its memory, the rows
+    after the routes and the scratch row of ``route``)."""
+    return route[r, (route.shape[1] - 1) // 2 + 1 + k, x]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def learn(r, t, pos, moved, route):
+    """Each robot of run r that entered a cell at step t remembers it."""
+    for k in range(moved.shape[0]):
+        if moved[k]:
+            route[r, (route.shape[1] - 1) // 2 + 1 + k, pos[r, k]] = t
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _maxima(r, k, t, c, route, is_target, dist):
+    """``(I_max, L_max)``: the greatest idleness by robot k's own record and the greatest
     moves from c, over every target (0 at least)."""
     i_max = 0
     l_max = 0
     for x in range(is_target.shape[0]):
         if is_target[x]:
-            i_max = max(i_max, t - last[r, 0 if communication else k, x])
+            i_max = max(i_max, t - _last(r, k, x, route))
             l_max = max(l_max, dist[c, x])
     return i_max, l_max
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def _choose(r, k, t, uu, c, battery, p, s, is_target, dist, fpar, score):
+def _choose(r, k, t, uu, c, battery, p, s, route, is_target, dist, fpar, score):
     """Robot k's new goal from cell c (``score`` float64 ``[C]``: scratch, the run's own
     row); -1 without a candidate."""
-    i_max, l_max = _maxima(r, k, t, c, p.communication, s.last, is_target, dist)
+    i_max, l_max = _maxima(r, k, t, c, route, is_target, dist)
     best = -np.inf
     n_cand = 0
     for x in range(is_target.shape[0]):
@@ -86,7 +104,7 @@ def _choose(r, k, t, uu, c, battery, p, s, is_target, dist, fpar, score):
             continue
         if battery and goals._held_by_other(r, k, x, p.pocket_of, s.reserved):
             continue
-        idle = t - s.last[r, 0 if p.communication else k, x]
+        idle = t - _last(r, k, x, route)
         near = 0.0
         if l_max > 0:
             near = np.float64(l_max - dist[c, x]) / np.float64(l_max)
@@ -128,8 +146,8 @@ def _pathfind(r, k, t, c, g, p, s, ipar, fpar, table, is_target, dist, route, co
     predecessors in ``route[r, K]``."""
     n_cells = is_target.shape[0]
     n_ports = table.shape[1] // 2
-    n_agents = route.shape[1] - 1
-    i_max, _ = _maxima(r, k, t, c, p.communication, s.last, is_target, dist)
+    n_agents = (route.shape[1] - 1) // 2
+    i_max, _ = _maxima(r, k, t, c, route, is_target, dist)
     lo, hi = ipar[0], ipar[1]
     for x in range(n_cells):
         cost[x] = np.inf
@@ -144,7 +162,7 @@ def _pathfind(r, k, t, c, g, p, s, ipar, fpar, table, is_target, dist, route, co
                 continue
             stale = 0.0
             if i_max > 0:
-                idle = t - s.last[r, 0 if p.communication else k, w]
+                idle = t - _last(r, k, w, route)
                 stale = np.float64(i_max - idle) / np.float64(i_max)
             span = 0.0
             if hi > lo:
@@ -173,7 +191,7 @@ def _pathfind(r, k, t, c, g, p, s, ipar, fpar, table, is_target, dist, route, co
 def _plan(r, k, t, uu, c, battery, p, s, ipar, fpar, robot, route, table, is_target, dist, sf, sb):
     """Robot k's new goal from cell c (returned; -1 without a candidate), its route
     (cleared, then set from a target) and its hop."""
-    g = _choose(r, k, t, uu, c, battery, p, s, is_target, dist, fpar, sf[r, 0])
+    g = _choose(r, k, t, uu, c, battery, p, s, route, is_target, dist, fpar, sf[r, 0])
     for x in range(is_target.shape[0]):
         route[r, k, x] = -1
     robot[r, k, 1] = g if g >= 0 and not is_target[c] else -1
