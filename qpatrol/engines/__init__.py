@@ -49,6 +49,7 @@ COMPILED_POLICIES = (
     "dta-ssi-part",
     "cbls",
     "learned-tour",
+    "gravitational",
 )
 
 

@@ -832,6 +832,7 @@ STRATEGY_STYLE = {
     "dta-ssi-part": ("darkgreen", "1"),
     # beyond the paper, like qlearning-idleness
     "learned-tour": ("magenta", "8"),
+    "gravitational": ("sienna", "H"),  # SimPatrol's gravitational clients
 }
 
 

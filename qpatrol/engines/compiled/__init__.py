@@ -24,6 +24,7 @@ from qpatrol.engines.compiled import (
     evap,
     follow,
     goals,
+    gravitational,
     qlearning,
     qlearning_idleness,
     random,
@@ -44,6 +45,7 @@ HCR, CC, GBS, SEBS = 8, 9, 10, 11  # the goal followers (compiled/goals.py)
 DTA_GREEDY, DTA_SSI, DTA_SSI_PART = 12, 13, 14  # goal followers with any target (compiled/dta.py)
 CBLS = 15  # the learning goal follower (compiled/cbls.py)
 LEARNED_TOUR = 16  # a walk follower that learns its walk (compiled/tour.py)
+GRAVITATIONAL = 17  # robots pulled by idle targets' masses (compiled/gravitational.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -64,6 +66,7 @@ MODULES = {
     "dta-ssi-part": (DTA_SSI_PART, dta),
     "cbls": (CBLS, cbls),
     "learned-tour": (LEARNED_TOUR, tour),
+    "gravitational": (GRAVITATIONAL, gravitational),
 }
 
 
@@ -179,6 +182,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
         cbls.act(
             r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,
             sp.table_i, sp.row_i, sp.dist,
+        )  # fmt: skip
+    elif code == GRAVITATIONAL:
+        gravitational.act(
+            r, t, ur, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i, sp.dist,
+            sp.cell_f,
         )  # fmt: skip
 
 
