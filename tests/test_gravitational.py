@@ -447,7 +447,8 @@ ENGINE_CASES = [
     ("graph", 4, True, True, True, keys("edge", "sum", "arithmetic")),
     ("graph", 2, False, False, True, keys("node", "max", "geometric")),
     ("graph", 1, True, True, True, keys("mixed", "sum", "none")),
-    ("graph", 4, False, True, False, keys("node_no_distance", "max", "arithmetic")),
+    # runs that stop at an episode quota sit out while the others go on
+    ("graph", 4, False, True, False, keys("node_no_distance", "max", episodes=30)),
     (
         "graph",
         2,
