@@ -104,6 +104,7 @@ POLICIES: tuple[str, ...] = (
     "cbls",
     "learned-tour",
     "hpcc",
+    "gravitational",
 )
 #: How robots meet (``team.interaction``): one per cell (the paper's avoiding), passing
 #: each other with patrolling_sim's interference stops, or ignoring each other.
@@ -317,6 +318,53 @@ SCHEMA: tuple[Field, ...] = (
         low_open=True,
         high=1.0,
         used_by=("evap",),
+    ),
+    F(
+        "gravity.propagation",
+        "choice",
+        "edge",
+        "gravitational: where a target's pull acts: on the first port of a shortest path to "
+        "it (edge), on each port by the far target's combined mass over the port's length "
+        "(node) or not divided (node_no_distance), on every port by the port's length plus "
+        "the far target's distance (mixed)",
+        choices=("edge", "node", "node_no_distance", "mixed"),
+        used_by=("gravitational",),
+    ),
+    F(
+        "gravity.growth",
+        "choice",
+        "arithmetic",
+        "gravitational: a target's mass from its idleness I: I (arithmetic), "
+        "(1 + growth_rate)^(I - 1) (geometric) or 1 (none)",
+        choices=("arithmetic", "geometric", "none"),
+        used_by=("gravitational",),
+    ),
+    F(
+        "gravity.growth_rate",
+        "float",
+        0.05,
+        "gravitational: the geometric growth's rate per step of idleness (SimPatrol's 0.05)",
+        low=0.0,
+        low_open=True,
+        high=10.0,
+        used_by=("gravitational",),
+    ),
+    F(
+        "gravity.exponent",
+        "float",
+        2.0,
+        "gravitational: a target's pull is its mass over (moves to it)^exponent",
+        low=0.0,
+        high=10.0,
+        used_by=("gravitational",),
+    ),
+    F(
+        "gravity.combination",
+        "choice",
+        "sum",
+        "gravitational: how the pulls on one port combine (sum or max)",
+        choices=("sum", "max"),
+        used_by=("gravitational",),
     ),
     F(
         "tour.neighbours",

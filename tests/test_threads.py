@@ -221,7 +221,7 @@ def test_lanes_only_for_calls_worth_a_hand_over(monkeypatch, tmp_path):
 POLICIES = ("qlearning", "qlearning-idleness", "random", "conscientious",
             "shared-conscientious", "evap", "cyclic", "partition", "hcr", "cc", "gbs",
             "sebs", "dta-greedy", "dta-ssi", "dta-ssi-part", "cbls",
-            "learned-tour", "hpcc")  # fmt: skip
+            "learned-tour", "hpcc", "gravitational")  # fmt: skip
 
 
 @pytest.mark.parametrize("battery", [False, True])

@@ -50,6 +50,7 @@ COMPILED_POLICIES = (
     "cbls",
     "learned-tour",
     "hpcc",
+    "gravitational",
 )
 
 

@@ -106,6 +106,7 @@ CLASSES: frozenset[str] = frozenset(
         "qpatrol.strategies.dta:SSI",
         "qpatrol.strategies.evap:Strategy",
         "qpatrol.strategies.gbs:Strategy",
+        "qpatrol.strategies.gravitational:Strategy",
         "qpatrol.strategies.hcr:Strategy",
         "qpatrol.strategies.hpcc:Strategy",
         "qpatrol.strategies.learned_tour:Strategy",

@@ -833,6 +833,7 @@ STRATEGY_STYLE = {
     "hpcc": ("indigo", "H"),
     # beyond the paper, like qlearning-idleness
     "learned-tour": ("magenta", "8"),
+    "gravitational": ("sienna", "H"),  # SimPatrol's gravitational clients
 }
 
 

@@ -25,6 +25,7 @@ from qpatrol.engines.compiled import (
     follow,
     goals,
     hpcc,
+    gravitational,
     qlearning,
     qlearning_idleness,
     random,
@@ -46,6 +47,7 @@ DTA_GREEDY, DTA_SSI, DTA_SSI_PART = 12, 13, 14  # goal followers with any target
 CBLS = 15  # the learning goal follower (compiled/cbls.py)
 LEARNED_TOUR = 16  # a walk follower that learns its walk (compiled/tour.py)
 HPCC = 17  # a goal follower along idleness-reweighted routes (compiled/hpcc.py)
+GRAVITATIONAL = 18  # robots pulled by idle targets' masses (compiled/gravitational.py)
 
 #: Strategy name -> (code, module).
 MODULES = {
@@ -67,6 +69,7 @@ MODULES = {
     "cbls": (CBLS, cbls),
     "learned-tour": (LEARNED_TOUR, tour),
     "hpcc": (HPCC, hpcc),
+    "gravitational": (GRAVITATIONAL, gravitational),
 }
 
 
@@ -187,6 +190,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
         cbls.act(
             r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,
             sp.table_i, sp.row_i, sp.dist,
+        )  # fmt: skip
+    elif code == GRAVITATIONAL:
+        gravitational.act(
+            r, t, ur, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i, sp.dist,
+            sp.cell_f,
         )  # fmt: skip
 
 
