@@ -256,9 +256,13 @@ def test_odd_cycles_are_not_rounded_to_even():
 
 def test_one_vertex_regions_and_errors():
     m = parse_map(graph(2, [(0, 1, 3)]))  # cells: vertices 0 1, waypoints 2 3
-    assert closed_walk(m, np.array([0, 2])).tolist() == [0]  # one target: stay
-    assert closed_walk_lower_bound(m, np.array([0, 2])) == 1
-    assert walk_is_closed_cover(m, np.array([0]), np.array([0, 2]))
+    # one target: out along its edge to the vertex at the other end and back (changed
+    # on purpose: standing on it would never visit it again; robots turn at vertices)
+    assert closed_walk(m, np.array([0, 2])).tolist() == [0, 2, 3, 1, 3, 2]
+    assert closed_walk_lower_bound(m, np.array([0, 2])) == 6
+    assert walk_is_closed_cover(m, np.array([0, 2, 3, 1, 3, 2]), np.array([0, 2]))
+    assert not walk_is_closed_cover(m, np.array([0]), np.array([0, 2]))
+    assert not walk_is_closed_cover(m, np.array([0, 2]), np.array([0, 2]))  # turns in the edge
     assert not walk_is_closed_cover(m, np.array([2]), np.array([0, 2]))  # 0 not visited
     with pytest.raises(ValueError, match="no target"):
         closed_walk(m, np.array([2, 3]))
@@ -310,7 +314,10 @@ def test_partition_of_a_graph(k):
     if k < 16:
         assert max(len(w) for w in walks) <= 2.0 * whole / k
     else:
-        assert [len(w) for w in walks] == [1] * 16  # one vertex each
+        # one vertex each, out along its shortest edge and back (changed on purpose:
+        # standing on it would never visit it again)
+        assert all(m.target[w].sum() == 2 for w in walks)
+        assert [len(w) for w in walks] == [2 * shortest_edge(m, int(w[0])) for w in walks]
 
 
 # --- the dot-eating walk (qpatrol.maps.tours) on a graph ---------------------------------
@@ -329,3 +336,8 @@ def test_dot_walk_on_a_graph_eats_every_vertex_dot_optimally(seed):
     moves, walk = dot_walk_tour(m, 0)
     assert walk_is_valid(m, 0, walk)
     assert dot_walk_lower_bound(m, 0) <= exact_optimum(m, 0) == moves
+
+
+def shortest_edge(m, v: int) -> int:
+    """Moves of vertex v's shortest edge."""
+    return int(min(n for a, b, n in m.edges.tolist() if v in (a, b)))

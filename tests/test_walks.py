@@ -131,10 +131,15 @@ def test_colour_bound_on_an_open_room():
 
 
 def test_one_and_two_cells():
+    """Changed on purpose: a region of one cell is patrolled out and back (to its first
+    neighbour, east, of another region), not by standing on it, which never visits it
+    again."""
     m = parse_map(corridor(5))
-    assert closed_walk(m, np.array([3])).tolist() == [3]
-    assert closed_walk_lower_bound(m, np.array([3])) == 1
-    assert walk_is_closed_cover(m, np.array([3]), np.array([3]))
+    assert closed_walk(m, np.array([3])).tolist() == [3, 4]
+    assert closed_walk_lower_bound(m, np.array([3])) == 2
+    assert walk_is_closed_cover(m, np.array([3, 4]), np.array([3]))
+    assert not walk_is_closed_cover(m, np.array([3]), np.array([3]))
+    assert closed_walk(m, np.array([4])).tolist() == [4, 3]  # the end: west
     assert closed_walk(m, np.array([4, 3])).tolist() == [3, 4]
     assert closed_walk_lower_bound(m, np.array([4, 3])) == 2
 
@@ -237,7 +242,11 @@ def test_partition_into_single_cells():
     m = parse_map(T_SHAPE)
     labels = partition_regions(m, m.n_cells)
     assert sorted(labels.tolist()) == list(range(m.n_cells))
-    assert [w.size for w in region_walks(m, labels)] == [1] * m.n_cells
+    # each robot steps out to its first neighbour and back (changed on purpose: standing
+    # on its one cell would never visit it again)
+    walks_ = region_walks(m, labels)
+    assert [w.size for w in walks_] == [2] * m.n_cells
+    assert all(walk_is_closed_cover(m, w, np.flatnonzero(labels == r)) for r, w in enumerate(walks_))
 
 
 # --- errors and the validity check -------------------------------------------------

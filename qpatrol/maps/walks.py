@@ -488,10 +488,10 @@ def _walk_cached(key: _MapKey, cells: tuple[int, ...], seed: int, effort: str) -
     tgt = _region_targets(m, arr)  # nodes of the targets; all nodes on a grid
     nb = _local_neighbors(m, arr)
     _require_connected(m, arr, nb)
+    if tgt.size == 1:
+        return _out_and_back(m, int(arr[tgt[0]]))
     if tgt.size == arr.size and arr.size <= 2:
         return arr
-    if tgt.size == 1:
-        return arr[tgt]
     D = all_pairs_distances(nb)
     if (nb >= 0).sum() // 2 == arr.size - 1:  # a tree: depth-first order is optimal
         order = _depth_first_order(nb, int(tgt[0]))
@@ -504,16 +504,41 @@ def _walk_cached(key: _MapKey, cells: tuple[int, ...], seed: int, effort: str) -
     return arr[_expand(nb, D, order)]
 
 
+def _out_and_back(m: Map, c: int) -> np.ndarray:
+    """The walk of a region whose one target is ``c``: out to the nearest target by c's
+    shortest edge (the first such port) and back, ``[c, ..., v, ..., ]``, so that its
+    robot enters c again and again (standing on c would never visit it again). On a
+    grid, or a graph without waypoints, ``[c, n]``; on a graph the walk goes along the
+    whole edge, as robots turn only at vertices; ``[c]`` on a map of one cell."""
+    best: list[int] | None = None
+    for first in m.neighbors[c].tolist():
+        if first < 0:
+            continue
+        way, prev, cur = [first], c, first
+        while not m.target[cur]:  # a waypoint has two ports: go on
+            nxt = next(x for x in m.neighbors[cur].tolist() if x >= 0 and x != prev)
+            prev, cur = cur, nxt
+            way.append(cur)
+        if best is None or len(way) < len(best):
+            best = way
+    if best is None:
+        return np.array([c], dtype=np.int64)
+    return np.array([c, *best, *best[-2::-1]], dtype=np.int64)
+
+
 def closed_walk(
     m: Map, cells: np.ndarray | None = None, seed: int = 0, effort: str = "normal"
 ) -> np.ndarray:
     """A short closed walk through every target of a region: int ``[L]`` cells.
 
     ``w[i + 1]`` is one move from ``w[i]``, ``w[0]`` one move from ``w[L - 1]``; the
-    walk steps only on cells of the region and visits each of its targets (every cell
-    on a grid, the vertices on a graph) at least once; it starts on the region's lowest
-    target. ``L`` is the length in moves. One target ``c`` gives ``[c]`` (``L = 1``:
-    the agent stays); a region of two cells ``a < b``, both targets, gives ``[a, b]``.
+    walk visits each target of the region (every cell on a grid, the vertices on a
+    graph) at least once and steps only on the region's cells, but for a region of one
+    target; it starts on the region's lowest target. ``L`` is the length in moves. A
+    region with one target ``c`` gives ``[c, n]`` on a grid (``L = 2``: out to c's first
+    neighbour n, of another region, and back) and on a graph the way out along c's
+    shortest edge to the target at its end and back (:func:`_out_and_back`); a region
+    of two cells ``a < b``, both targets, ``[a, b]``.
 
     A travelling salesman tour over the targets in the region's own shortest-path
     metric (the metric closure of the targets; :func:`_shortest_tour`: nearest
@@ -541,8 +566,8 @@ def walk_is_closed_cover(m: Map, walk: np.ndarray, cells: np.ndarray | None = No
 
     Every step, including ``walk[L - 1] -> walk[0]``, must be one move; every cell of the
     walk must be in ``cells`` (default: all cells) and every target of ``cells`` (on a
-    grid: every cell) in the walk. The one-cell convention ``[c]`` is accepted for a
-    region whose only target is ``c``.
+    grid: every cell) in the walk. A region with one target ``c`` has one walk, out and
+    back (:func:`_out_and_back`: ``[c]`` only on a map of one cell).
     """
     w = np.asarray(walk)
     if w.ndim != 1 or w.size == 0 or not np.issubdtype(w.dtype, np.integer):
@@ -550,6 +575,9 @@ def walk_is_closed_cover(m: Map, walk: np.ndarray, cells: np.ndarray | None = No
     if ((w < 0) | (w >= m.n_cells)).any():
         return False
     region = _cell_set(m, cells)
+    lone = [c for c in region if m.target[c]]
+    if len(lone) == 1:
+        return w.tolist() == _out_and_back(m, lone[0]).tolist()
     visited = set(w.tolist())
     if not visited <= set(region):
         return False
@@ -604,6 +632,8 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
     tgt = _region_targets(m, arr)
     nb = _local_neighbors(m, arr)
     _require_connected(m, arr, nb)
+    if tgt.size == 1:  # out and back, exact (the robot turns at the nearest target)
+        return len(_out_and_back(m, int(arr[tgt[0]])))
     if tgt.size == arr.size and arr.size <= 2:
         return arr.size
     if tgt.size < arr.size:
@@ -722,7 +752,10 @@ def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
     For a tree (every edge a bridge) this is the exact ``2 (n - 1)``; for a ring,
     exactly n. The Held-Karp linear relaxation also splits over bridges (a bridge
     carries 2 in it), so this is at least the Held-Karp bound of the whole region, up
-    to the subgradient's accuracy. Conventions: 1 for one cell, 2 for two.
+    to the subgradient's accuracy. Conventions: 2 for two cells; for one target c, the
+    length of its out-and-back walk (:func:`_out_and_back`), exact: a walk that enters c
+    again must leave it and turn back, at the nearest target on a graph (robots turn
+    only at vertices), at the next cell on a grid.
 
     *Some cells not targets* (a graph's waypoints). First drop, again and again, the
     non-target cells with at most one neighbour left: a walk that enters such a dead
@@ -852,6 +885,9 @@ def _region_cost(m: Map, cells: np.ndarray) -> int | None:
     kept = _prune_dead_ends(m, cells)
     if kept.size < cells.size:
         cells, nb = kept, _local_neighbors(m, kept)
+    if m.target[cells].sum() == 1:  # a lone target's walk goes out and back (closed_walk)
+        c = int(cells[m.target[cells]][0])
+        return len(_out_and_back(m, c))
     return _parity_bound(m, cells, nb)
 
 
