@@ -246,7 +246,9 @@ def test_partition_into_single_cells():
     # on its one cell would never visit it again)
     walks_ = region_walks(m, labels)
     assert [w.size for w in walks_] == [2] * m.n_cells
-    assert all(walk_is_closed_cover(m, w, np.flatnonzero(labels == r)) for r, w in enumerate(walks_))
+    assert all(
+        walk_is_closed_cover(m, w, np.flatnonzero(labels == r)) for r, w in enumerate(walks_)
+    )
 
 
 # --- errors and the validity check -------------------------------------------------

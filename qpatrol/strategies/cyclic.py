@@ -3,7 +3,7 @@
 One closed walk through every target (every free cell of a grid, every vertex of a patrol
 graph), as short as :func:`qpatrol.maps.walks.closed_walk` can make it, is computed once
 per map. Robot slots are spaced ``L / K`` apart along it
-(moved forward to the next distinct cell that is not a station, if needed), robots are
+(moved forward to the next distinct target that is not a station, if needed), robots are
 matched to slots nearest first, walk to them and wait there until the whole team has
 gathered (or ``3 x diameter`` steps have passed); then every robot advances one cell
 per step. With K robots and no disturbance every target is visited every ``L / K`` steps,
@@ -38,7 +38,8 @@ class Strategy(follow.WalkFollower):
         walk = walks.closed_walk(m)
         super().__init__(cfg, m, p, start_cells, [walk])
         self.bound = walks.closed_walk_lower_bound(m)
-        slots = slot_indices(walk, p.n_agents, p.station_of >= 0)
+        # slots on targets that are not stations (robots wait only on targets)
+        slots = slot_indices(walk, p.n_agents, (p.station_of >= 0) | ~p.target)
         for r in range(self.n_runs):
             self.target[r] = match_slots(self.dist, walk, slots, start_cells[r])
         self.hold[:] = True
@@ -65,7 +66,8 @@ class Strategy(follow.WalkFollower):
 
 
 def slot_indices(walk: np.ndarray, k: int, is_station: np.ndarray) -> np.ndarray:
-    """int ``[k]``: walk indices ``i L / k``, each moved forward to a free distinct cell."""
+    """int ``[k]``: walk indices ``i L / k``, each moved forward to a distinct cell that
+    ``is_station`` (bool ``[C]``: the cells no slot may take) does not mark."""
     L = walk.size
     used: set[int] = set()
     out = []

@@ -8,7 +8,9 @@ it left it.
 
 Two robots blocking each other head-on exchange their walks and targets: each turns
 back and carries on with the other's plan. The cells they visit are the ones they
-would have visited by passing through each other, and neither has to wait.
+would have visited by passing through each other, and neither has to wait. A robot
+waits (held, or for its spacing) only on a target cell: on a patrol graph's waypoint it
+travels on, and waits at the next vertex.
 
 A target in the pocket of a charging station that another robot holds (see
 :mod:`qpatrol.world.battery`) is skipped: the robot heads for the first cell of its walk past
@@ -145,10 +147,14 @@ class WalkFollower(base.Strategy):
 
     def _advance(self, obs: Observation, mask: np.ndarray) -> None:
         """Robots of ``mask`` (bool ``[R, K]``) standing on their target advance it by one,
-        unless held or (spacing rule) the next target ahead is nearer than their spacing."""
-        advance = mask & obs.choosing & (obs.state.pos == self.goal_cells()) & ~self.hold
+        unless held or (spacing rule) the next target ahead is nearer than their spacing;
+        a robot waits only on a target cell (on a graph's waypoint it travels on whatever
+        it asks, so it advances there: it waits at the next vertex)."""
+        stay = self.hold.copy()
         if self.keep_spacing:
-            advance &= self.gap_ahead(obs.choosing) >= self.spacing
+            stay |= self.gap_ahead(obs.choosing) < self.spacing
+        stay &= self.params.target[obs.state.pos]
+        advance = mask & obs.choosing & (obs.state.pos == self.goal_cells()) & ~stay
         self.target = np.where(advance, (self.target + 1) % self.lap(), self.target)
 
     def _asks(self, obs: Observation) -> np.ndarray:

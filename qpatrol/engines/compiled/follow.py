@@ -115,16 +115,18 @@ def _gap_ahead(ri, k, choosing, length):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _advance_on_target(r, pos, choosing, mask, ipar, ri, walk, length):
+def _advance_on_target(r, pos, target, choosing, mask, ipar, ri, walk, length):
     """Robots with ``mask[k] != 0`` standing on their target advance it, unless held or
     too near the target ahead (decided for all on the targets before the advances;
-    ``mask`` is overwritten with the decisions)."""
+    ``mask`` is overwritten with the decisions); a robot waits only on a target cell
+    (``target`` bool ``[C]``: on a graph's waypoint it travels on)."""
     n_agents = choosing.shape[0]
     for k in range(n_agents):
-        go = mask[k] != 0 and choosing[k] and ri[k, HOLD] == 0
-        go = go and pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]
-        if go and ipar[4] != 0:
-            go = _gap_ahead(ri, k, choosing, length) >= ri[k, SPACING]
+        go = mask[k] != 0 and choosing[k] and pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]
+        if go and target[pos[r, k]]:
+            go = ri[k, HOLD] == 0
+            if go and ipar[4] != 0:
+                go = _gap_ahead(ri, k, choosing, length) >= ri[k, SPACING]
         mask[k] = 1 if go else 0
     for k in range(n_agents):
         if mask[k] != 0:
@@ -164,12 +166,13 @@ def _skip_and_ask(
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def act(
-    r, t, nbrs, battery, pocket_of, pos, reserved, mode, choosing, ask, ipar, robot_i, walk,
-    length, dist,
+    r, t, nbrs, target, battery, pocket_of, pos, reserved, mode, choosing, ask, ipar, robot_i,
+    walk, length, dist,
 ):  # fmt: skip
     """``ask[k]`` for every robot of run ``r`` at step ``t``: towards its target, -1 for
     robots not choosing (or on their target). ``mode`` int ``[R, K]``: the robots' modes
-    (a robot that failed, GONE, is not of the team that gathers)."""
+    (a robot that failed, GONE, is not of the team that gathers); ``target`` bool ``[C]``:
+    the map's targets, the cells a robot may wait on."""
     n_agents = choosing.shape[0]
     ri = robot_i[r]
     if ipar[0] != 0:  # cyclic: the team holds until it has gathered on its slots
@@ -191,7 +194,7 @@ def act(
                 ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
     for k in range(n_agents):  # every robot is considered (ask serves as the mask)
         ask[k] = 1
-    _advance_on_target(r, pos, choosing, ask, ipar, ri, walk, length)
+    _advance_on_target(r, pos, target, choosing, ask, ipar, ri, walk, length)
     _skip_and_ask(
         r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
     )
@@ -224,7 +227,7 @@ def act(
         return
     for k in range(n_agents):  # the robots that swapped advance, skip and ask again
         ask[k] = 1 if ri[k, SCRATCH] == -2 else 0
-    _advance_on_target(r, pos, choosing, ask, ipar, ri, walk, length)
+    _advance_on_target(r, pos, target, choosing, ask, ipar, ri, walk, length)
     _skip_and_ask(
         r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
     )
