@@ -78,6 +78,9 @@ from qpatrol.strategies.base import prefer_open
 IGNORED = {
     "t",
     "head",
+    "wait",  # measured only: the right of way goes by the task's age (since)
+    "met",  # read only under team.interaction: interference (the checker's is exclusive)
+    "token_held",
     "occ",
     "reserved",
     "dots",
@@ -93,7 +96,7 @@ IGNORED = {
     "steps_done",
 }
 #: Unbounded counters the rules only compare between robots: kept as dense ranks.
-ORDER_ONLY = ("wait", "queued_since")
+ORDER_ONLY = ("since", "queued_since")
 
 
 @dataclass(frozen=True)
@@ -108,7 +111,7 @@ class Case:
     departure: bool = False  # add 2 x max depart_len to the capacity (the departure)
     charge_steps: int = 1
     initial_charge: str = "staggered"
-    adversary: str = "open"  # 'open' or 'legal'
+    adversary: str = "open"  # 'open', 'legal' or 'goal'
 
     def label(self) -> str:
         rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
@@ -128,8 +131,8 @@ class Livelock:
 
     robot: int
     component: int  # states in its strongly connected component
-    prefix: list[tuple[bytes, tuple[int, ...]]]  # (state, choice) from a start
-    cycle: list[tuple[bytes, tuple[int, ...]]]  # (state, choice) back to cycle[0]
+    prefix: list[tuple[bytes, tuple[int, ...], tuple[int, ...]]]  # (state, choice, aims)
+    cycle: list[tuple[bytes, tuple[int, ...], tuple[int, ...]]]  # back to cycle[0]
     pushed: bool  # the robot changes cells somewhere on the cycle
 
 
@@ -192,6 +195,7 @@ class Checker:
                 }
             )
         self.p = world.make_params(from_flat(flat), self.m)
+        self.dist = self.m.distances()
         probe = world.init_state(self.p, np.arange(case.k, dtype=np.int64)[None])
         names = [f.name for f in fields(probe)]
         self.fields = [n for n in names if n not in IGNORED]
@@ -215,8 +219,8 @@ class Checker:
         cols = [np.full((R, 1), tmod, dtype=np.int64)]
         for n in self.fields:
             v = np.asarray(getattr(s, n)).reshape(R, -1)
-            if n == "wait":
-                v = dense_rank(v, v >= 0, with_zero=True)
+            if n == "since":
+                v = dense_rank(v, v >= 0, with_zero=False)
             elif n == "queued_since":
                 v = dense_rank(v, s.mode == world.QUEUED, with_zero=False)
             cols.append(v.astype(np.int64))
@@ -265,16 +269,27 @@ class Checker:
         if perturb is not None:
             perturb(s)
         obs = world.begin_step(s, self.p)
-        allowed = prefer_open(obs) if self.case.adversary == "open" else obs.legal
-        tab = self.table
-        ok_dir = allowed[:, np.arange(K)[None, :], tab]  # [R, T, K]: choice t allowed for k
-        ok = np.where(obs.choosing[:, None, :], ok_dir, (tab == 0)[None])
-        src, combo = np.nonzero(ok.all(axis=2))
-        choice = np.where(obs.choosing[src], tab[combo], -1)
+        aim = None
+        if self.case.adversary == "goal":
+            src, choice, aim = self._goal_options(s, obs)
+        else:
+            allowed = prefer_open(obs) if self.case.adversary == "open" else obs.legal
+            tab = self.table
+            ok_dir = allowed[:, np.arange(K)[None, :], tab]  # [R, T, K]: choice allowed for k
+            ok = np.where(obs.choosing[:, None, :], ok_dir, (tab == 0)[None])
+            src, combo = np.nonzero(ok.all(axis=2))
+            choice = np.where(obs.choosing[src], tab[combo], -1)
+        # a robot has a task while it patrols, heads for a station or waits for one
+        mode = s.mode[src]
+        task = (mode == world.PATROL) | (mode == world.HOMING) | (mode == world.QUEUED)
+        here = mode != world.GONE
+        since0 = np.where(here, s.since[src], np.iinfo(np.int64).max)
+        oldest = since0.min(axis=1, keepdims=True)
+        holder = s.token[src][:, None] == np.arange(K)[None, :]
         s2 = _rows_of(s, src)
         obs2 = _rows_of(obs, src)
         obs2.state = s2
-        out = world.step(s2, self.p, obs2, choice)
+        out = world.step(s2, self.p, obs2, choice, aim)
         # safety on every transition: one robot per cell, no swaps, moves between
         # neighbours only, no charge below 0
         before, after = s.pos[src], s2.pos
@@ -287,7 +302,51 @@ class Checker:
         assert adjacent[step].all(), "a robot jumped"
         assert (s2.charge >= 0).all(), "a charge below 0"
         succ = self.encode(s2, (tmod + 1) % K)
-        return src, succ, s2.wait > 0, out.moved, choice
+        if aim is None:
+            aim = np.full(choice.shape, -1, dtype=np.int64)
+        # robot i fails: it has a task, its task did not end, and it did not hand it on
+        # (as the holder, to the robot in its way: traffic.hand_on); the oldest age is
+        # kept: a robot on the map still has the age that was the oldest
+        gave = (out.swapped >= 0) & holder
+        fail = task & ~out.progressed & ~gave
+        kept = ((s2.since == oldest) & (s2.mode != world.GONE)).any(axis=1)
+        return src, succ, fail, out.moved, choice, aim, kept
+
+    def _goal_options(self, s: world.State, obs: world.Observation):
+        """The goal adversary's options: ``(src [M], choice [M, K], aim [M, K])``. A
+        choosing robot keeps its aim (``State.aim``) until it reaches it; then, or
+        without one, the adversary gives it any target but its cell. It asks for the
+        lowest open port on a shortest path to its aim, else the lowest such port
+        (it insists, as the goal followers do)."""
+        dist = self.dist
+        n_cells = self.p.n_cells
+        targets = np.flatnonzero(self.p.target).tolist()
+        src, choices, aims = [], [], []
+        for r in range(s.pos.shape[0]):
+            options = []
+            for k in range(self.case.k):
+                c = int(s.pos[r, k])
+                if not obs.choosing[r, k]:
+                    options.append([(-1, -1)])
+                    continue
+                a = int(s.aim[r, k])
+                goals = [a] if 0 <= a < n_cells and a != c else [x for x in targets if x != c]
+                row = []
+                for g in goals:
+                    nb = self.p.neighbors[c]
+                    on_path = [d for d in range(nb.size) if nb[d] >= 0 and dist[nb[d], g] == dist[c, g] - 1]
+                    open_ = [d for d in on_path if obs.open[r, k, d]]
+                    row.append(((open_ or on_path)[0], g))
+                options.append(row)
+            for combo in itertools.product(*options):
+                src.append(r)
+                choices.append([d for d, _ in combo])
+                aims.append([g for _, g in combo])
+        return (
+            np.array(src, dtype=np.int64),
+            np.array(choices, dtype=np.int64).reshape(-1, self.case.k),
+            np.array(aims, dtype=np.int64).reshape(-1, self.case.k),
+        )
 
     # --- the whole graph ----------------------------------------------------------
     def explore(self, max_states: int = 2_000_000, chunk: int = 4000) -> Result:
@@ -304,7 +363,8 @@ class Checker:
         frontier = np.arange(len(order))
         store = [np.frombuffer(b"".join(order), dtype=np.int8).reshape(-1, self.width)]
         n_start = len(order)
-        e_src, e_dst, e_fail, e_moved, e_choice = [], [], [], [], []
+        e_src, e_dst, e_fail, e_moved, e_choice, e_aim = [], [], [], [], [], []
+        base = self.p.n_cells + 1
         weights = (1 << np.arange(K)).astype(np.int64)
         complete = True
         while frontier.size:
@@ -312,7 +372,7 @@ class Checker:
             all_rows = _rows(store, frontier, self.width)
             for lo in range(0, frontier.size, chunk):
                 rows = all_rows[lo : lo + chunk]
-                src, succ, fail, moved, choice = self.successors(rows)
+                src, succ, fail, moved, choice, aim, kept = self.successors(rows)
                 skeys = _keys(succ)
                 dst = np.empty(src.size, dtype=np.int64)
                 new_keys = []
@@ -330,9 +390,11 @@ class Checker:
                     )
                 e_src.append(frontier[lo : lo + chunk][src])
                 e_dst.append(dst)
-                e_fail.append(fail.astype(np.int64) @ weights)
+                # bit K: the oldest age was kept (a task as old as any did not end)
+                e_fail.append(fail.astype(np.int64) @ weights + (kept.astype(np.int64) << K))
                 e_moved.append(moved.astype(np.int64) @ weights)
                 e_choice.append((choice + 1) @ (5 ** np.arange(K)))
+                e_aim.append((aim + 1) @ (base ** np.arange(K)))
             if len(order) > max_states:
                 complete = False
                 break
@@ -341,17 +403,20 @@ class Checker:
         self.n_start = n_start
         cat = lambda xs: np.concatenate(xs) if xs else np.zeros(0, dtype=np.int64)  # noqa: E731
         self.edges = (cat(e_src), cat(e_dst), cat(e_fail), cat(e_moved), cat(e_choice))
+        self.edge_aims = cat(e_aim)
         result = Result(self.case, len(order), int(self.edges[0].size), complete=complete)
         if complete:
             result.livelocks = self.livelocks()
         return result
 
     def livelocks(self) -> list[Livelock]:
-        """One witness per robot and per component of its failing subgraph."""
+        """One witness per robot and per component of its failing subgraph, and per
+        component of the subgraph on which the oldest age is kept (robot ``K`` in the
+        witness: the oldest task, whoever carries it)."""
         src, dst, fail, moved, choice = self.edges
         n = len(self.order)
         found = []
-        for i in range(self.case.k):
+        for i in range(self.case.k + 1):
             sel = (fail >> i) & 1 == 1
             comp = strong_components(n, src[sel], dst[sel])
             s_i, d_i = src[sel], dst[sel]
@@ -389,9 +454,11 @@ class Checker:
                     parent[w] = j
                     queue.append(w)
         prefix_edges = self._path_to(first)
+        base = self.p.n_cells + 1
         decode = lambda j: (  # noqa: E731
             self.order[int(src[j])],
             tuple(int(x) - 1 for x in _digits(int(choice[j]), self.case.k)),
+            tuple(int(x) - 1 for x in _digits(int(self.edge_aims[j]), self.case.k, base)),
         )
         pushed = any((int(moved[j]) >> robot) & 1 for j in cycle_edges)
         return Livelock(
@@ -473,31 +540,34 @@ class Checker:
         dirs = "NESW"
         for title, seq in (("from a start", w.prefix), ("cycle", w.cycle)):
             out.append(f"-- {title}:")
-            for key, ch in seq:
+            for key, ch, aim in seq:
                 out.append(self.grid(key))
                 out.append(
                     "   "
                     + self.describe(key)
                     + "  choice="
                     + "".join(dirs[c] if c >= 0 else "-" for c in ch)
+                    + ("  aims=" + str(list(aim)) if self.case.adversary == "goal" else "")
                 )
         return "\n".join(out)
 
 
 def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
     """Run the witness with R = 1 from its start through ``loops`` turns of its cycle,
-    with concrete, growing waits; returns the robot's wait after each turn (int
-    ``[loops]``), and asserts every state met is the one the graph predicts."""
+    with concrete steps; returns the robot's *stall* (steps since its task began, ``t -
+    since``) after each turn (int ``[loops]``), and asserts every state met is the one
+    the graph predicts."""
     seq = w.prefix + w.cycle * loops
     s = ck.decode(np.frombuffer(seq[0][0], dtype=np.int8)[None].copy(), t=0)
     K = ck.case.k
     waits = []
-    for n, (key, ch) in enumerate(seq):
+    for n, (key, ch, aim) in enumerate(seq):
         assert ck.encode(s, s.t % K).tobytes() == key, f"state {n} differs from the graph"
         obs = world.begin_step(s, ck.p)
-        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64))
+        aims = np.array([aim], dtype=np.int64) if ck.case.adversary == "goal" else None
+        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64), aims)
         if n >= len(w.prefix) and (n - len(w.prefix)) % len(w.cycle) == len(w.cycle) - 1:
-            waits.append(int(s.wait[0, w.robot]))
+            waits.append(int(s.t - s.since[0, w.robot]))
     assert ck.encode(s, s.t % K).tobytes() == w.cycle[0][0]
     return np.array(waits)
 
@@ -600,8 +670,8 @@ def _rows(store: list[np.ndarray], ids: np.ndarray, width: int) -> np.ndarray:
     return out
 
 
-def _digits(x: int, k: int) -> list[int]:
-    return [(x // 5**i) % 5 for i in range(k)]
+def _digits(x: int, k: int, base: int = 5) -> list[int]:
+    return [(x // base**i) % base for i in range(k)]
 
 
 # --- the family of small maps --------------------------------------------------------
@@ -745,7 +815,7 @@ def main(argv: list[str] | None = None) -> int:  # pragma: no cover - by hand
     ap.add_argument("--charge-steps", type=int, default=1)
     ap.add_argument("--extra-capacity", type=int, default=0, help="above the smallest")
     ap.add_argument("--initial-charge", default="staggered")
-    ap.add_argument("--adversary", default="open", choices=("open", "legal"))
+    ap.add_argument("--adversary", default="open", choices=("open", "legal", "goal"))
     ap.add_argument("--two-stations", action="store_true", help="also two stations at once")
     ap.add_argument("--show", type=int, default=1, help="livelocks to draw")
     a = ap.parse_args(argv)

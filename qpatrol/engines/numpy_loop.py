@@ -75,7 +75,10 @@ def advance(
     ``u``: float ``[R, K, 2]``, this step's uniforms of every run.
     """
     obs = begin_step(state, p)
-    out = world_step(state, p, obs, strategy.act(obs, u))
+    ask = strategy.act(obs, u)
+    out = world_step(state, p, obs, ask, strategy.aims(obs))
+    if out.swapped is not None and (out.swapped >= 0).any():
+        strategy.exchange(out.swapped)
     strategy.learn(out, rec)
     if rec is not None:
         rec.episodes(out.t, out.episodes)

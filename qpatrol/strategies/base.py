@@ -62,6 +62,17 @@ class Strategy:
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         """Learn from what happened in a step (default: nothing)."""
 
+    def aims(self, obs: Observation) -> np.ndarray | None:
+        """int ``[R, K]``: the cell each robot heads for after :meth:`act` (its goal, its
+        next walk cell), -1 for a robot that just chooses a move; None (the default):
+        every robot just chooses (the world's task of each robot, ``State.aim``)."""
+        return None
+
+    def exchange(self, swapped: np.ndarray) -> None:
+        """The world made robots exchange their tasks (``swapped`` int ``[R, K]``: the
+        partner of each robot, -1 for none; ``qpatrol.world.traffic.hand_on``): exchange
+        their plans too. Default: nothing (a strategy without a plan)."""
+
     def use_run_values(self, values: dict[str, np.ndarray] | None, table: bool = True) -> None:
         """Take per-row values of :data:`RUN_KEYS` (config key -> ``[R]``, the keys whose
         value differs between the batch's rows; None: ``cfg``'s values for every row),
@@ -75,6 +86,15 @@ class Strategy:
     def describe(self) -> dict[str, object]:
         """Facts about this strategy for summary.json (e.g. a walk's length)."""
         return {}
+
+
+def partners(values: np.ndarray, swapped: np.ndarray) -> np.ndarray:
+    """``values`` (``[R, K, ...]``) with each robot's entry replaced by its partner's where
+    ``swapped`` (int ``[R, K]``, -1 for none) names one: an exchange of plans."""
+    j = np.maximum(swapped, 0).reshape(swapped.shape + (1,) * (values.ndim - 2))
+    taken = np.take_along_axis(values, np.broadcast_to(j, swapped.shape + values.shape[2:]), axis=1)
+    mask = (swapped >= 0).reshape(j.shape)
+    return np.where(mask, taken, values)
 
 
 def walking(obs: Observation) -> Observation:

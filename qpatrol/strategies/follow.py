@@ -6,9 +6,11 @@ one; a robot elsewhere (displaced, back from charging, on its way to the walk) t
 shortest path to its target cell. So after any detour a robot rejoins its walk where
 it left it.
 
-Two robots blocking each other head-on exchange their walks and targets: each turns
-back and carries on with the other's plan. The cells they visit are the ones they
-would have visited by passing through each other, and neither has to wait. A robot
+Two robots about to meet head-on exchange their walks and targets before they move:
+each turns back and carries on with the other's plan. The cells they visit are the ones
+they would have visited by passing through each other, and neither has to wait. Robots
+whose tasks the world exchanges (a blocked holder of the right of way,
+:func:`qpatrol.world.traffic.hand_on`) exchange their plans the same way. A robot
 waits (held, or for its spacing) only on a target cell: on a patrol graph's waypoint it
 travels on, and waits at the next vertex.
 
@@ -85,7 +87,6 @@ class WalkFollower(base.Strategy):
         self.wid = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
         self.target = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
         self.hold = np.zeros((self.n_runs, self.n_agents), dtype=bool)
-        self.blocked_by = np.full((self.n_runs, self.n_agents), -1, dtype=np.int64)
         self.spacing = np.zeros((self.n_runs, self.n_agents), dtype=np.int64)
 
     def start_spacing(self) -> None:
@@ -116,24 +117,17 @@ class WalkFollower(base.Strategy):
         """int ``[R, K]``: the cell each robot heads for."""
         return self.walk[self.rows, self.wid, self.target]
 
-    def _exchange_head_on(self, choosing: np.ndarray) -> None:
-        """Robots that blocked each other last step swap walks, targets and spacings."""
-        bb = self.blocked_by
-        K = bb.shape[1]
-        rows = self.rows
-        other = np.maximum(bb, 0)
-        mutual = (bb >= 0) & (bb[rows, other] == np.arange(K)[None, :]) & choosing
-        mutual &= choosing[rows, other] & (np.arange(K)[None, :] < bb)
-        rr, kk = np.nonzero(mutual)
-        if rr.size == 0:
-            return
-        jj = bb[rr, kk]
-        for arr in (self.wid, self.target, self.spacing):
-            arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
+    def aims(self, obs: Observation) -> np.ndarray:
+        """The cell each robot heads for (its target on its walk)."""
+        return self.goal_cells()
+
+    def exchange(self, swapped: np.ndarray) -> None:
+        """Robots that exchanged tasks exchange plans: walks, targets and spacings."""
+        for name in ("wid", "target", "spacing"):
+            setattr(self, name, base.partners(getattr(self, name), swapped))
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         obs = base.walking(obs)
-        self._exchange_head_on(obs.choosing)
         self._advance(obs, obs.choosing)
         self._skip_held_pockets(obs)
         ask = self._asks(obs)
@@ -214,9 +208,6 @@ class WalkFollower(base.Strategy):
         d_next = self.dist[np.maximum(nbr, 0), goal[..., None]]
         closer = (nbr >= 0) & (d_next == self.dist[pos, goal][..., None] - 1)
         return np.where(closer.any(axis=-1), closer.argmax(axis=-1), -1)
-
-    def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
-        self.blocked_by = out.blocked_by
 
 
 def nearest_index(dist: np.ndarray, walk: np.ndarray, cell: int) -> int:

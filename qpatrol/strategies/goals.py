@@ -110,6 +110,14 @@ class GoalFollower(base.Strategy):
             ask[:, k] = np.where(ch, self.travel(c, g, ports[:, k], mask[:, k], closed[:, k]), -1)
         return ask
 
+    def aims(self, obs: Observation) -> np.ndarray:
+        """Each robot's goal (the world's ``State.aim`` of a choosing robot)."""
+        return self.goal.copy()
+
+    def exchange(self, swapped: np.ndarray) -> None:
+        """Robots that exchanged tasks exchange goals."""
+        self.goal = base.partners(self.goal, swapped)
+
     def any_target(self, obs: Observation, k: int, rows: np.ndarray) -> tuple:
         """The goals robot k may take anywhere (``cc`` and the task-assignment strategies):
         ``(cell [B], cells [B, C], cand bool [B, C])``, ``cand`` every target but the

@@ -84,6 +84,16 @@ class Strategy(goals.GoalFollower):
         """int, the shape of ``cells``: ``t`` minus robot k's own last visit."""
         return obs.t - self.memory[rows.reshape(rows.shape + (1,) * (cells.ndim - 1)), k, cells]
 
+    def aims(self, obs: Observation) -> np.ndarray:
+        """The target of its route each robot makes for (its hop), else its goal."""
+        return np.where(self.hop >= 0, self.hop, self.goal)
+
+    def exchange(self, swapped: np.ndarray) -> None:
+        """Robots that exchanged tasks exchange goals, hops and routes."""
+        self.goal = base.partners(self.goal, swapped)
+        self.hop = base.partners(self.hop, swapped)
+        self.route = base.partners(self.route, swapped)
+
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         rr, kk = np.nonzero(out.moved)
         self.memory[rr, kk, out.pos[rr, kk]] = out.t

@@ -124,8 +124,9 @@ def pending_transitions(
     A transition runs from a decision at a vertex to the arrival at the next vertex. A
     robot that chose a move and made it starts a decision; one travelling its edge
     (``out.travelling``) keeps its decision while it moves on as asked or waits; any
-    other (pushed aside, homing, queued, failed, its run ended) drops it. A decision
-    whose robot has just made its move into a vertex completes.
+    other (pushed aside, homing, queued, failed, its run ended, or one that exchanged its
+    task with another robot, ``out.swapped``) drops it. A decision whose robot has just
+    made its move into a vertex completes.
 
     Args:
         pending: int ``[R, K, S + 1]``, each robot's decision not yet completed: its
@@ -141,6 +142,8 @@ def pending_transitions(
     decided = out.choosing & out.as_asked
     travel = out.travelling if out.travelling is not None else np.zeros_like(decided)
     keep = travel & (pending[..., 0] >= 0) & (out.as_asked | ~out.moved)
+    if out.swapped is not None:
+        keep &= out.swapped < 0
     pending[~keep & ~decided] = -1
     pending[decided] = np.concatenate([state, out.ask[..., None]], axis=-1)[decided]
     rr, kk = np.nonzero((pending[..., 0] >= 0) & out.as_asked & target[out.pos])

@@ -102,6 +102,10 @@ class Params:
     # int [C, D]: the target at the far end of each port of a target, through waypoints
     # (maps.core.far_targets; on a grid the neighbour); -1 elsewhere. None: neighbors
     far: np.ndarray | None = None
+    # int [C, D]: on a graph's waypoint, for each heading (the port arrived by), the
+    # target the robot reaches by travelling on (ahead_targets); -1 on targets and unused
+    # headings. None: no waypoint
+    ahead: np.ndarray | None = None
     # interference: a robot that comes within ``radius`` moves of a lower-numbered robot
     # stops for ``stop_steps`` team steps, at most once per ``cooldown`` steps; ``ball``
     # int [C, B], the cells within ``radius`` moves of each cell (maps.core.balls), None
@@ -146,6 +150,21 @@ def onward_ports(m: Map) -> np.ndarray | None:
         if len(ports) == 2:
             onward[c, ports[0]], onward[c, ports[1]] = ports[1], ports[0]
     return onward
+
+
+def ahead_targets(m: Map, onward: np.ndarray) -> np.ndarray:
+    """int ``[C, D]``: for a robot on waypoint c that arrived by port h, the target it
+    reaches travelling on by ``onward`` (the vertex at that end of its edge); -1 on
+    targets and for a heading that is no port of c."""
+    ahead = np.full(onward.shape, -1, dtype=np.int64)
+    for c in np.flatnonzero(~m.target).tolist():
+        for h in np.flatnonzero(onward[c] >= 0).tolist():
+            prev, cur = c, int(m.neighbors[c, onward[c, h]])
+            while not m.target[cur]:
+                nxt = next(x for x in m.neighbors[cur].tolist() if x >= 0 and x != prev)
+                prev, cur = cur, nxt
+            ahead[c, h] = cur
+    return ahead
 
 
 def make_params(cfg: Config, m: Map) -> Params:
@@ -260,6 +279,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         failures_at=int(cfg["failures.at"]) if cfg["failures.robots"] else 0,
         onward=onward,
         far=far_targets(m.neighbors, m.back, m.target)[0] if onward is not None else None,
+        ahead=ahead_targets(m, onward) if onward is not None else None,
         radius=int(cfg["team.interference_radius"]),
         stop_steps=int(cfg["team.interference_steps"]),
         cooldown=int(cfg["team.interference_cooldown"]),
@@ -379,6 +399,14 @@ class State:
         token_held: int ``[R]``, consecutive steps the token has been with that robot.
         active: bool ``[R]``, run still going (False once its episode quota is met).
         steps_done: int ``[R]``, team steps the run has taken.
+        aim: int ``[R, K]``, the cell of each robot's current *task* (the goal it heads
+            for: a goal follower's goal, a walk follower's next walk cell, the vertex ahead
+            of a robot travelling an edge, the station of a homing robot), -1 for a robot
+            whose task is to enter any target (it chooses among its moves) or that has
+            none (queued, charging); set each step from the strategy and the world.
+        since: int ``[R, K]``, the team step at which each robot's current task began (it
+            began needing a station, or its last task ended: it reached its aim, or, with
+            none, entered a target). The right of way goes by its age, ``t - since``.
         met: int ``[R, K]``, under ``team.interaction: interference`` the team step at
             whose end the robot last met another and stopped (:mod:`qpatrol.world.interference`;
             a large negative number if never): it stops in the ``stop_steps`` steps after.
@@ -413,6 +441,8 @@ class State:
     steps_done: np.ndarray
     failed: np.ndarray
     met: np.ndarray
+    aim: np.ndarray
+    since: np.ndarray
 
     @property
     def n_runs(self) -> int:
@@ -453,6 +483,10 @@ class Outcome:
         episodes: the episodes that ended this step.
         travelling: bool, the robot was patrolling on a graph's waypoint and asked for
             the port that continues its edge (:attr:`Observation.travel`; not choosing).
+        progressed: bool, the robot's task ended (it reached its aim, or with none entered
+            a target); its next task begins.
+        swapped: int, the robot it exchanged its task with (the strategies exchange their
+            plans too: a goal, a place on a walk), -1 if none.
     """
 
     t: int
@@ -470,6 +504,8 @@ class Outcome:
     blocked_by: np.ndarray
     episodes: EpisodeEnds
     travelling: np.ndarray | None = None
+    progressed: np.ndarray | None = None
+    swapped: np.ndarray | None = None
 
 
 def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
@@ -536,6 +572,8 @@ def init_state(p: Params, start_cells: np.ndarray, failed: np.ndarray | None = N
             else np.array(failed, dtype=np.int64).reshape(r, -1)
         ),
         met=np.full((r, k), interference.NEVER, dtype=np.int64),
+        aim=np.full((r, k), -1, dtype=np.int64),
+        since=zeros_rk.copy(),
     )
 
 
@@ -617,7 +655,13 @@ def travelling(s: State, p: Params, patrolling: np.ndarray) -> tuple[np.ndarray,
     return patrolling & ~on_edge, np.where(on_edge, onward, -1)
 
 
-def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outcome:
+def step(
+    state: State,
+    p: Params,
+    obs: Observation,
+    choice: np.ndarray,
+    aim: np.ndarray | None = None,
+) -> Outcome:
     """Apply one team step, in place, given the strategy's ``choice``.
 
     Args:
@@ -626,6 +670,9 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         obs: what :func:`begin_step` returned for this step.
         choice: int ``[R, K]``, the port (0..D-1; N, E, S, W on a grid) each choosing
             robot asks for; -1 (or a wall) for no move. Ignored for robots that are not choosing.
+        aim: int ``[R, K]``, the cell each choosing robot heads for (its strategy's goal,
+            :meth:`qpatrol.strategies.base.Strategy.aims`), -1 for a robot that just
+            chooses a move; None: -1 for every robot.
     """
     s = state
     s.t += 1
@@ -661,12 +708,16 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         ask = np.where(queued, battery.queued_ask(s, p), ask)
         yielding = yielding | (queued & (ask >= 0))
     want = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
+    s.aim = task_aims(s, p, obs, aim, on_edge, active)
+    mode0 = s.mode.copy()
 
     prev_pos = s.pos.copy()
     prev_head = s.head.copy()
     res = traffic.resolve(s, p, want)
     if p.interaction == INTERFERENCE:
         interference.meet(s, p, prev_pos, res.moved)
+    if p.ahead is not None and (res.swapped >= 0).any():
+        turn_back(s, p, (res.swapped >= 0) & on_edge)
 
     # --- what entering a cell does: dots, visits, reward, heading, charge ----------------
     moved = res.moved
@@ -707,13 +758,19 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         battery.credit_detour(s, p, yielded, prev_pos)
     asked = ask >= 0
     battery.end(s, p, moved, asked)
+    # a task ends when its robot stands on its aim or, with none, enters a target
+    progressed = active[:, None] & (
+        ((s.aim >= 0) & (s.pos == s.aim) & ((mode0 == PATROL) | (mode0 == HOMING)))
+        | ((s.aim < 0) & (mode0 == PATROL) & moved & p.target[s.pos])
+    )
+    s.since = np.where(progressed, t, s.since)
     waiting_station = (active[:, None] & (s.mode == QUEUED)) | held_back
     failed = (asked & ~res.as_asked) | waiting_station
     s.wait = np.where(failed, s.wait + 1, 0)
     # the robot standing in the asked cell (with robots passing each other, none)
     blocked = asked & ~res.as_asked & p.avoid_collisions
     blocked_by = np.where(blocked, s.occ[ar, np.maximum(want, 0)], -1)
-    traffic.pass_token(s, p, want, res, blocked_by)
+    traffic.pass_token(s, p, want, res, progressed)
     s.steps_done[active] = t
     ends = _end_episodes(s, p)
     return Outcome(
@@ -732,7 +789,41 @@ def step(state: State, p: Params, obs: Observation, choice: np.ndarray) -> Outco
         blocked_by=blocked_by,
         episodes=ends,
         travelling=on_edge,
+        progressed=progressed,
+        swapped=res.swapped,
     )
+
+
+def task_aims(
+    s: State,
+    p: Params,
+    obs: Observation,
+    aim: np.ndarray | None,
+    on_edge: np.ndarray,
+    active: np.ndarray,
+) -> np.ndarray:
+    """int ``[R, K]``: each robot's aim this step (``State.aim``): the strategy's for a
+    choosing robot (``aim``; -1 without), the vertex ahead for one travelling an edge,
+    its station for a homing robot; -1 for the others (queued, charging, failed)."""
+    out = np.full(s.pos.shape, -1, dtype=np.int64)
+    if aim is not None:
+        out = np.where(obs.choosing, aim, -1)
+    if p.ahead is not None:
+        out = np.where(on_edge, p.ahead[s.pos, s.head], out)
+    homing = active[:, None] & (s.mode == HOMING)
+    if homing.any():
+        out = np.where(homing, p.homes[np.maximum(s.goal, 0)], out)
+    return out
+
+
+def turn_back(s: State, p: Params, who: np.ndarray) -> None:
+    """Robots ``who`` (bool ``[R, K]``, travelling a graph's edge) that took over a task
+    whose aim is the vertex behind them turn round: their heading becomes the port they
+    were leaving by, so that they travel on towards that aim."""
+    onward = p.onward[s.pos, s.head]
+    behind = p.ahead[s.pos, np.maximum(onward, 0)]
+    flip = who & (onward >= 0) & (s.aim == behind) & (s.aim != p.ahead[s.pos, s.head])
+    s.head = np.where(flip, onward, s.head)
 
 
 def _end_episodes(s: State, p: Params) -> EpisodeEnds:

@@ -83,6 +83,7 @@ def begin(s: State, p: Params, t: int) -> None:
         s.mode[done] = PATROL
         s.charge[done] = p.capacity
         s.depart_left[done] = 2 * p.depart_len[s.goal[done]]
+        s.since[done] = t  # a new task: patrolling again
     low = (
         act
         & (s.mode == PATROL)
@@ -92,6 +93,7 @@ def begin(s: State, p: Params, t: int) -> None:
     if low.any():
         s.mode[low] = QUEUED
         s.queued_since[low] = t
+        s.since[low] = t  # a new task: reaching a station
     if (s.mode == QUEUED).any():
         _assign_stations(s, p)
 

@@ -1,29 +1,33 @@
 """Moves of a team in one step: never two robots in a cell, never a swap, and robots yield.
 
-Every robot asks for at most one move (its strategy's choice, or the next step home).
-The moves are resolved in three parts:
+Every robot asks for at most one move (its strategy's choice, or the next step home),
+and has a *task* (``State.aim``, ``State.since``: the goal it heads for, and the step
+the task began); its *priority* is the task's age, ``t - since``, then a turn that
+rotates with the step number. The moves are resolved in three parts:
 
 1. **Right of way.** At most one robot per run holds the *token*. If the cell it asks
    for is taken, the robots in the way are pushed aside: a breadth-first search from
    that cell, not through the holder's own cell, through charging robots nor into the
    pocket of a station another robot holds (:mod:`qpatrol.world.battery`), finds the nearest
    empty cell, and every robot on that path moves one cell along it, away from the
-   holder, which then takes its cell. If no such path exists the holder steps aside
-   instead, into the first other neighbour that is empty or can be emptied the same
-   way, so that a jam unwinds; if none can, it stays.
+   holder, which then takes its cell. If no such path exists the holder's task goes
+   one cell on all the same: when both the holder and the robot in its way patrol,
+   they *exchange tasks* (aims, ages, and the strategies' plans: :attr:`Resolution.swapped`),
+   so the holder's task is now carried from the cell it asked for; otherwise the robot
+   in its way *inherits* the holder's age (its task becomes at least as old) and the
+   token, and clears the way on its own task.
 2. **Everyone else**, in priority order, moves if the asked cell is empty at that
    moment: a robot may follow one that left its cell this step, but never enters a
    cell that is still occupied, so no two robots meet and no two swap.
-3. **Passing the token** at the end of the step: a holder that made its move keeps it
-   for up to ``diameter`` consecutive steps, long enough to clear any corridor; a
-   holder whose push failed hands it to the robot that blocked it (which may then back
-   it out of a dead end, or squeeze past it); otherwise it goes to the blocked robot of
-   highest priority: the one that has waited longest, then a turn that rotates with
-   the step number, whatever the robots are doing.
+3. **Passing the token** at the end of the step: to the robot that received the
+   holder's task or age (1); else to the robot of highest priority among the blocked
+   robots and the holder if it still pursues its task (asked a move and did not reach
+   its aim).
 
-The holder sees every legal move as open (:func:`qpatrol.world.begin_step`), so it
-insists on its way instead of fleeing, and a blocked robot always gets the token within
-a few steps. Under the other interactions (``team.interaction: interference`` or
+The holder sees every legal move into a cell it can empty as open
+(:func:`qpatrol.world.begin_step`), so it insists on its way instead of fleeing; the
+oldest task carried by a blocked robot moves one cell towards its aim every step, and
+so ends within ``diameter`` steps (docs/model.md, "What is proven"). Under the other interactions (``team.interaction: interference`` or
 ``none``) none of this applies: robots share cells and pass each other, and every asked
 move is made but a stopped robot's (:mod:`qpatrol.world.interference`).
 """
@@ -50,19 +54,26 @@ class Resolution:
         moved: bool, entered a new cell (as asked or pushed aside).
         as_asked: bool, made the move it asked for.
         push_failed: bool ``[R]``, the token holder could not make the move it asked for.
+        handoff: int ``[R]``, the robot that received the failed holder's task or age
+            (and takes the token), -1 if none.
+        swapped: int ``[R, K]``, the robot each robot exchanged its task with, -1 if none.
     """
 
     moved: np.ndarray
     as_asked: np.ndarray
     push_failed: np.ndarray
+    handoff: np.ndarray | None = None
+    swapped: np.ndarray | None = None
 
 
 def priority(s: State, t: int) -> np.ndarray:
-    """int ``[R, K]``: larger goes first: the longer wait, then a turn that rotates with
-    the step ``t`` (every robot alike, whatever it is doing: a fair right of way)."""
+    """int ``[R, K]``: larger goes first: the older task (``t - since``), then a turn that
+    rotates with the step ``t`` (every robot alike, whatever it is doing: a fair right of
+    way)."""
     R, K = s.pos.shape
     turn = (K - 1) - (np.arange(K) - t) % K
-    return (np.minimum(s.wait, (1 << 30)) * K + turn[None, :]).astype(np.int64)
+    age = np.clip(t - s.since, 0, 1 << 30)
+    return (age * K + turn[None, :]).astype(np.int64)
 
 
 def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) -> np.ndarray:
@@ -104,23 +115,27 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
     moved = np.zeros((R, K), dtype=bool)
     as_asked = np.zeros((R, K), dtype=bool)
     push_failed = np.zeros(R, dtype=bool)
+    handoff = np.full(R, -1, dtype=np.int64)
+    swapped = np.full((R, K), -1, dtype=np.int64)
     want = np.where(s.active[:, None], want, -1)
     if not p.avoid_collisions:  # robots pass each other; a stopped one does not move
         go = (want >= 0) & ~interference.stopped(s, p)
         s.pos[go] = want[go]
-        return Resolution(go, go.copy(), push_failed)
+        return Resolution(go, go.copy(), push_failed, handoff, swapped)
 
-    # 1. the token holder pushes the robots in its way aside, or steps aside itself
+    # 1. the token holder pushes the robots in its way aside, or its task goes on
+    res = Resolution(moved, as_asked, push_failed, handoff, swapped)
     holders = np.flatnonzero((s.token >= 0) & s.active)
     if holders.size:
         movable = s.mode != battery.CHARGING
-        res = Resolution(moved, as_asked, push_failed)
         for r in holders.tolist():
             k = int(s.token[r])
             if want[r, k] >= 0:
                 holder_step(s, p, r, k, want, movable[r], res)
 
-    # 2. everyone else, in priority order, into cells empty at that moment
+    # 2. everyone else, in priority order, into cells empty at that moment (not two
+    # robots that exchanged tasks: their plans changed)
+    want = np.where(swapped >= 0, -1, want)
     order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
     rows_all = np.arange(R)
     progress = True
@@ -138,7 +153,7 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
                 s.pos[rr, kk] = ww
                 moved[rr, kk] = as_asked[rr, kk] = True
                 progress = True
-    return Resolution(moved, as_asked, push_failed)
+    return res
 
 
 def holder_step(
@@ -146,7 +161,8 @@ def holder_step(
 ) -> None:
     """Run ``r``'s token holder ``k`` takes its way (in place: ``s.pos``, ``s.occ`` and
     the rows r of ``res``): into the cell it asks for, pushing the robots in the way
-    aside, or aside itself (:func:`_holder_move`).
+    aside (:func:`_holder_move`); if it cannot, its task goes on through the robot in
+    its way (:func:`hand_on`).
 
     Args:
         want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).
@@ -156,6 +172,9 @@ def holder_step(
     cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
     if cell < 0:
         res.push_failed[r] = True
+        b = int(s.occ[r, want[r, k]])
+        if b >= 0:
+            hand_on(s, r, k, b, res)
         return
     for i in range(len(path) - 2, -1, -1):
         j = s.occ[r, path[i]]
@@ -177,26 +196,29 @@ def _holder_move(
     movable: np.ndarray,
     keep_out: tuple[list[bool], list[int], list[int]] | None,
 ) -> tuple[int, list[int]]:
-    """``(cell, push path)``: where the token holder goes, -1 if nowhere.
-
-    Its asked cell first (empty, or emptied by a push); if that cannot be had, the
-    first other neighbour (N, E, S, W: port order) that is empty or can be emptied, so that a
-    holder stuck in a jam steps aside and lets the jam unwind.
-    """
+    """``(cell, push path)``: the cell the token holder asks for, if it is empty or a push
+    empties it; ``(-1, [])`` if not."""
     nbrs = _neighbour_lists(p)
     own = int(s.pos[r, k])
     occ = s.occ[r].tolist()
-    may_move = movable.tolist()
-    candidates = [asked] + [c for c in nbrs[own] if c >= 0 and c != asked]
-    for i, cell in enumerate(candidates):
-        if i > 0 and keep_out is not None and keep_out[0][cell]:
-            continue
-        if occ[cell] < 0:
-            return cell, []
-        path = _push_path(nbrs, occ, own, cell, may_move, keep_out)
-        if path is not None:
-            return cell, path
-    return -1, []
+    if occ[asked] < 0:
+        return asked, []
+    path = _push_path(nbrs, occ, own, asked, movable.tolist(), keep_out)
+    return (asked, path) if path is not None else (-1, [])
+
+
+def hand_on(s: State, r: int, k: int, b: int, res: Resolution) -> None:
+    """The holder k of run r could not enter robot b's cell: if both patrol, they
+    exchange tasks (``aim`` and ``since``; ``res.swapped``), so the holder's task is
+    carried on from b's cell; otherwise b inherits the holder's age (``since`` the
+    older of the two). Either way b takes the token (``res.handoff``)."""
+    if s.mode[r, k] == battery.PATROL and s.mode[r, b] == battery.PATROL:
+        for a in (s.aim, s.since):
+            a[r, k], a[r, b] = a[r, b], a[r, k]
+        res.swapped[r, k], res.swapped[r, b] = b, k
+    else:
+        s.since[r, b] = min(s.since[r, b], s.since[r, k])
+    res.handoff[r] = b
 
 
 #: Neighbour lists of the maps seen (``id(neighbors) -> (neighbors, lists)``): the
@@ -271,26 +293,31 @@ def _push_path(
 
 
 def pass_token(
-    s: State, p: Params, want: np.ndarray, res: Resolution, blocked_by: np.ndarray
+    s: State, p: Params, want: np.ndarray, res: Resolution, progressed: np.ndarray
 ) -> None:
-    """Choose the robot that holds the right of way in the next step (see module doc)."""
+    """Choose the robot that holds the right of way in the next step (see module doc).
+
+    ``progressed``: bool ``[R, K]``, the robots whose task ended this step."""
     R, K = s.pos.shape
     if not p.avoid_collisions or K == 1:
         return
     rows = np.arange(R)
     tok = s.token
     blocked = s.active[:, None] & (want >= 0) & ~res.as_asked
-    key = np.where(blocked, priority(s, s.t + 1), -1)
     had = tok >= 0
-    failed = had & res.push_failed
-    # a holder whose push failed may not take the token back at once
-    key[rows[failed], tok[failed]] = -1
+    t0 = np.maximum(tok, 0)
+    pursues = had & (want[rows, t0] >= 0) & ~progressed[rows, t0] & s.active
+    candidates = blocked.copy()
+    candidates[rows[pursues], tok[pursues]] = True
+    # by age, the holder first among equals (it keeps the token unless a strictly older
+    # task is blocked), then the turn
+    age = np.clip(s.t + 1 - s.since, 0, 1 << 30)
+    turn = (K - 1) - (np.arange(K) - (s.t + 1)) % K
+    first = np.zeros((R, K), dtype=np.int64)
+    first[rows[pursues], tok[pursues]] = K
+    key = np.where(candidates, age * (K + 1) + np.maximum(turn[None, :], first), -1)
     best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
-    blocker = np.where(had, blocked_by[rows, np.maximum(tok, 0)], -1)
-    blocker_waits = (blocker >= 0) & blocked[rows, np.maximum(blocker, 0)]
-    made_its_move = had & res.as_asked[rows, np.maximum(tok, 0)]
-    keep = made_its_move & (s.token_held < p.diameter)
-    new = np.where(keep, tok, np.where(failed & blocker_waits, blocker, best))
+    new = np.where(res.handoff >= 0, res.handoff, best)
     s.token_held = np.where((new == tok) & (new >= 0), s.token_held + 1, 0)
     s.token = new
 
