@@ -78,6 +78,7 @@ from qpatrol.strategies.base import prefer_open
 IGNORED = {
     "t",
     "head",
+    "met",  # read only under team.interaction: interference (the checker's is exclusive)
     "occ",
     "reserved",
     "dots",
