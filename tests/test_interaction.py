@@ -215,6 +215,29 @@ def test_both_engines_alike_under_interference(rooms_map, tmp_path, policy, kind
 
 
 @pytest.mark.skipif(not HAS_NUMBA, reason="the compiled engine needs numba")
+@pytest.mark.parametrize("policy, kind, battery, radius", ENGINE_ROWS)
+def test_both_engines_alike_when_robots_ignore_each_other(
+    rooms_map, tmp_path, policy, kind, battery, radius
+):
+    """Every compiled strategy under ``none`` (robots share cells), grid and graph,
+    battery on and off (the other of each pair than under interference): alike."""
+    from test_engines import both
+
+    if kind == "graph":
+        path = tmp_path / "longedges.txt"
+        path.write_text(LONG_GRAPH)
+        m = str(path)
+    else:
+        m = str(rooms_map)
+    flat = {
+        "map": m, "policy": policy, "agents": 5, "runs": 2, "seed": 8, "steps": 200,
+        "record.trajectory": 200, "team.interaction": "none", "battery.enabled": not battery,
+        "battery.capacity": 60, "battery.charge_steps": 3, "record.warmup": 30,
+    }  # fmt: skip
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="the compiled engine needs numba")
 @pytest.mark.parametrize(
     "interaction, policy, failures",
     pairs(

@@ -1026,9 +1026,9 @@ def field_models(csv: str | Path, out: str | Path) -> Path:
     rows = _strategy_legend(fig, names)
     titles = "; ".join(f"{h}: {INTERACTION_TITLES[h]}" for h in ways)
     fig.suptitle(
-        f"The field's benchmark under each way robots meet ({titles}); battery off, mean over runs",
+        "The field's benchmark under each way robots meet (battery off, mean over runs)\n" + titles,
         fontsize=10,
-        y=1.0 + 0.025 * rows,
+        y=1.0 + 0.025 * rows + 0.012,
     )
     fig.tight_layout(rect=(0, 0, 1, 1.0 - 0.025 * rows * 3.3 * 4 / fig.get_figheight()))
     return _save(fig, out)

@@ -861,6 +861,43 @@ def _mean_ranks(fig: pd.DataFrame, ways: list[str]) -> tuple[str, int, int]:
     return "\n".join(lines), same, total
 
 
+#: Why a learner may leave a vertex unvisited whatever the interaction (what the runs
+#: show; docs/model.md).
+LEARNER_GAPS = {
+    "qlearning": "the paper's learner is paid for dots, and the charging station (a vertex "
+    "without a dot) or a vertex at the end of a long dead end can go unvisited for the "
+    "whole window",
+    "qlearning-idleness": "with communication on its team learns into one shared table, "
+    "so robots that stand on one vertex choose alike, and robots that ignore each other "
+    "(none) never part again",
+    "cbls": "its arcs' histograms drift to their bounds as it learns (docs/model.md), "
+    "and a robot can keep to part of the map",
+}
+
+
+def _passing_note(res: pd.DataFrame | None, ways: list[str]) -> str:
+    """A sentence on the runs that went wrong with robots passing each other: which
+    strategies, whether each learns, and a learner's reason (:data:`LEARNER_GAPS`)."""
+    from qpatrol import strategies
+    from qpatrol.study.figures import bad_runs
+
+    passing = [h for h in ("interference", "none") if h in ways]
+    if res is None or not len(res) or not passing:
+        return ""
+    bad = bad_runs(res[res["team.interaction"].isin(passing)])
+    names = list(dict.fromkeys(bad["policy"]))
+    fixed = [n for n in names if n != "random" and not strategies.learns(n)]
+    lead = (
+        " With robots passing each other (" + " and ".join(passing) + "), every run of every "
+        "strategy that does not learn visited every vertex in its window, but random's."
+        if not fixed
+        else f" With robots passing each other, runs of {', '.join(fixed)} (strategies that "
+        "do not learn) went wrong too."
+    )
+    why = [f"{n}: {LEARNER_GAPS[n]}" for n in names if n in LEARNER_GAPS]
+    return lead + (" The learners' runs that went wrong: " + "; ".join(why) + "." if why else "")
+
+
 def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
     """The field's benchmark: every strategy on patrolling_sim's graphs, at the vertices,
     under each way robots meet (the table's ``interaction``; one way when it has none)."""
@@ -885,6 +922,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
         if res is not None and len(res):
             wrong.append(_bad_runs_text(how, res[res["team.interaction"] == how]))
     ranks, same, total = _mean_ranks(fig, ways)
+    passing = _passing_note(res, ways)
     runs = int(fig["runs"].min())
     window = int(fig["window"].min())
     frozen = ", ".join(
@@ -933,6 +971,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             f"Runs that went wrong, by interaction: frozen (a wait longer than `wait_bound`): "
             f"{frozen}; {missing} without an idleness value.{uncovered} "
             + " ".join(wrong)
+            + passing
             + f"{episodes}{_wide_spread(main_res)} Most interferences: "
             + "; ".join(interf)
             + ".",
