@@ -268,6 +268,10 @@ class Checker:
         s = self.decode(rows, t)
         if perturb is not None:
             perturb(s)
+        # the oldest task's age as the step begins (a task dropped at the step's start,
+        # for a station, ends it as surely as reaching its aim)
+        on_map = s.mode != world.GONE
+        oldest_all = np.where(on_map, s.since, np.iinfo(np.int64).max).min(axis=1)
         obs = world.begin_step(s, self.p)
         aim = None
         if self.case.adversary == "goal":
@@ -282,9 +286,7 @@ class Checker:
         # a robot has a task while it patrols, heads for a station or waits for one
         mode = s.mode[src]
         task = (mode == world.PATROL) | (mode == world.HOMING) | (mode == world.QUEUED)
-        here = mode != world.GONE
-        since0 = np.where(here, s.since[src], np.iinfo(np.int64).max)
-        oldest = since0.min(axis=1, keepdims=True)
+        oldest = oldest_all[src][:, None]
         holder = s.token[src][:, None] == np.arange(K)[None, :]
         s2 = _rows_of(s, src)
         obs2 = _rows_of(obs, src)
@@ -309,8 +311,17 @@ class Checker:
         # kept: a robot on the map still has the age that was the oldest
         gave = (out.swapped >= 0) & holder
         fail = task & ~out.progressed & ~gave
-        kept = ((s2.since == oldest) & (s2.mode != world.GONE)).any(axis=1)
+        kept = ((s2.since == oldest) & (s2.mode != world.GONE) & ~out.progressed).any(axis=1)
         return src, succ, fail, out.moved, choice, aim, kept
+
+    def _held_by_other(self, s: world.State, r: int, k: int) -> np.ndarray:
+        """bool ``[C]``: cells in the pocket of a station another robot than k holds (no
+        goal follower takes them as goals)."""
+        h = self.p.pocket_of
+        if not self.p.homes.size:
+            return np.zeros(h.size, dtype=bool)
+        holder = s.reserved[r, np.maximum(h, 0)]
+        return (h >= 0) & (holder >= 0) & (holder != k)
 
     def _goal_options(self, s: world.State, obs: world.Observation):
         """The goal adversary's options: ``(src [M], choice [M, K], aim [M, K])``. A
@@ -330,11 +341,18 @@ class Checker:
                     options.append([(-1, -1)])
                     continue
                 a = int(s.aim[r, k])
-                goals = [a] if 0 <= a < n_cells and a != c else [x for x in targets if x != c]
-                row = []
+                closed = self._held_by_other(s, r, k)
+                goals = (
+                    [a]
+                    if 0 <= a < n_cells and a != c
+                    else [x for x in targets if x != c and not closed[x]]
+                )
+                row = [] if goals else [(-1, -1)]
                 for g in goals:
                     nb = self.p.neighbors[c]
-                    on_path = [d for d in range(nb.size) if nb[d] >= 0 and dist[nb[d], g] == dist[c, g] - 1]
+                    on_path = [
+                        d for d in range(nb.size) if nb[d] >= 0 and dist[nb[d], g] == dist[c, g] - 1
+                    ]
                     open_ = [d for d in on_path if obs.open[r, k, d]]
                     row.append(((open_ or on_path)[0], g))
                 options.append(row)
@@ -727,12 +745,35 @@ def degree(cells: frozenset[tuple[int, int]], x: tuple[int, int]) -> int:
     return sum((r + dr, c + dc) in cells for dr, dc in ((-1, 0), (0, 1), (1, 0), (0, -1)))
 
 
+def cut_cells(cells: frozenset[tuple[int, int]]) -> list[tuple[int, int]]:
+    """The cells whose removal disconnects the others (cut vertices), row-major."""
+    out = []
+    for x in sorted(cells):
+        rest = cells - {x}
+        start = next(iter(rest))
+        seen, todo = {start}, [start]
+        while todo:
+            r, c = todo.pop()
+            for y in ((r - 1, c), (r, c + 1), (r + 1, c), (r, c - 1)):
+                if y in rest and y not in seen:
+                    seen.add(y)
+                    todo.append(y)
+        if len(seen) < len(rest):
+            out.append(x)
+    return out
+
+
 def station_choices(
-    cells: frozenset[tuple[int, int]], two: bool = False, dead_pair: bool = False
+    cells: frozenset[tuple[int, int]],
+    two: bool = False,
+    dead_pair: bool = False,
+    corridor: bool = False,
 ) -> list[tuple[tuple[int, int], ...]]:
     """One station at the first dead end (row-major), one on the first junction, with
     ``two`` both at once, and with ``dead_pair`` (only) one at the first and one at the
-    last dead end."""
+    last dead end; with ``corridor`` also one on the first cell of two neighbours that
+    is a cut vertex (a corridor's cell whose robot, charging, cuts the map in two) and
+    one on the first cell of a loop (two neighbours, not a cut vertex)."""
     ordered = sorted(cells)
     dead = [x for x in ordered if degree(cells, x) == 1]
     if dead_pair:
@@ -743,6 +784,13 @@ def station_choices(
         out.append((dead[0],))
     if junction:
         out.append((junction[0],))
+    if corridor:
+        cuts = set(cut_cells(cells)) if len(cells) > 2 else set()
+        two_way = [x for x in ordered if degree(cells, x) == 2]
+        on_cut = [x for x in two_way if x in cuts]
+        on_loop = [x for x in two_way if x not in cuts]
+        out += [(on_cut[0],)] if on_cut else []
+        out += [(on_loop[0],)] if on_loop else []
     if two and dead and junction:
         out.append((dead[0], junction[0]))
     elif two and len(dead) >= 2:
@@ -757,26 +805,35 @@ def family(
     every: int = 1,
     two_stations: bool = False,
     dead_pair: bool = False,
+    corridor: bool = False,
+    seed: int | None = None,
+    sample: int | None = None,
     **kw,
 ) -> list[Case]:
     """Cases on every tree and one-loop shape of each size (``every``: one shape in that
     many, in a fixed order), K from 2 up to the density limit (or ``ks``); with the
     battery, a station at a dead end, on a junction, and with ``two_stations`` two at
-    once (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
+    once, ``corridor`` on a corridor cell that cuts the map and on a loop
+    (:func:`station_choices`); ``kw``: the :class:`Case` fields. Cases the config
     refuses (:func:`qpatrol.world.make_params`: too many robots for the map, a capacity
     too small, a battery team without room to reach a station,
     :func:`qpatrol.world.check_battery_room`) are left out: the density limit is whatever
-    the world accepts."""
+    the world accepts. With ``sample``, that many of the accepted cases, drawn with
+    ``seed`` (numpy's default generator), in the family's order."""
     out = []
     for n in sizes:
         for sh in shapes(n)[::every]:
             for k in ks or range(2, n + 1):
                 if battery:
-                    for st in station_choices(sh, two_stations, dead_pair):
+                    for st in station_choices(sh, two_stations, dead_pair, corridor):
                         out.append(Case(map_text(sh, st), k, battery=True, **kw))
                 else:
                     out.append(Case(map_text(sh), k, **kw))
-    return [c for c in out if accepted(c)]
+    cases = [c for c in out if accepted(c)]
+    if sample is not None and sample < len(cases):
+        pick = np.random.default_rng(seed).choice(len(cases), sample, replace=False)
+        cases = [cases[i] for i in sorted(pick.tolist())]
+    return cases
 
 
 def accepted(case: Case) -> bool:

@@ -154,6 +154,9 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     rows_r = observe.rows_of(m, r)
     sums = observe.sums_of(m, r)
     idle_sum, n_measured = m.idle_total[r], m.measured[r]
+    # its task (to enter a target) ends with each move: the step it began, the longest
+    # stretch without progress
+    since, top_stall = s.since[r, 0], m.max_stall[r]
     t_end = t0
     # the best legal Q of the state the robot stands in, once known: a learning step
     # bootstraps from the very row the next step chooses from (the state reached), and
@@ -199,9 +202,11 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                 observe.leave(r, c, t, p.target, m)
             c = c1
             h = a
+            since = t
         if t > warmup:
             idle_sum += p.n_targets * t - sums[0]
             n_measured += 1
+            top_stall = max(top_stall, t - since)
         if o.tail_n > 0:
             o.tail_pos[r, (t - 1) % o.tail_n, 0] = c
         t_end = t
@@ -209,6 +214,7 @@ def _solo_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     s.dots_left[r, 0], s.ep_dots[r, 0], s.ep_visits[r, 0] = cnt
     observe.store_sums(m, r, sums)
     m.idle_total[r], m.measured[r] = idle_sum, n_measured
+    s.since[r, 0], m.max_stall[r] = since, top_stall
     if t_end > t0:  # the stores the steps left out
         s.pos[r, 0] = c
         s.head[r, 0] = h
@@ -259,7 +265,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     state ``words[r]`` (:mod:`pcg`), stepped past the block's ``2 x K x n_steps``
     draws. Returns ``(last team step taken, episode rows written)``."""
     n_agents, n_cells = s.pos.shape[1], p.nbrs.shape[0]
-    nbrs, cell_moves, avoid, diameter = p.nbrs, p.cell_moves, p.avoid, p.diameter
+    nbrs, cell_moves, avoid = p.nbrs, p.cell_moves, p.avoid
     nd = ports_of(p.entry, nbrs.shape[1])  # D ports (on a grid 4, a constant of the code)
     want, ask, moved, as_asked = w.want, w.ask, w.moved, w.as_asked
     gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
@@ -275,6 +281,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     idle_sum, n_measured = m.idle_total[r], m.measured[r]
     sums = observe.sums_of(m, r)
     top_wait, wait_sum = m.max_wait[r], m.wait_total[r]
+    top_stall, since_r = m.max_stall[r], s.since[r]
     waiting = 0  # robots waiting after the last step
     for k in range(n_agents):
         if wait_r[k] > 0:
@@ -329,17 +336,19 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         # --- the moves: the common step, every robot asking for a cell that is empty
         # and that no other asks for (moves.clear), moves each robot as asked, enters,
         # learns and measures it in one pass, in robot order; any other step takes the
-        # traffic rules' passes (every robot patrols: priority by wait, then turn)
-        push_failed = False
+        # traffic rules' passes (every robot patrols: priority by the age of its task,
+        # then turn). A robot that moved entered a target: its task (to enter one) ended
+        handoff = -1
         clear = moves.clear(want, occ_r, avoid)
         # a step with no conflict after one in which no robot waited changes no wait
         unchanged = clear and waiting == 0
         if clear:
             for k in range(n_agents):
                 c1 = want[k]
-                moved[k] = as_asked[k] = c1 >= 0
+                moved[k] = as_asked[k] = w.progressed[k] = c1 >= 0
                 if c1 < 0:
                     continue
+                since_r[k] = t
                 c0 = w.prev_pos[k] = pos_r[k]
                 moves.step_into(k, c1, avoid, occ_r, pos_r)
                 ha = head_r[k]
@@ -352,12 +361,14 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
                 w.prev_head[k] = head_r[k]
                 moved[k] = False
                 as_asked[k] = False
-            push_failed = moves.resolve(r, t, tok, t_mod, waiting == 0, False, avoid, p, s, w)
+            handoff = moves.resolve(r, t, tok, t_mod, False, avoid, p, s, w)
             # each robot that moved enters its cell; one that made the move it chose
             # learns. Robot after robot: each touches only its group's dots and its own
             # Q-table, and the measures their own arrays, in robot order
             for k in range(n_agents):
+                w.progressed[k] = moved[k]
                 if moved[k]:
+                    since_r[k] = t
                     c0, ha = w.prev_pos[k], w.prev_head[k]
                     head_r[k], sums = _team_enters(
                         r, k, c0, pos_r[k], t, as_asked[k], ha, ask[k], p, s, m, tables, sums
@@ -365,9 +376,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
         observe.intruders(r, t, w.prev_pos, pos_r, moved, p.target, m, s.mode[r], False)
         waiting, longest = moves.waits(r, False, avoid, s, w, unchanged)
         if avoid:
-            tok, held = moves.pass_token(
-                r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w
-            )
+            tok, held = moves.pass_token(r, t + 1, t_next_mod, tok, held, handoff, s, w)
         # --- episodes: all dots eaten, or too long -------------------------------------
         if episodes.due(t, deadline, s.dots_left[r]):
             n_ep = episodes.end(r, t, p, s, o.ep_buf, n_ep, w.ended)
@@ -380,6 +389,8 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
             wait_sum += waiting
             if not clear:  # (a clear step moves every robot that asked, as asked)
                 m.interferences[r] += observe.blocked(w)
+            for k in range(n_agents):
+                top_stall = max(top_stall, t - since_r[k])
         observe.trail(r, t, pos_r, s.mode[r], o)
         t_end = t
     pcg.store(words[r], s_lo, s_hi, (n_steps - (t_end - t0)) * n_agents * 2)
@@ -387,6 +398,7 @@ def _team_qlearning(r, t0, n_steps, words, p, s, m, o, sp, n_ep, w):
     observe.store_sums(m, r, sums)
     m.idle_total[r], m.measured[r] = idle_sum, n_measured
     m.max_wait[r], m.wait_total[r] = top_wait, wait_sum
+    m.max_stall[r] = top_stall
     if t_end > t0:
         s.steps_done[r] = t_end
     return t_end, n_ep
@@ -472,9 +484,12 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             tok = s.token[r]
             if spec == SPEC_ANY and battery:
                 stations.begin(r, t, p, s, w)
+                stations.close_tasks(r, t, p, s)
             moves.open_moves(r, tok, battery, avoid, p, s, w)
             if spec == SPEC_ANY and p.travels:
                 moves.travellers(r, p, s, w)
+            for k in range(n_agents):  # (a strategy that heads for a goal says which)
+                w.aim[k] = -1
             if spec == SPEC_ANY:
                 compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
                 if p.travels:
@@ -488,21 +503,28 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 stations.ask(r, p, s, w)
             for k in range(n_agents):
                 w.want[k] = p.nbrs[s.pos[r, k], w.ask[k]] if w.ask[k] >= 0 else -1
-            push_failed = moves.resolve(r, t, tok, t_mod, False, battery, avoid, p, s, w)
+            moves.tasks(r, battery, p, s, w)
+            handoff = moves.resolve(r, t, tok, t_mod, battery, avoid, p, s, w)
             if p.interaction == bundles.INTERFERENCE:
                 moves.meet(r, t, p, s, w)
+            swapped = handoff >= 0 and w.swapped[handoff] >= 0
+            if swapped and p.travels:
+                moves.turn_back(r, p, s, w)
             enter.all_enter(r, t, p, s, w)
             if spec == SPEC_ANY and battery:
                 stations.pay(r, p, s, w)
                 stations.end(r, p, s, w)
+            moves.progress(r, t, p, s, w)
             waiting, longest = moves.waits(r, battery, avoid, s, w)
             if avoid and n_agents > 1:
                 s.token[r], s.token_held[r] = moves.pass_token(
-                    r, tok, s.token_held[r], push_failed, t_next_mod, p.diameter, waiting, s, w
+                    r, t + 1, t_next_mod, tok, s.token_held[r], handoff, s, w
                 )
             s.steps_done[r] = t
             n_ep, when = episodes.step(r, t, p, s, o.ep_buf, n_ep, w.ended, when, never)
             if spec == SPEC_ANY:
+                if swapped:
+                    compiled.exchange(code, r, w, sp)
                 n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
             else:
                 n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
@@ -526,6 +548,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             observe.step_measures(r, t, p.n_targets, sums[0], waiting, longest, m)
             if t > m.warmup:
                 m.interferences[r] += observe.blocked(w)
+                observe.stalls(r, t, s, m)
             observe.trail(r, t, s.pos[r], s.mode[r], o)
             t_r = t
         observe.store_sums(m, r, sums)
@@ -618,7 +641,9 @@ class Loop:
             p.capacity, p.margin, p.charge_steps, p.target, np.int64(p.n_targets),
             np.int64(p.failures_at), p.onward is not None,
             p.onward if p.onward is not None else np.full((1, 1), -1, dtype=np.int64),
-            p.far_cells, *bundles.interaction_args(p),
+            p.far_cells,
+            p.ahead if p.ahead is not None else np.full((1, 1), -1, dtype=np.int64),
+            *bundles.interaction_args(p),
         )  # fmt: skip
         bs = bundles.World(*(getattr(s, f) for f in bundles.World._fields))
         bm = bundles.Meas(
@@ -627,7 +652,7 @@ class Loop:
             m.min_charge, m.gap_sq, m.target_gap_sum, m.target_gap_count, m.cycle_start,
             m.cycle_seen, m.cycles, m.interferences, m.attack, np.int64(m.horizon),
             m.empty_since, m.random_missed, m.stretch_count, m.stretch_sum, m.stretch_equal,
-            m.gaps, m.tail_departures, m.tail_missed,
+            m.gaps, m.tail_departures, m.tail_missed, m.max_stall,
         )  # fmt: skip
         tail_pos = tail.pos if tail.n else np.zeros((1, 1, 1), dtype=np.int64)
         ups = (np.empty((rows, UP_INT), np.int64), np.empty((rows, UP_FLOAT), np.float64))

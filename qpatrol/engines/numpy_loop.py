@@ -17,7 +17,7 @@ import numpy as np
 from qpatrol.measures import Measures
 from qpatrol.measures.records import Recorder, Tail
 from qpatrol.measures.timeline import Timeline
-from qpatrol.world import Outcome, Params, State, begin_step, failures
+from qpatrol.world import GONE, Outcome, Params, State, begin_step, failures
 from qpatrol.world import step as world_step
 from qpatrol.world.rng import Streams
 
@@ -53,7 +53,8 @@ def run(
         failing = None
         if i + 1 == p.failures_at:  # robots fail at the end of the step, before it is measured
             failing = failures.apply(state, p, np.flatnonzero(out.active))
-        watch.observe(out, state.wait, state.charge if p.battery else None, failing)
+        stall = np.where(state.mode != GONE, out.t - state.since, 0)
+        watch.observe(out, state.wait, state.charge if p.battery else None, failing, stall)
         tail.observe(state)
         timeline.observe(out)
         if progress is not None and (i + 1) % every == 0:

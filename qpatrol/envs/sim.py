@@ -206,7 +206,7 @@ class Sim:
         if self.state is None:
             raise RuntimeError("call reset() before metrics()")
         episodes = self.recorder.episode_table()
-        bound = measures.wait_bound(self.params)
+        bound = measures.stall_bound(self.params)
         steps = self.state.steps_done
         return measures.summarize(self.measures, episodes, self.recorder.run_ids, steps, bound)[0]
 

@@ -17,6 +17,10 @@ a graph; entering a waypoint of a graph's edge is no visit).
 * ``max_wait``: the longest stretch of consecutive team steps, reached in the window,
   in which a robot could not make the move its strategy or its battery asked for
   (waiting for a station included);
+* ``max_stall``: the longest stretch, reached in the window, in which a robot made no
+  *progress* (its task did not end: ``State.since``, docs/model.md), against
+  ``stall_bound`` (:func:`stall_bound`); ``live`` when it stays within the bound and
+  every target is visited in the window;
 * ``mean_steps_per_episode``: over complete episodes that started in the window;
 * the patrolling field's measures (:data:`FIELD_MEASURES`, :func:`field_measures`):
   the intervals' quadratic mean and spread, the spread of the targets' visit
@@ -89,6 +93,7 @@ class Measures:
         interferences: int ``[R]``, robot-steps in the window in which a robot asked for
             a move and did not make it.
         max_wait: int ``[R]``, longest wait reached in the window.
+        max_stall: int ``[R]``, longest stretch without progress reached in the window.
         wait_total: int ``[R]``, robot-steps spent waiting in the window.
         min_charge: int ``[R]``, lowest battery charge seen.
         attack: int ``[A]``, the attack durations D of the intruder measures
@@ -151,6 +156,7 @@ class Measures:
         self.cycles = np.zeros(r, dtype=np.int64)
         self.interferences = np.zeros(r, dtype=np.int64)
         self.max_wait = np.zeros(r, dtype=np.int64)
+        self.max_stall = np.zeros(r, dtype=np.int64)
         self.wait_total = np.zeros(r, dtype=np.int64)
         self.min_charge = np.full(r, np.iinfo(np.int64).max, dtype=np.int64)
         # the intruder measures (docs/model.md, "Intruders"): who stands where, when
@@ -189,6 +195,7 @@ class Measures:
         wait: np.ndarray,
         charge: np.ndarray | None,
         failing: np.ndarray | None = None,
+        stall: np.ndarray | None = None,
     ) -> None:
         """Take in one step: visits, intervals, idleness, cycles, waits and charge.
 
@@ -198,6 +205,8 @@ class Measures:
             charge: int ``[R, K]``, the charge after the step (None: battery off).
             failing: bool ``[R, K]``, the robots that left the map at the end of the step
                 (:mod:`qpatrol.world.failures`; None: none).
+            stall: int ``[R, K]``, each robot's steps without progress after the step
+                (``t - since``; 0 for a failed robot); None: not measured.
         """
         t = out.t
         in_window = t > self.warmup
@@ -231,6 +240,8 @@ class Measures:
             self.idle_total[act] += self.n_targets * t - self.last_sum[act]
             self.measured[act] += 1
             self.max_wait[act] = np.maximum(self.max_wait[act], wait[act].max(axis=1))
+            if stall is not None:
+                self.max_stall[act] = np.maximum(self.max_stall[act], stall[act].max(axis=1))
             self.wait_total[act] += (wait[act] > 0).sum(axis=1)
             blocked = (out.ask[act] >= 0) & ~out.as_asked[act]
             self.interferences[act] += blocked.sum(axis=1)
@@ -327,38 +338,29 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
     return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
 
 
-def wait_bound(p: Params) -> int:
-    """The longest wait a live team may show.
+def stall_bound(p: Params) -> int:
+    """The longest stretch without progress a live team may show (``max_stall``).
 
-    Collisions avoided (``team.interaction: exclusive``), without battery, ``(K - 1)
-    (diameter + 1) + 1``: a theorem for the strategies that choose among their open
-    moves (``docs/model.md``, "What is proven": the right of way reaches a blocked robot
-    after at most K - 1 holders of at most ``diameter + 1`` steps each, and a holder
-    makes its move). With the battery on, a robot may queue behind every other robot of
-    the team, each of which travels to a station (it waits for the right of way at most
-    one holder's tenure, ``diameter + 1`` steps, then makes at most ``diameter`` moves),
-    charges (``charge_steps``) and clears the station's pocket (``2 x depart_len``);
-    then it crosses the map. So ``K x (charge_steps + 2 x max depart_len + 2 x diameter
-    + 1) + diameter``: a yardstick, not a theorem, as the wait for the right of way is
-    not proven to be one tenure (docs/model.md).
-
-    Robots passing each other (``interference``, ``none``): no move is refused but a
-    stopped robot's, so without battery the bound is a stop, ``stop_steps`` (0 under
-    ``none``); with it, the same queue as above with ``diameter`` moves taking at most
-    :func:`qpatrol.world.interference.travel_steps` steps (a theorem: docs/model.md,
-    "Passing robots").
+    ``trip`` is the most steps a task takes once its robot moves for it: under
+    ``exclusive`` ``2 x diameter + 1`` (a task's aim is at most ``diameter`` moves away,
+    and its robot, blocked, holds the right of way from the next step on: docs/model.md,
+    "What is proven"); under ``interference`` a trip of ``diameter`` moves with stops
+    (:func:`qpatrol.world.interference.travel_steps`); under ``none`` ``diameter``.
+    Without battery a task waits at most for the K - 1 older tasks: ``K x trip`` (a
+    theorem under every interaction). With the battery a robot may queue behind every
+    other robot of the team, each of which travels to a station, charges
+    (``charge_steps``) and clears the station's pocket (``2 x depart_len``): ``K x
+    (charge_steps + 2 x max depart_len + 2 x trip + 1) + trip``, a yardstick under
+    ``exclusive`` and a theorem when robots pass each other (docs/model.md).
     """
     if p.avoid_collisions:
-        if not p.battery:
-            return (p.n_agents - 1) * (p.diameter + 1) + 1
-        turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * p.diameter + 1
-        return p.n_agents * turnaround + p.diameter
-    stop = p.stop_steps if p.ball is not None else 0
+        trip = 2 * p.diameter + 1
+    else:
+        trip = interference.travel_steps(p.diameter, p)
     if not p.battery:
-        return stop
-    trip = interference.travel_steps(p.diameter, p)
+        return p.n_agents * trip
     turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * trip + 1
-    return max(stop, p.n_agents * turnaround + trip)
+    return p.n_agents * turnaround + trip
 
 
 def summarize(
@@ -414,13 +416,13 @@ def summarize(
         dol.tolist(),
         m.wait_total.tolist(),
         m.max_wait.tolist(),
+        m.max_stall.tolist(),
         m.min_charge.tolist(),
     ]
     never = int(np.iinfo(np.int64).max)
     out = []
-    for i, (run, steps, done, cut, n_ep, cov, wst, gmax, lab, waits, mwait, charge) in enumerate(
-        zip(*cols, strict=True)
-    ):
+    for i, row in enumerate(zip(*cols, strict=True)):
+        run, steps, done, cut, n_ep, cov, wst, gmax, lab, waits, mwait, stall, charge = row
         seen, n_gaps = measured[i], gaps[i]
         out.append(
             {
@@ -437,8 +439,10 @@ def summarize(
                 "division_of_labour": None if lab != lab else lab,  # NaN: no visit
                 "waits": waits,
                 "max_wait": mwait,
-                "wait_bound": int(bound),
-                "live": bool(mwait <= bound),
+                "max_stall": stall,
+                "stall_bound": int(bound),
+                # no robot without progress longer than the bound, every target visited
+                "live": bool(stall <= bound and (not seen or cov == 1.0)),
                 "min_charge": None if charge == never else charge,
                 **{key: values[i] for key, values in field.items()},
                 **{key: values[i] for key, values in intruder.items()},

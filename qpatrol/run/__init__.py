@@ -249,7 +249,7 @@ def _batch(
     if progress is not None:
         progress(total, total)
     episodes = rec.episode_table()
-    bound = measures.wait_bound(p)
+    bound = measures.stall_bound(p)
     summary = measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound)
     if p.failures_at:
         for row, facts in zip(summary, failures.describe(state, p), strict=True):

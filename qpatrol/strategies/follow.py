@@ -41,8 +41,7 @@ from qpatrol.strategies import base
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.measures.records import Recorder
-    from qpatrol.world import Observation, Outcome, Params
+    from qpatrol.world import Observation, Params
 
 
 class WalkFollower(base.Strategy):

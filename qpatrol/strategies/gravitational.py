@@ -118,6 +118,10 @@ class Strategy(base.Strategy):
         self.inv = inverse_powers(longest, float(cfg["gravity.exponent"]))
         self.goal = np.full((self.n_runs, self.n_agents), -1, dtype=np.int64)
 
+    def exchange(self, swapped: np.ndarray) -> None:
+        """Robots that exchanged tasks exchange the goals they announced."""
+        self.goal = base.partners(self.goal, swapped)
+
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         s, p = obs.state, obs.params
         n_runs, n_agents = s.pos.shape

@@ -458,10 +458,10 @@ def team_size_data(
     From a sweep over ``agents`` (and ``team.communication``), read ``results.csv``
     (one row per point and run). Points that share agents, communication and every
     other swept key are pooled. Columns: agents, communication, (other swept keys),
-    runs, ``frozen`` (runs whose ``max_wait`` exceeds the fair-queue bound
-    ``wait_bound``), and per measure ``<measure>_mean``, ``_lo``, ``_hi``, ``_n`` (runs
-    with a value: ``mean_steps_per_episode`` is empty for a run without a complete
-    episode), ``max_wait_max``, map. Without communication each agent has its own dot
+    runs, ``frozen`` (runs whose ``max_stall`` exceeds ``stall_bound``), and per measure
+    ``<measure>_mean``, ``_lo``, ``_hi``, ``_n`` (runs with a value:
+    ``mean_steps_per_episode`` is empty for a run without a complete episode),
+    ``max_wait_max``, ``max_stall_max``, map. Without communication each agent has its own dot
     map, so an episode is one agent eating all of its private dots.
     """
     keys = {"agents": int, "communication": bool}
@@ -739,11 +739,12 @@ def grouped_data(
         row: dict[str, Any] = dict(zip(group, values, strict=True))
         row["runs"] = len(g)
         row["map"] = ",".join(sorted(set(g["map"])))
-        if "max_wait" in g.columns and "wait_bound" in g.columns:
-            waits = pd.to_numeric(g["max_wait"], errors="coerce")
-            row["max_wait_max"] = float(waits.max())
-            row["wait_bound"] = float(pd.to_numeric(g["wait_bound"]).max())
-            row["frozen"] = int((waits > pd.to_numeric(g["wait_bound"])).sum())
+        if "max_stall" in g.columns and "stall_bound" in g.columns:
+            stalls = pd.to_numeric(g["max_stall"], errors="coerce")
+            row["max_wait_max"] = float(pd.to_numeric(g["max_wait"], errors="coerce").max())
+            row["max_stall_max"] = float(stalls.max())
+            row["stall_bound"] = float(pd.to_numeric(g["stall_bound"]).max())
+            row["frozen"] = int((stalls > pd.to_numeric(g["stall_bound"])).sum())
         for col in measures:
             ci = mean_ci(pd.to_numeric(g[col], errors="coerce"), level)
             row.update({f"{col}_{k}": ci[k] for k in ("mean", "lo", "hi", "n")})
@@ -1041,7 +1042,8 @@ def security_recovery_data(sweep_dir: str | Path) -> pd.DataFrame:
     ratio ``worst_ratio``, the median and largest of the runs' :func:`settle_steps`
     (``unsettled``: runs without one), ``uncovered``, the runs that left a target
     unvisited for the whole measured window (``coverage`` < 1), ``not_live``, the runs
-    with a wait above ``wait_bound``, and ``runs``."""
+    not live (a stretch without progress above ``stall_bound``, or a target unvisited
+    in the window), and ``runs``."""
     rows = []
     maps = []
     for p, runs, tl in _security_timelines(Path(sweep_dir)):

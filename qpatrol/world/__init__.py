@@ -616,6 +616,8 @@ def begin_step(state: State, p: Params) -> Observation:
     """Battery bookkeeping for the step about to start, then what strategies see."""
     s = state
     battery.begin(s, p, s.t + 1)
+    if p.battery:
+        battery.close_tasks(s, p, s.t + 1)
     targets = p.neighbors[s.pos]  # [R, K, D]
     legal = targets >= 0
     if p.battery:

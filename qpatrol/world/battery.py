@@ -98,6 +98,21 @@ def begin(s: State, p: Params, t: int) -> None:
         _assign_stations(s, p)
 
 
+def close_tasks(s: State, p: Params, t: int) -> None:
+    """A patrolling robot whose aim lies in the pocket of a station another robot holds
+    (closed to it, rule 4) has lost its task: the task ends (``since = t``, no aim);
+    its strategy chooses another goal (:mod:`qpatrol.strategies.goals` drops goals in
+    held pockets)."""
+    a = np.maximum(s.aim, 0)
+    h = p.pocket_of[a]
+    holder = s.reserved[np.arange(s.n_runs)[:, None], np.maximum(h, 0)]
+    me = np.arange(s.pos.shape[1])[None, :]
+    lost = (s.aim >= 0) & (h >= 0) & (holder >= 0) & (holder != me) & (s.mode == PATROL)
+    if lost.any():
+        s.since[lost] = t
+        s.aim[lost] = -1
+
+
 def _assign_stations(s: State, p: Params) -> None:
     """Give free stations to queued robots, first come first served (ties: lower index);
     not a station whose pocket's junction is that of the station a robot is on its way

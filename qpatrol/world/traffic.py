@@ -27,9 +27,10 @@ rotates with the step number. The moves are resolved in three parts:
 The holder sees every legal move into a cell it can empty as open
 (:func:`qpatrol.world.begin_step`), so it insists on its way instead of fleeing; the
 oldest task carried by a blocked robot moves one cell towards its aim every step, and
-so ends within ``diameter`` steps (docs/model.md, "What is proven"). Under the other interactions (``team.interaction: interference`` or
-``none``) none of this applies: robots share cells and pass each other, and every asked
-move is made but a stopped robot's (:mod:`qpatrol.world.interference`).
+so ends within ``diameter`` steps (docs/model.md, "What is proven"). Under the other
+interactions (``team.interaction: interference`` or ``none``) none of this applies:
+robots share cells and pass each other, and every asked move is made but a stopped
+robot's (:mod:`qpatrol.world.interference`).
 """
 
 from __future__ import annotations

@@ -168,6 +168,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, nbrs, p.target, battery, p.pocket_of, pos, s.reserved, s.mode, choosing, ask,
             sp.ipar, sp.robot_i, walk, length, sp.dist,
         )  # fmt: skip
+        follow.aims(r, sp.robot_i, walk, w.aim)
         if p.travels:  # (base.walking: the world's choosing again)
             for k in range(choosing.shape[0]):
                 choosing[k] = choosing[k] and w.travel[k] < 0
@@ -176,26 +177,63 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i,
             sp.dist, sp.cell_i, sp.row_f,
         )  # fmt: skip
+        _goal_aims(r, sp.robot_i, w.aim)
     elif code >= DTA_GREEDY and code <= DTA_SSI_PART:
         dta.act(
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.row_i,
             sp.dist, sp.row_f,
         )  # fmt: skip
+        _goal_aims(r, sp.robot_i, w.aim)
     elif code == HPCC:
         hpcc.act(
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.table_i,
             sp.row_i, sp.dist, sp.cell_f, sp.cell_b,
         )  # fmt: skip
+        for k in range(w.aim.shape[0]):  # its hop, else its goal (hpcc.Strategy.aims)
+            hop = sp.robot_i[r, k, 1]
+            w.aim[k] = hop if hop >= 0 else sp.robot_i[r, k, 0]
     elif code == CBLS:
         cbls.act(
             r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,
             sp.table_i, sp.row_i, sp.dist,
         )  # fmt: skip
+        _goal_aims(r, sp.robot_i, w.aim)
     elif code == GRAVITATIONAL:
         gravitational.act(
             r, t, ur, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.table_i, sp.row_i, sp.dist,
             sp.cell_f,
         )  # fmt: skip
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _goal_aims(r, robot_i, aim):
+    """A goal follower's aims (``aim`` int ``[K]``): each robot's goal (``robot_i[r, k,
+    0]``; :meth:`qpatrol.strategies.goals.GoalFollower.aims`)."""
+    for k in range(aim.shape[0]):
+        aim[k] = robot_i[r, k, 0]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def exchange(code, r, w, sp):
+    """Robots of run ``r`` whose tasks the world exchanged (``w.swapped``) exchange their
+    plans (the strategies' :meth:`~qpatrol.strategies.base.Strategy.exchange`): a walk
+    follower's walk, target and spacing; a goal follower's goal (``hpcc``: its hop and
+    route too; ``gravitational``: the goal it announced)."""
+    if code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
+        follow.exchange(r, w.swapped, sp.robot_i)
+    elif (code >= HCR and code <= CBLS) or code == HPCC or code == GRAVITATIONAL:
+        n_cells = sp.cell_i.shape[2]
+        for k in range(w.swapped.shape[0]):
+            j = w.swapped[k]
+            if j <= k:
+                continue
+            ri = sp.robot_i[r]
+            ri[k, 0], ri[j, 0] = ri[j, 0], ri[k, 0]
+            if code == HPCC:
+                ri[k, 1], ri[j, 1] = ri[j, 1], ri[k, 1]
+                route = sp.cell_i[r]
+                for x in range(n_cells):
+                    route[k, x], route[j, x] = route[j, x], route[k, x]
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -224,8 +262,6 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
         conscientious.learn(r, t, s.pos, w.moved, sp.cell_i)
     elif code == EVAP:
         evap.learn(r, t, p.communication, s.pos, w.moved, p.target, sp.cell_f, sp.cell_i, sp.fpar)
-    elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
-        follow.learn(r, w.blocked_by, sp.robot_i)
     elif code >= HCR and code <= SEBS:
         goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
     elif code == HPCC:

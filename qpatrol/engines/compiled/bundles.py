@@ -55,6 +55,8 @@ class Params(NamedTuple):
             from a waypoint by heading (:attr:`qpatrol.world.Params.onward`; ``[1, 1]``
             without waypoints); far: int64 ``[C, D]``, the target at each port's far
             end (:attr:`qpatrol.world.Params.far_cells`).
+        ahead: int64 ``[C, D]``, the target a robot on a waypoint reaches travelling on, by
+            heading (:attr:`qpatrol.world.Params.ahead`; ``[1, 1]`` without waypoints).
         interaction: :data:`EXCLUSIVE`, :data:`INTERFERENCE` or :data:`NONE`
             (``team.interaction``); radius, stop_steps, cooldown, ball: the interference
             rule's (:mod:`qpatrol.world.interference`; ``ball`` int64 ``[C, B]``, ``[1,
@@ -92,6 +94,7 @@ class Params(NamedTuple):
     travels: bool
     onward: np.ndarray
     far: np.ndarray
+    ahead: np.ndarray
     interaction: int
     radius: int
     stop_steps: int
@@ -141,7 +144,8 @@ class Meas(NamedTuple):
     ``[R, C]``; the intruder measures' ``attack`` ``[A]`` (durations; empty: off),
     ``horizon`` (steps), ``empty_since`` ``[R, C]``, ``random_missed`` ``[R, A]``,
     ``stretch_count``, ``stretch_sum`` ``[R, A + 1]``, ``stretch_equal`` ``[R, A]``,
-    ``gaps`` ``[R, C, A + 1]``, ``tail_departures`` and ``tail_missed`` ``[R, C, A]``."""
+    ``gaps`` ``[R, C, A + 1]``, ``tail_departures`` and ``tail_missed`` ``[R, C, A]``;
+    ``max_stall`` ``[R]``, the longest stretch without progress."""
 
     last: np.ndarray
     last_sum: np.ndarray
@@ -174,6 +178,7 @@ class Meas(NamedTuple):
     gaps: np.ndarray
     tail_departures: np.ndarray
     tail_missed: np.ndarray
+    max_stall: np.ndarray
 
 
 class Out(NamedTuple):
@@ -219,7 +224,11 @@ class Work(NamedTuple):
     robot's score of each move (a strategy's scratch); ``travel`` ``[K]``: the port a
     robot travelling a graph's edge asks for (``Observation.travel``), -1 for none;
     ``mark`` ``[C]`` and ``stamp`` ``[1]``: the cells of the robots already looked at
-    when robots meet (a cell is marked when ``mark`` holds the current ``stamp``)."""
+    when robots meet (a cell is marked when ``mark`` holds the current ``stamp``);
+    ``aim`` ``[K]``: the cell each robot heads for, as its strategy says (-1: none;
+    ``State.aim``); ``swapped`` ``[K]``: the robot it exchanged its task with this step
+    (-1: none); ``progressed`` ``[K]``: its task ended this step; ``mode0`` ``[K]``: its
+    mode when it asked."""
 
     want: np.ndarray
     ask: np.ndarray
@@ -247,6 +256,10 @@ class Work(NamedTuple):
     travel: np.ndarray
     mark: np.ndarray
     stamp: np.ndarray
+    aim: np.ndarray
+    swapped: np.ndarray
+    progressed: np.ndarray
+    mode0: np.ndarray
 
 
 def compiled_entry(neighbors: np.ndarray, entry: np.ndarray) -> np.ndarray | None:
@@ -283,4 +296,8 @@ def work(n_agents: int, n_groups: int, n_cells: int, n_ports: int = 4) -> Work:
         np.full(k, -1, i8),
         np.zeros(n_cells, i8),
         np.zeros(1, i8),
+        np.full(k, -1, i8),
+        np.full(k, -1, i8),
+        np.zeros(k, b1),
+        np.zeros(k, i8),
     )

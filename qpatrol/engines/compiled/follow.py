@@ -4,18 +4,18 @@ The numpy twin is :class:`qpatrol.strategies.follow.WalkFollower` with its two
 strategies, :mod:`qpatrol.strategies.cyclic` (one walk for the team, robots hold on
 their slots until the team has gathered) and :mod:`qpatrol.strategies.partition` (one
 walk per region). Per run, in the twin's order: (cyclic) release the hold once the team
-has gathered or ``gather_until`` has passed; robots that blocked each other head-on swap
-walks, targets and spacings; a robot on its target advances it unless held or (spacing
-rule) the next patrolling robot's target ahead on its walk is nearer than its spacing
+has gathered or ``gather_until`` has passed; a robot on its target advances it unless
+held or (spacing rule) the next patrolling robot's target ahead on its walk is nearer
+than its spacing
 (all decided on the targets before the advances); targets in another robot's held
 station pocket are skipped; each choosing robot asks for the first move (lowest port: N,
 E, S, W on a grid) of a shortest path to its target cell. Then (collisions avoided) two
 robots each of whose next cell is the other's cell swap plans, advance, skip and ask
-again. Learning keeps who blocked whom.
+again. Robots whose tasks the world exchanged exchange plans (:func:`exchange`).
 
-Pack: ``robot_i`` int64 ``[R, K, 6]`` = (``wid``, ``target``, ``hold`` as 0/1,
-``blocked_by``, ``spacing``, scratch) of each robot, copied from the strategy and back
-by :func:`unpack` (not the scratch); ``table_i`` = ``walk`` int64 ``[W, Lmax]``;
+Pack: ``robot_i`` int64 ``[R, K, 5]`` = (``wid``, ``target``, ``hold`` as 0/1,
+``spacing``, scratch) of each robot, copied from the strategy and back by
+:func:`unpack` (not the scratch); ``table_i`` = ``walk`` int64 ``[W, Lmax]``;
 ``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, C]``; ``ipar = [gather (1:
 cyclic), gather_until, Lmax, early exchanges on (collisions avoided), spacing rule
 on]``.
@@ -29,23 +29,15 @@ from numba import njit
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 #: Columns of ``robot_i``.
-WID, TARGET, HOLD, BLOCKED, SPACING, SCRATCH = 0, 1, 2, 3, 4, 5
+WID, TARGET, HOLD, SPACING, SCRATCH = 0, 1, 2, 3, 4
 GONE = 4  # battery.GONE
 
 
 def pack(strategy) -> Pack:
-    """The walks, distances and each robot's walk, target, hold, blocker and spacing."""
+    """The walks, distances and each robot's walk, target, hold and spacing."""
     scratch = np.zeros_like(strategy.target)
     robots = np.stack(
-        [
-            strategy.wid,
-            strategy.target,
-            strategy.hold,
-            strategy.blocked_by,
-            strategy.spacing,
-            scratch,
-        ],
-        axis=-1,
+        [strategy.wid, strategy.target, strategy.hold, strategy.spacing, scratch], axis=-1
     ).astype(np.int64)
     gather = strategy.name == "cyclic"
     ipar = [
@@ -65,24 +57,22 @@ def pack(strategy) -> Pack:
 
 
 def unpack(p: Pack, strategy) -> None:
-    """Copy each robot's walk, target, hold, blocker and spacing back into the strategy."""
+    """Copy each robot's walk, target, hold and spacing back into the strategy."""
     ri = p.robot_i
     strategy.wid = ri[..., WID].copy()
     strategy.target = ri[..., TARGET].copy()
     strategy.hold = ri[..., HOLD] != 0
-    strategy.blocked_by = ri[..., BLOCKED].copy()
     strategy.spacing = ri[..., SPACING].copy()
 
 
 def sat_out(strategy, state) -> None:
     """What the numpy engine does to the runs that sat out steps after meeting their
-    episode quota (their robots choose nothing; the compiled loop skips them): their
-    outcome has no blocker, and (cyclic) their hold ends if the team stands gathered or
-    the last step is past ``gather_until``."""
+    episode quota (their robots choose nothing; the compiled loop skips them): (cyclic)
+    their hold ends if the team stands gathered or the last step is past
+    ``gather_until``."""
     out = state.steps_done < state.t
     if not out.any():
         return
-    strategy.blocked_by[out] = -1
     if strategy.name == "cyclic":
         here = (state.pos == strategy.goal_cells()) | (state.mode == GONE)
         gathered = here.all(axis=1) | (state.t > strategy.gather_until)
@@ -187,11 +177,6 @@ def act(
             if gathered or t > ipar[1]:
                 for k in range(n_agents):
                     ri[k, HOLD] = 0
-    for k in range(n_agents):  # robots that blocked each other head-on swap plans
-        j = ri[k, BLOCKED]
-        if j > k and choosing[k] and choosing[j] and ri[j, BLOCKED] == k:
-            for col in (WID, TARGET, SPACING):
-                ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
     for k in range(n_agents):  # every robot is considered (ask serves as the mask)
         ask[k] = 1
     _advance_on_target(r, pos, target, choosing, ask, ipar, ri, walk, length)
@@ -234,7 +219,19 @@ def act(
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, blocked_by, robot_i):
-    """Keep who blocked each robot of run ``r`` (``blocked_by`` int ``[K]``, -1 none)."""
-    for k in range(blocked_by.shape[0]):
-        robot_i[r, k, BLOCKED] = blocked_by[k]
+def exchange(r, swapped, robot_i):
+    """Robots of run ``r`` whose tasks the world exchanged (``swapped`` int ``[K]``, the
+    partner, -1 none) exchange plans: walks, targets and spacings
+    (:meth:`qpatrol.strategies.follow.WalkFollower.exchange`)."""
+    for k in range(swapped.shape[0]):
+        j = swapped[k]
+        if j > k:
+            for col in (WID, TARGET, SPACING):
+                robot_i[r, k, col], robot_i[r, j, col] = robot_i[r, j, col], robot_i[r, k, col]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def aims(r, robot_i, walk, aim):
+    """Each robot's aim (``aim`` int ``[K]``): the cell of its target on its walk."""
+    for k in range(aim.shape[0]):
+        aim[k] = walk[robot_i[r, k, WID], robot_i[r, k, TARGET]]

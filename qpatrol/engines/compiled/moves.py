@@ -13,19 +13,33 @@ from numba import njit
 
 from qpatrol.engines.compiled.bundles import INTERFERENCE
 from qpatrol.engines.compiled.choice import ports_of
-from qpatrol.engines.compiled.stations import CHARGING, GONE, PATROL, QUEUED, closed, kept_out
+from qpatrol.engines.compiled.stations import (
+    CHARGING,
+    GONE,
+    HOMING,
+    PATROL,
+    QUEUED,
+    closed,
+    kept_out,
+)
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
-def priority(wait, k, n_agents, t_mod):
-    """:func:`qpatrol.world.traffic.priority` of robot k at step t (``t_mod = t % n_agents``,
-    taken once per step: an integer division per robot cost more than the rest of
-    this): wait, then turn ``(n_agents - 1) - (k - t) % n_agents``."""
+def turn_of(k, n_agents, t_mod):
+    """Robot k's turn at step t (``t_mod = t % n_agents``, taken once per step: an
+    integer division per robot cost more than the rest of this): ``(n_agents - 1) - (k -
+    t) % n_agents``."""
     back = k - t_mod  # (k - t) % n_agents, without a division
     if back < 0:
         back += n_agents
-    turn = (n_agents - 1) - back
-    return min(wait, 1 << 30) * n_agents + turn
+    return (n_agents - 1) - back
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def priority(age, k, n_agents, t_mod):
+    """:func:`qpatrol.world.traffic.priority` of robot k at step t: the age of its task
+    (``t - since``, clipped to ``[0, 2^30]``), then its turn (:func:`turn_of`)."""
+    return min(max(age, 0), 1 << 30) * n_agents + turn_of(k, n_agents, t_mod)
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
@@ -96,37 +110,21 @@ def holder_moves(
     tok, nbrs, entry, occ_r, pos_r, w, battery, mode_r, pocket_of, pocket_depth, reserved_r
 ):
     """:func:`qpatrol.world.traffic.holder_step` of the right-of-way holder ``tok`` of a run
-    (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for, or
-    else a neighbour (in port order: N, E, S, W on a grid), empty or emptied by pushing
-    the robots in the way along :func:`push_path`. Returns whether the push failed (it
-    did not move as asked)."""
+    (``w.want[tok] >= 0``; ``occ_r``, ``pos_r`` its rows): into the cell it asks for,
+    empty or emptied by pushing the robots in the way along :func:`push_path`. Returns
+    whether the push failed (it did not move)."""
     want, moved, as_asked, path = w.want, w.moved, w.as_asked, w.path
     own = pos_r[tok]
-    dest = -1
+    dest = want[tok]
     m = 0
-    scratch = (w.parent, w.seen, w.queue, w.path)
-    for ci in range(ports_of(entry, nbrs.shape[1]) + 1):
-        if ci == 0:
-            cell = want[tok]
-        else:
-            cell = nbrs[own, ci - 1]
-            if cell < 0 or cell == want[tok]:
-                continue
-            if battery and kept_out(cell, pocket_of, reserved_r):
-                continue
-        if occ_r[cell] < 0:
-            dest = cell
-            m = 0
-            break
+    if occ_r[dest] >= 0:
+        scratch = (w.parent, w.seen, w.queue, w.path)
         m = push_path(
-            nbrs, entry, occ_r, own, cell, scratch, battery, mode_r, pocket_of, pocket_depth,
+            nbrs, entry, occ_r, own, dest, scratch, battery, mode_r, pocket_of, pocket_depth,
             reserved_r,
         )  # fmt: skip
-        if m > 0:
-            dest = cell
-            break
-    if dest < 0:
-        return True
+        if m == 0:
+            return True
     for x in range(m - 2, -1, -1):
         jr = occ_r[path[x]]
         occ_r[pos_r[jr]] = -1
@@ -138,8 +136,8 @@ def holder_moves(
     occ_r[dest] = tok
     pos_r[tok] = dest
     moved[tok] = True
-    as_asked[tok] = dest == want[tok]
-    return not as_asked[tok]
+    as_asked[tok] = True
+    return False
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -156,10 +154,11 @@ def _sort_by_key(order, key, n):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
-    """Step 2 of :func:`qpatrol.world.traffic.resolve`: the robots that have not moved, in
-    ``order``, each into the cell it wants if that cell is empty at that moment, pass
-    after pass until a pass moves no one or leaves no one behind."""
+def _move_in_order(order, want, moved, as_asked, occ_r, pos_r, swapped):
+    """Step 2 of :func:`qpatrol.world.traffic.resolve`: the robots that have not moved
+    (nor exchanged tasks: ``swapped``), in ``order``, each into the cell it wants if that
+    cell is empty at that moment, pass after pass until a pass moves no one or leaves no
+    one behind."""
     progress = True
     while progress:
         progress = False
@@ -167,7 +166,7 @@ def _move_in_order(order, want, moved, as_asked, occ_r, pos_r):
         for a in range(order.shape[0]):
             k = order[a]
             w = want[k]
-            if w >= 0 and not moved[k]:
+            if w >= 0 and not moved[k] and swapped[k] < 0:
                 if occ_r[w] < 0:
                     occ_r[pos_r[k]] = -1
                     occ_r[w] = k
@@ -254,30 +253,34 @@ def travel_asks(w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def resolve(r, t, tok, t_mod, by_turn, battery, avoid, p, s, w):
+def resolve(r, t, tok, t_mod, battery, avoid, p, s, w):
     """:func:`qpatrol.world.traffic.resolve` of run ``r`` at step ``t`` (each robot's
     ``w.want``, -1 for none): without collision avoidance every robot moves as asked
-    but a stopped one (:func:`stopped`); with it the holder
-    ``tok`` of the right of way moves first (:func:`holder_moves`), then the others
-    in priority order (``by_turn``: every robot patrols and none waits, so by turn
-    alone, robot ``t % K`` first), each into a cell empty at that moment. Sets
-    ``w.moved``, ``w.as_asked``; returns whether the holder's push failed."""
+    but a stopped one (:func:`stopped`); with it the holder ``tok`` of the right of way
+    moves first (:func:`holder_moves`; if it cannot, :func:`hand_on`), then the others in
+    priority order (:func:`priority`), each into a cell empty at that moment, but two
+    robots that exchanged tasks. Sets ``w.moved``, ``w.as_asked``, ``w.swapped``;
+    returns the robot that received the failed holder's task or age (-1: none)."""
     n_agents = s.pos.shape[1]
     pos_r, occ_r, mode_r = s.pos[r], s.occ[r], s.mode[r]
     want, moved, as_asked, order, key = w.want, w.moved, w.as_asked, w.order, w.key
-    push_failed = False
+    handoff = -1
+    for k in range(n_agents):
+        w.swapped[k] = -1
     if not avoid:
         for k in range(n_agents):
             if want[k] >= 0 and not stopped(t, s.met[r, k], p):
                 pos_r[k] = want[k]
                 moved[k] = True
                 as_asked[k] = True
-        return push_failed
+        return handoff
     if tok >= 0 and want[tok] >= 0:
-        push_failed = holder_moves(
+        failed = holder_moves(
             tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of, p.pocket_depth,
             s.reserved[r],
         )  # fmt: skip
+        if failed and occ_r[want[tok]] >= 0:
+            handoff = hand_on(r, tok, occ_r[want[tok]], s, w)
     if n_agents == 1:  # alone: the priority order is trivial
         wk = want[0]
         if wk >= 0 and not moved[0] and occ_r[wk] < 0:
@@ -286,18 +289,28 @@ def resolve(r, t, tok, t_mod, by_turn, battery, avoid, p, s, w):
             pos_r[0] = wk
             moved[0] = True
             as_asked[0] = True
-        return push_failed
-    if by_turn:
-        for a in range(n_agents):
-            k = t_mod + a
-            order[a] = k if k < n_agents else k - n_agents
-    else:
-        for k in range(n_agents):
-            key[k] = priority(s.wait[r, k], k, n_agents, t_mod)
-            order[k] = k
-        _sort_by_key(order, key, n_agents)
-    _move_in_order(order, want, moved, as_asked, occ_r, pos_r)
-    return push_failed
+        return handoff
+    for k in range(n_agents):
+        key[k] = priority(t - s.since[r, k], k, n_agents, t_mod)
+        order[k] = k
+    _sort_by_key(order, key, n_agents)
+    _move_in_order(order, want, moved, as_asked, occ_r, pos_r, w.swapped)
+    return handoff
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def hand_on(r, k, b, s, w):
+    """:func:`qpatrol.world.traffic.hand_on`: the holder k of run r could not enter robot
+    b's cell: if both patrol they exchange tasks (``aim``, ``since``; ``w.swapped``),
+    else b inherits the holder's age. Returns b (it takes the token)."""
+    if s.mode[r, k] == PATROL and s.mode[r, b] == PATROL:
+        s.aim[r, k], s.aim[r, b] = s.aim[r, b], s.aim[r, k]
+        s.since[r, k], s.since[r, b] = s.since[r, b], s.since[r, k]
+        w.swapped[k] = b
+        w.swapped[b] = k
+    elif s.since[r, k] < s.since[r, b]:
+        s.since[r, b] = s.since[r, k]
+    return b
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
@@ -325,36 +338,83 @@ def waits(r, battery, avoid, s, w, unchanged=False):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def pass_token(r, tok, held, push_failed, t_next_mod, diameter, waiting, s, w):
-    """:func:`qpatrol.world.traffic.pass_token` of run ``r`` after its moves: the holder keeps
-    the right of way while it moves as asked (at most ``diameter`` steps); a holder whose
-    push failed hands it to the robot that blocked it, if that one waits; else it goes
-    to the waiting robot of highest priority at the next step (none: -1). ``waiting``:
-    the robots waiting after the moves (:func:`waits`); a robot that asked and did not
-    move as asked is one of them, so with none no robot is scanned. Returns ``(holder,
-    steps it has held it)``."""
+def pass_token(r, t_next, t_next_mod, tok, held, handoff, s, w):
+    """:func:`qpatrol.world.traffic.pass_token` of run ``r`` after its moves: to the robot
+    that received the failed holder's task or age (``handoff``); else to the robot of
+    highest priority at step ``t_next`` among the blocked robots (asked, did not move
+    as asked) and the holder if it still pursues its task (asked, did not progress),
+    the holder first among equal ages; none: -1. Returns ``(holder, steps it has held
+    it)``."""
     want, as_asked = w.want, w.as_asked
-    n_agents = want.shape[0] if waiting > 0 else 0
-    best_k = -1
-    best_key = -1
-    for k in range(n_agents):
-        kk = -1
-        if want[k] >= 0 and not as_asked[k]:
-            kk = priority(s.wait[r, k], k, n_agents, t_next_mod)
-        if tok >= 0 and push_failed and k == tok:
-            kk = -1
-        if kk > best_key:
-            best_key = kk
-            best_k = k
-    new = best_k
-    if tok >= 0:
-        blocker = w.blocked_by[tok]
-        blocker_waits = blocker >= 0 and want[blocker] >= 0 and not as_asked[blocker]
-        if as_asked[tok] and held < diameter:
-            new = tok
-        elif push_failed and blocker_waits:
-            new = blocker
+    n_agents = want.shape[0]
+    new = handoff
+    if new < 0:
+        best_key = -1
+        for k in range(n_agents):
+            holder = k == tok and want[k] >= 0 and not w.progressed[k] and s.active[r]
+            if not holder and not (want[k] >= 0 and not as_asked[k] and s.active[r]):
+                continue
+            turn = turn_of(k, n_agents, t_next_mod)
+            if holder:
+                turn = n_agents
+            age = min(max(t_next - s.since[r, k], 0), 1 << 30)
+            kk = age * (n_agents + 1) + turn
+            if kk > best_key:
+                best_key = kk
+                new = k
     return new, (held + 1 if (new == tok and new >= 0) else 0)
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def tasks(r, battery, p, s, w):
+    """:func:`qpatrol.world.task_aims` of run ``r``: each robot's aim this step
+    (``s.aim``): its strategy's (``w.aim``) for a choosing robot, the vertex ahead for
+    one travelling an edge, its station for a homing robot, -1 for the others; and its
+    mode as it asks (``w.mode0``)."""
+    for k in range(s.pos.shape[1]):
+        a = -1
+        if w.choosing[k]:
+            a = w.aim[k]
+        if p.travels and w.travel[k] >= 0:
+            a = p.ahead[s.pos[r, k], s.head[r, k]]
+        if battery and s.mode[r, k] == HOMING:
+            a = p.homes[max(s.goal[r, k], 0)]
+        s.aim[r, k] = a
+        w.mode0[k] = s.mode[r, k]
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def turn_back(r, p, s, w):
+    """:func:`qpatrol.world.turn_back`: robots of run ``r`` travelling an edge that took
+    over a task whose aim is the vertex behind them turn round."""
+    for k in range(s.pos.shape[1]):
+        if w.swapped[k] < 0 or w.travel[k] < 0:
+            continue
+        c = s.pos[r, k]
+        onward = p.onward[c, s.head[r, k]]
+        if onward < 0:
+            continue
+        behind = p.ahead[c, onward]
+        if s.aim[r, k] == behind and s.aim[r, k] != p.ahead[c, s.head[r, k]]:
+            s.head[r, k] = onward
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def progress(r, t, p, s, w):
+    """The tasks of run ``r`` that ended at step ``t`` (``w.progressed``; ``s.since = t``):
+    a robot that stands on its aim (patrolling or homing when it asked) or, with none
+    and patrolling, entered a target."""
+    for k in range(s.pos.shape[1]):
+        m0 = w.mode0[k]
+        a = s.aim[r, k]
+        done = False
+        if a >= 0:
+            done = s.pos[r, k] == a and (m0 == PATROL or m0 == HOMING)
+        else:
+            done = m0 == PATROL and w.moved[k] and p.target[s.pos[r, k]]
+        w.progressed[k] = done
+        if done:
+            s.since[r, k] = t
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")

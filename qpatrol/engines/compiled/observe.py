@@ -180,6 +180,15 @@ def step_measures(r, t, n_targets, sums_last, waiting, longest, m):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def stalls(r, t, s, m):
+    """The run's longest stretch without progress (``m.max_stall``) takes this step's:
+    ``t - since`` of each robot on the map (not failed)."""
+    for k in range(s.pos.shape[1]):
+        if s.mode[r, k] != GONE:
+            m.max_stall[r] = max(m.max_stall[r], t - s.since[r, k])
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def trail(r, t, pos_r, mode_r, o):
     """The trajectory ring ``o.tail_pos`` ``[R, N, K]`` takes the robots' cells (-1 for a
     robot that failed: ``mode_r`` ``[K]`` GONE)."""

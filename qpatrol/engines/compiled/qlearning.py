@@ -213,6 +213,7 @@ def learn_pending(r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, pend):
     for k in range(w.prev_pos.shape[0]):
         decided = w.as_asked[k] and w.choosing[k]
         keep = w.travel[k] >= 0 and pend[k, 0] >= 0 and (w.as_asked[k] or not w.moved[k])
+        keep = keep and w.swapped[k] < 0  # (a robot that exchanged its task drops it)
         if not keep and not decided:
             pend[k, 0], pend[k, 1], pend[k, 2] = -1, -1, -1
         if decided:

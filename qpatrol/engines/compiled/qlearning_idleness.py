@@ -215,6 +215,7 @@ def learn(r, t, p, s, w, sp, o, n_up):
         ca, ha, fa, aa = prev_pos[k], prev_head[k], feat[r, k, 0], ask[k]
         if p.travels:  # decisions at a graph's vertices (learner.pending_transitions)
             keep = w.travel[k] >= 0 and feat[r, k, 3] >= 0 and (as_asked[k] or not moved[k])
+            keep = keep and w.swapped[k] < 0  # (a robot that exchanged its task drops it)
             if not keep and not decided:
                 for j in range(3, 7):
                     feat[r, k, j] = -1

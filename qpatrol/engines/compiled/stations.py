@@ -77,6 +77,21 @@ def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
+def close_tasks(r, t, p, s):
+    """:func:`qpatrol.world.battery.close_tasks` of run ``r``: a patrolling robot whose aim
+    lies in the pocket of a station another robot holds loses its task (``since = t``,
+    no aim)."""
+    for k in range(s.pos.shape[1]):
+        a = s.aim[r, k]
+        if a < 0 or s.mode[r, k] != PATROL:
+            continue
+        h = p.pocket_of[a]
+        if h >= 0 and s.reserved[r, h] >= 0 and s.reserved[r, h] != k:
+            s.since[r, k] = t
+            s.aim[r, k] = -1
+
+
+@njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def begin(r, t, p, s, w):
     """battery.begin: the charging countdown, robots that need a station join the
     queue, and the queue is served (:func:`qpatrol.world.battery._assign_stations`: first
@@ -91,6 +106,7 @@ def begin(r, t, p, s, w):
                 mode[r, k] = PATROL
                 charge[r, k] = p.capacity
                 s.depart_left[r, k] = 2 * p.depart_len[s.goal[r, k]]
+                s.since[r, k] = t  # a new task: patrolling again
     any_queued = False
     for k in range(n_agents):
         if (
@@ -100,6 +116,7 @@ def begin(r, t, p, s, w):
         ):
             mode[r, k] = QUEUED
             s.queued_since[r, k] = t
+            s.since[r, k] = t  # a new task: reaching a station
         if mode[r, k] == QUEUED:
             any_queued = True
     if not any_queued:

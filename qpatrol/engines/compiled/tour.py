@@ -380,5 +380,3 @@ def routes(cell_i, r, ipar):
     G = ipar[5]
     return cell_i[r, :G], cell_i[r, G, :G]
 
-
-learn = follow.learn
