@@ -12,8 +12,7 @@ from hypothesis import strategies as st
 from mazes import random_maze
 
 from qpatrol.config import from_flat
-from qpatrol.maps import all_pairs_distances, parse_map
-from qpatrol.maps import search
+from qpatrol.maps import all_pairs_distances, parse_map, search
 from qpatrol.world import make_params, place_agents
 
 
