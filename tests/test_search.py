@@ -125,3 +125,36 @@ def test_placement_on_a_graph():
         new = place_agents(p, m, np.random.default_rng(seed))
         old = old_place_agents(p, m, np.random.default_rng(seed))
         assert new.tolist() == old.tolist()
+
+
+@settings(max_examples=20, deadline=None)
+@given(
+    rows=st.integers(2, 8),
+    cols=st.integers(2, 8),
+    seed=st.integers(0, 2**16),
+    loops=st.sampled_from([0.0, 0.2, 1.0]),
+)
+def test_large_region_walks_cover_and_respect_the_bound(rows, cols, seed, loops):
+    """The walk of a region above SEARCH_TARGETS (the limit lowered to 0 here) is a closed
+    walk through every cell, no shorter than the exact bound's table-free form, no longer
+    than twice the cells (a spanning tree walked around), and the methods say so."""
+    from qpatrol.maps import walks
+
+    m = parse_map(random_maze(rows, cols, seed, loops, 1, False))
+    old = walks.SEARCH_TARGETS
+    walks.SEARCH_TARGETS = 0
+    try:
+        walks._walk_cached.cache_clear()
+        walks._bound_cached.cache_clear()
+        w = walks.closed_walk(m)
+        bound = walks.closed_walk_lower_bound(m)
+        methods = walks.closed_walk_methods(m)
+    finally:
+        walks.SEARCH_TARGETS = old
+        walks._walk_cached.cache_clear()
+        walks._bound_cached.cache_clear()
+    assert walks.walk_is_closed_cover(m, w)
+    assert bound <= w.size <= 2 * (m.n_cells - 1)
+    assert bound <= walks.closed_walk_lower_bound(m)  # the same bound, without Held-Karp
+    assert "above 0 targets" in methods["walk_method"]
+    assert "Held-Karp skipped" in methods["walk_lower_bound_method"]

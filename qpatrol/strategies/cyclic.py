@@ -38,6 +38,7 @@ class Strategy(follow.WalkFollower):
         walk = walks.closed_walk(m)
         super().__init__(cfg, m, p, start_cells, [walk])
         self.bound = walks.closed_walk_lower_bound(m)
+        self.methods = walks.closed_walk_methods(m)
         # slots on targets that are not stations (robots wait only on targets)
         slots = slot_indices(walk, p.n_agents, (p.station_of >= 0) | ~p.target)
         for r in range(self.n_runs):
@@ -61,6 +62,7 @@ class Strategy(follow.WalkFollower):
         return {
             "walk_length": L,
             "walk_lower_bound": int(self.bound),
+            **getattr(self, "methods", {}),
             "walk_per_robot": L / self.n_agents,
         }
 
