@@ -118,7 +118,7 @@ QL = ("qlearning",)
 QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
     F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
-    F("agents", "int", 4, "robots in the team", low=1, high=64),
+    F("agents", "int", 4, "robots in the team", low=1, high=1024),
     F(
         "policy",
         "choice",
