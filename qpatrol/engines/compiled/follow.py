@@ -22,7 +22,7 @@ int64 ``[W, Lmax]``; ``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, 
 run's search queue (as the numpy twin's ``goal_rows``: a robot next to its goal steps onto it,
 one farther away searches from its goal when the goal changes); ``ipar = [gather (1:
 cyclic), gather_until, Lmax, early exchanges on (collisions avoided), spacing rule
-on, rows mode]``.
+on, five slots learned-tour uses (0 here), rows mode]``.
 """
 
 from __future__ import annotations
@@ -65,6 +65,7 @@ def pack(strategy) -> Pack:
         int(strategy.length.max()),
         int(strategy.params.avoid_collisions and strategy.exchange_early),
         int(strategy.keep_spacing),
+        *[0] * 5,  # learned-tour's parameters (compiled/tour.py)
         int(by_rows),
     ]
     return dummy_pack(
@@ -206,7 +207,7 @@ def _skip_and_ask(
             continue
         c = pos[r, k]
         goal = walk[ri[k, WID], ri[k, TARGET]]
-        if ipar[5] != 0:
+        if ipar[10] != 0:
             ask[k] = _row_step(r, k, c, goal, nbrs, ri, dist)
             continue
         closer = dist[c, goal] - 1
