@@ -24,7 +24,7 @@ import numpy as np
 
 #: Maps of at least this many cells search with the compiled kernels, when numba is
 #: installed (smaller ones in Python: no compile, already fast).
-COMPILED_CELLS = 20_000
+COMPILED_CELLS = 4_096
 
 try:  # the compiled kernels (optional extra ``fast``)
     from numba import njit
