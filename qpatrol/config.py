@@ -118,7 +118,7 @@ QL = ("qlearning",)
 QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
     F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
-    F("agents", "int", 4, "robots in the team", low=1, high=64),
+    F("agents", "int", 4, "robots in the team", low=1, high=1024),
     F(
         "policy",
         "choice",
@@ -590,10 +590,10 @@ SCHEMA: tuple[Field, ...] = (
     F(
         "security.attack_steps",
         "durations",
-        "auto",
+        [],
         "durations D (team steps) of the intruder measures capture_random and "
         "capture_observer; auto: T/8, T/4, T/2, T and 2T for a map of T targets, rounded "
-        "up; [] turns them off",
+        "up; [] (the default outside the security study) turns them off",
     ),
     F(
         "engine",
