@@ -96,7 +96,7 @@ class PatrolVectorEnv:
         b, d = self.num_envs, self.batch.n_ports
         n = self.tables.targets.size
         if observation == "ports":
-            self._feat = np.zeros((b, k, d, len(features.PORT)), dtype=np.float32)
+            self._feat = np.zeros((b, k, len(features.PORT), d), dtype=np.float32)
             self._obs = self._feat.reshape(b, k, d * len(features.PORT))
             single = spaces.Box(0.0, np.inf, (d * len(features.PORT),), np.float32)
         else:

@@ -17,8 +17,9 @@ positions and goals are seen only with communication on (zeros with it off), as 
 MAGEC's "with and without communication" (Goeckner et al., IROS 2024). Robots that
 failed (``failures.robots``) are seen by no one.
 
-**Port features** (:func:`ports`), float32 ``[R, K, D, P]``, ``P`` = len(:data:`PORT`),
-for port ``d`` of the robot's cell, far target ``v``::
+**Port features** (:func:`ports`), float32 ``[R, K, P, D]``, ``P`` = len(:data:`PORT`)
+features of each of the ``D`` ports (feature-major: ``[p, d]``); for port ``d`` of the
+robot's cell and its far target ``v``::
 
     0 legal      1 if the port has a move (else every feature of the port is 0)
     1 idle       idleness of v / the largest idleness of a target (0..1)
@@ -51,6 +52,8 @@ import numpy as np
 from qpatrol.maps import Map
 from qpatrol.maps.core import far_targets
 from qpatrol.world import GONE, Observation, Params
+
+GONE = int(GONE)
 
 PORT: tuple[str, ...] = (
     "legal",
@@ -137,58 +140,138 @@ def _ahead(m: Map, p: Params) -> np.ndarray:
     return ahead
 
 
-def _view(obs: Observation, tab: Tables):
-    """The pieces both kinds of features read: idleness of every target on each
-    robot's map ``[R, K, C]`` (as float), its largest and mean, the robots' goals and
-    who is seen."""
-    s = obs.state
-    r_n, k_n = s.pos.shape
-    group = obs.group_of()
-    last = s.last[:, group, :]  # [R, K, C]
-    idle = (s.t - last).astype(np.float64)
-    tgt_idle = idle[:, :, tab.targets]
-    top = np.maximum(tgt_idle.max(axis=-1), 1.0)  # [R, K]
-    mean = tgt_idle.mean(axis=-1)
-    goal = tab.ahead[s.pos, s.head]  # [R, K]
-    alive = s.mode != GONE
-    # who sees whom: with communication every live robot sees the other live ones
-    see = alive[:, :, None] & alive[:, None, :] & ~np.eye(k_n, dtype=bool)[None]
-    if not tab.communication:
-        see = np.zeros_like(see)
-    return idle, top, mean, goal, see
+def _scalar(f):
+    """``f`` compiled by numba when it is installed (``qpatrol[fast]``), else run as
+    the plain Python it is: the same numbers, slower."""
+    try:
+        from numba import njit
+    except ImportError:  # pragma: no cover - CI installs numba
+        return f
+    return njit(cache=True, nogil=True, error_model="numpy")(f)
+
+
+@_scalar
+def _idle_stats(t, last, targets, top, mean):
+    """The largest idleness (at least 1) and the mean idleness of the targets on each
+    dot group's map: ``top``, ``mean`` float ``[R, G]``."""
+    for r in range(last.shape[0]):
+        for g in range(last.shape[1]):
+            oldest = t
+            total = 0.0
+            for i in range(targets.shape[0]):
+                x = last[r, g, targets[i]]
+                oldest = min(oldest, x)
+                total += t - x
+            top[r, g] = max(1.0, float(t - oldest))
+            mean[r, g] = total / targets.shape[0]
+
+
+@_scalar
+def _fill_ports(t, pos, head, mode, last, comm, tab_i, length, max_len, grid, dist, out):
+    """:func:`ports` on the world's arrays (``pos``, ``head``, ``mode`` ``[R, K]``,
+    ``last`` ``[R, G, C]``) and the map's: ``tab_i`` = (far ``[C, D]``, ahead ``[C,
+    D]``, targets ``[N]``), ``length`` ``[C, D]``; into ``out`` ``[R, K, P, D]``."""
+    far, ahead, targets = tab_i
+    n_runs, n_agents = pos.shape
+    n_ports = far.shape[1]
+    top = np.empty((n_runs, last.shape[1]))
+    mean = np.empty((n_runs, last.shape[1]))
+    _idle_stats(t, last, targets, top, mean)
+    for r in range(n_runs):
+        for k in range(n_agents):
+            g = 0 if comm else k
+            c = pos[r, k]
+            back = (head[r, k] + 2) % 4 if grid else head[r, k]
+            for d in range(n_ports):
+                for j in range(out.shape[2]):
+                    out[r, k, j, d] = 0.0
+                v = far[c, d]
+                if v < 0:
+                    continue
+                idle_v = float(t - last[r, g, v])
+                out[r, k, 0, d] = 1.0
+                out[r, k, 1, d] = idle_v / top[r, g]
+                out[r, k, 2, d] = length[c, d] / max_len
+                out[r, k, 3, d] = 1.0 if d == back else 0.0
+                if comm:  # the other live robots: bound for v, fewer moves from v
+                    claimed = 0
+                    nearer = 0
+                    for j in range(n_agents):
+                        if j == k or mode[r, j] == GONE or mode[r, k] == GONE:
+                            continue
+                        if ahead[pos[r, j], head[r, j]] == v:
+                            claimed += 1
+                        if dist[pos[r, j], v] < length[c, d]:
+                            nearer += 1
+                    out[r, k, 4, d] = claimed
+                    out[r, k, 5, d] = nearer
+                best2 = 0.0
+                for e in range(n_ports):
+                    v2 = far[v, e]
+                    if v2 >= 0 and v2 != c:
+                        best2 = max(best2, float(t - last[r, g, v2]))
+                out[r, k, 6, d] = best2 / top[r, g]
+                out[r, k, 7, d] = idle_v / (mean[r, g] + 1.0)
+    return out
+
+
+@_scalar
+def _fill_nodes(t, pos, head, mode, last, comm, ahead, targets, dist, diameter, out):
+    """:func:`nodes` on the world's arrays, into ``out`` ``[R, K, N, F]``."""
+    n_runs, n_agents = pos.shape
+    top = np.empty((n_runs, last.shape[1]))
+    mean = np.empty((n_runs, last.shape[1]))
+    _idle_stats(t, last, targets, top, mean)
+    for r in range(n_runs):
+        for k in range(n_agents):
+            g = 0 if comm else k
+            c = pos[r, k]
+            for i in range(targets.shape[0]):
+                v = targets[i]
+                idle = float(t - last[r, g, v])
+                out[r, k, i, 0] = idle / top[r, g]
+                out[r, k, i, 1] = dist[c, v] / diameter
+                out[r, k, i, 2] = 1.0 if c == v else 0.0
+                out[r, k, i, 3] = 0.0
+                out[r, k, i, 4] = 0.0
+                out[r, k, i, 5] = idle / (mean[r, g] + 1.0)
+            if not comm or mode[r, k] == GONE:
+                continue
+            for j in range(n_agents):  # the other live robots: where they stand, are bound
+                if j == k or mode[r, j] == GONE:
+                    continue
+                cj = pos[r, j]
+                if targets_index_of(targets, cj) >= 0:
+                    out[r, k, targets_index_of(targets, cj), 3] += 1.0
+                goal = ahead[cj, head[r, j]]
+                if goal != cj:
+                    out[r, k, targets_index_of(targets, goal), 4] += 1.0
+    return out
+
+
+@_scalar
+def targets_index_of(targets, c):
+    """The index of cell ``c`` among the sorted ``targets``, -1 if it is none."""
+    lo, hi = 0, targets.shape[0]
+    while lo < hi:
+        mid = (lo + hi) // 2
+        if targets[mid] < c:
+            lo = mid + 1
+        else:
+            hi = mid
+    return lo if lo < targets.shape[0] and targets[lo] == c else -1
 
 
 def ports(obs: Observation, tab: Tables, out: np.ndarray | None = None) -> np.ndarray:
-    """float32 ``[R, K, D, P]``: every robot's port features (:data:`PORT`), written
-    into ``out`` when given."""
+    """float32 ``[R, K, P, D]``: every robot's port features (:data:`PORT`, each for
+    the ``D`` ports in turn), written into ``out`` when given."""
     s = obs.state
     r_n, k_n = s.pos.shape
-    idle, top, mean, goal, see = _view(obs, tab)
-    pos = s.pos
-    legal = tab.legal[pos]  # [R, K, D]
-    v = tab.far0[pos]  # [R, K, D]
-    rr = np.arange(r_n)[:, None, None]
-    kk = np.arange(k_n)[None, :, None]
-    idle_v = idle[rr, kk, v]
     if out is None:
-        out = np.empty((r_n, k_n, legal.shape[-1], len(PORT)), dtype=np.float32)
-    out[..., 0] = legal
-    out[..., 1] = idle_v / top[..., None]
-    out[..., 2] = tab.length[pos] / tab.max_len
-    back = tab.back_port(s.head)[..., None] == np.arange(legal.shape[-1])
-    out[..., 3] = back
-    # claimed: seen robots bound for v; nearer: seen robots fewer moves from v
-    claimed = (see[:, :, :, None] & (goal[:, None, :, None] == v[:, :, None, :])).sum(axis=2)
-    out[..., 4] = claimed
-    d_other = tab.dist[pos[:, None, :, None], v[:, :, None, :]]  # [R, K, K', D]
-    mine = tab.length[pos][:, :, None, :]
-    out[..., 5] = (see[:, :, :, None] & (d_other < mine)).sum(axis=2)
-    v2 = tab.far2[v]  # [R, K, D, D]
-    ok2 = (v2 >= 0) & (v2 != pos[..., None, None])
-    idle2 = np.where(ok2, idle[rr[..., None], kk[..., None], np.maximum(v2, 0)], 0.0).max(-1)
-    out[..., 6] = idle2 / top[..., None]
-    out[..., 7] = idle_v / (mean[..., None] + 1.0)
-    out *= legal[..., None]
+        out = np.empty((r_n, k_n, len(PORT), tab.far.shape[1]), dtype=np.float32)
+    tab_i = (tab.far, tab.ahead, tab.targets)
+    args = (s.t, s.pos, s.head, s.mode, s.last, tab.communication, tab_i, tab.length)
+    _fill_ports(*args, tab.max_len, tab.grid, tab.dist, out)
     return out
 
 
@@ -197,19 +280,8 @@ def nodes(obs: Observation, tab: Tables, out: np.ndarray | None = None) -> np.nd
     per target, written into ``out`` when given."""
     s = obs.state
     r_n, k_n = s.pos.shape
-    n = tab.targets.size
-    idle, top, mean, goal, see = _view(obs, tab)
-    tgt = tab.targets
     if out is None:
-        out = np.empty((r_n, k_n, n, len(NODE)), dtype=np.float32)
-    idle_t = idle[:, :, tgt]
-    out[..., 0] = idle_t / top[..., None]
-    out[..., 1] = tab.dist[s.pos][:, :, tgt] / tab.diameter
-    out[..., 2] = s.pos[..., None] == tgt
-    at = s.pos[:, None, :, None] == tgt  # [R, 1, K', N]: robot k' stands on the target
-    out[..., 3] = (see[..., None] & at).sum(axis=2)
-    travelling = goal != s.pos  # bound for another target along an edge
-    bound = (travelling[:, None, :, None]) & (goal[:, None, :, None] == tgt)
-    out[..., 4] = (see[..., None] & bound).sum(axis=2)
-    out[..., 5] = idle_t / (mean[..., None] + 1.0)
+        out = np.empty((r_n, k_n, tab.targets.size, len(NODE)), dtype=np.float32)
+    args = (s.t, s.pos, s.head, s.mode, s.last, tab.communication, tab.ahead, tab.targets)
+    _fill_nodes(*args, tab.dist, tab.diameter, out)
     return out
