@@ -144,7 +144,8 @@ def test_masks_and_rewards_are_the_single_run_envs(tmp_path):
 
 @pytest.mark.parametrize("engine", ENGINES)
 def test_autoreset_starts_the_next_runs_in_the_same_step(engine):
-    env = PatrolVectorEnv(None, ["map=ps_grid", "agents=2"], num_envs=3, max_steps=25, engine=engine)
+    kw = {"num_envs": 3, "max_steps": 25, "engine": engine}
+    env = PatrolVectorEnv(None, ["map=ps_grid", "agents=2"], **kw)
     obs, infos = env.reset(seed=7)
     first = env.uniforms.copy()
     for i in range(25):
@@ -154,7 +155,7 @@ def test_autoreset_starts_the_next_runs_in_the_same_step(engine):
     assert set(infos["final_metrics"]) >= {"avg_idleness", "worst_idleness"}
     assert env.last_result.run_ids.tolist() == [0, 1, 2]
     assert env.batch.first_run == 3 and env.batch.t == 0
-    fresh = PatrolVectorEnv(None, ["map=ps_grid", "agents=2"], num_envs=3, max_steps=25, engine=engine)
+    fresh = PatrolVectorEnv(None, ["map=ps_grid", "agents=2"], **kw)
     again, _ = fresh.reset(seed=7, options={"run": 3})
     assert (obs == again).all() and (env.uniforms == fresh.uniforms).all()
     assert not (env.uniforms == first).all()
@@ -213,7 +214,8 @@ def test_port_and_graph_features_by_hand(tmp_path):
         )
     )
     index, attr = tab.graph_edges()
-    pairs = sorted(zip(index[0].tolist(), index[1].tolist(), (attr[:, 0] * 3).round(6).tolist()))
+    moves = (attr[:, 0] * 3).round(6).tolist()
+    pairs = sorted(zip(index[0].tolist(), index[1].tolist(), moves, strict=True))
     assert pairs == [
         (0, 1, 2), (0, 2, 1), (1, 0, 2), (1, 3, 1), (2, 0, 1), (2, 3, 3), (3, 1, 1), (3, 2, 3),
     ]  # fmt: skip
@@ -255,7 +257,8 @@ def test_compiled_features_are_the_python_ones(seed, name, communication):
     obs = world.Observation(1, s, p, None, None, None)
     want = features.ports(obs, tab)
     got = np.empty_like(want)
-    args = (s.t, s.pos, s.head, s.mode, s.last, tab.communication, (tab.far, tab.ahead, tab.targets))
+    tab_i = (tab.far, tab.ahead, tab.targets)
+    args = (s.t, s.pos, s.head, s.mode, s.last, tab.communication, tab_i)
     fill_ports(*args, tab.length, tab.max_len, tab.grid, tab.dist, got)
     assert (got == want).all()
     want_n = features.nodes(obs, tab)
