@@ -404,8 +404,8 @@ SCHEMA: tuple[Field, ...] = (
         "str",
         None,
         "neural: the policy's weights, an .npz file written by `python -m "
-        "qpatrol.learners.ppo` (null: the policy shipped with qpatrol, trained on "
-        "ps_cumberland with 6 robots)",
+        "qpatrol.learners.ppo` or the name of one shipped with qpatrol (null: the one "
+        "trained on ps_cumberland with 6 robots, seed 0)",
         nullable=True,
         used_by=("neural",),
     ),

@@ -139,7 +139,8 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
     began = time.perf_counter()
     world = ["reward.dot_value=0", "reward.big_dot_value=0", "reward.lambda=0"]
     world += ["reward.incremental_value=1", "reward.idle_horizon=1000000"]
-    field = ["team.interaction=interference", "battery.enabled=off", "record.warmup=200"]
+    warmup = min(200, args.episode // 5)  # the first steps' idleness is the start's
+    field = ["team.interaction=interference", "battery.enabled=off", f"record.warmup={warmup}"]
     field += ["security.attack_steps=[]"]
     env = PatrolVectorEnv(
         None, [*field, *world, *args.set], map=args.map, agents=args.agents,

@@ -11,7 +11,8 @@ cumulative distribution, ports in order), so a run is reproducible and the same 
 every batch; ``neural.greedy`` takes the most probable port instead (ties by the same
 uniform).
 
-Weights (``neural.weights``, an ``.npz``; null: :data:`SHIPPED`): ``format`` =
+Weights (``neural.weights``, an ``.npz``, or the name of one shipped in
+:data:`WEIGHTS_DIR`; null: :data:`SHIPPED`): ``format`` =
 ``qpatrol-neural/1``, ``features`` (the port features' names, checked against
 :data:`qpatrol.strategies.features.PORT`), and the actor's layers ``actor_w0``
 ``[H, P]``, ``actor_b0`` ``[H]``, ``actor_w1`` ``[H, H]``, ``actor_b1``, ``actor_w2``
@@ -50,6 +51,8 @@ class PortPolicy:
 
     def __init__(self, path: str | Path):
         path = Path(path)
+        if not path.is_file() and path.name == str(path) and (WEIGHTS_DIR / path).is_file():
+            path = WEIGHTS_DIR / path  # a shipped policy, by its name
         if not path.is_file():
             raise ConfigError(
                 f"neural.weights: {path} is not a file; allowed: an .npz written by "
