@@ -85,3 +85,44 @@ def test_a_short_training_lowers_the_idleness_on_a_small_graph(tmp_path):
     # its weights are a policy train can run
     result = run.simulate(from_flat(flat(**{"neural.weights": str(out)})))
     assert all(r["coverage"] == 1.0 for r in result.summary)
+
+
+@pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="needs qpatrol[rl]")
+@pytest.mark.parametrize("net", ["mlp", "graph"])
+def test_numpy_evaluates_the_learners_network_as_torch_does(tmp_path, net):
+    """The weights saved by the learner, read by ``policy: neural``, give the logits of
+    the torch network they came from (float32 against float64: to 1e-4)."""
+    import argparse
+
+    import torch
+
+    from qpatrol.learners import ppo
+    from qpatrol.maps import get_map
+    from qpatrol.world import make_params
+
+    torch.manual_seed(0)
+    cfg = from_flat({"map": "ps_example", "agents": 3})
+    tab = features.Tables(get_map("ps_example"), make_params(cfg, get_map("ps_example")))
+    p, f_n, v_n = len(features.PORT), len(features.NODE), tab.targets.size
+    if net == "graph":
+        agent = ppo.GraphAgent(p, f_n, 16, tab.adjacency())
+    else:
+        agent = ppo.Agent(p, 16)
+    for w in agent.parameters():  # weights large enough to matter
+        torch.nn.init.normal_(w, 0.0, 0.5)
+    args = argparse.Namespace(map="ps_example", agents=3, seed=0)
+    ppo.save(agent, tmp_path / "w.npz", args, 0)
+    rng = np.random.default_rng(0)
+    x = rng.random((5, p, 4)).astype(np.float32)
+    nodes = rng.random((5, v_n, f_n)).astype(np.float32)
+    pos = tab.targets[rng.integers(0, v_n, 5)]
+    port_nodes = tab.port_nodes(pos)
+    mask = torch.ones((5, 4), dtype=torch.bool)
+    g = (torch.from_numpy(nodes), torch.from_numpy(port_nodes)) if net == "graph" else ()
+    want = agent(torch.from_numpy(x), mask, *g)[0].detach().numpy()
+    policy = neural.PortPolicy(tmp_path / "w.npz")
+    if net == "graph":
+        got = policy.logits(x, nodes, tab.adjacency(), port_nodes)
+    else:
+        got = policy.logits(x)
+    assert got == pytest.approx(want, abs=1e-4)

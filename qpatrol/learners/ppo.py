@@ -68,6 +68,9 @@ def parse(argv: list[str] | None = None) -> argparse.Namespace:
     ap.add_argument("--minutes", type=float, default=12.0, help="wall time bound")
     ap.add_argument("--updates", type=int, default=0, help="stop after this many (0: time)")
     ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--net", choices=("mlp", "graph"), default="mlp",
+                    help="the actor: an MLP over each port's features, or a graph network "
+                    "over the graph features as well")  # fmt: skip
     ap.add_argument("--hidden", type=int, default=64)
     ap.add_argument("--lr", type=float, default=1e-3)
     ap.add_argument("--gamma", type=float, default=0.98)
@@ -111,9 +114,36 @@ class Agent(nn.Module):
         return logits, value
 
 
-def save(agent: Agent, path: Path, args: argparse.Namespace, steps: int) -> None:
+class GraphAgent(nn.Module):
+    """The actor scores each port from a graph network's embedding of the port's far
+    target (two mean-aggregation layers over the graph features, GraphSAGE's) and the
+    port's features; the critic pools the embeddings of every target."""
+
+    def __init__(self, n_feat: int, n_node: int, hidden: int, adjacency: np.ndarray):
+        super().__init__()
+        self.register_buffer("adj", torch.as_tensor(adjacency, dtype=torch.float32))
+        self.s0, self.n0 = nn.Linear(n_node, hidden), nn.Linear(n_node, hidden, bias=False)
+        self.s1, self.n1 = nn.Linear(hidden, hidden), nn.Linear(hidden, hidden, bias=False)
+        self.head = nn.Sequential(
+            nn.Linear(hidden + n_feat, hidden), nn.Tanh(), nn.Linear(hidden, 1)
+        )
+        self.value = nn.Sequential(nn.Linear(2 * hidden, hidden), nn.Tanh(), nn.Linear(hidden, 1))
+        nn.init.orthogonal_(self.head[-1].weight, 0.01)
+
+    def forward(self, x, mask, nodes, port_nodes):
+        """``x`` ``[N, P, D]``, ``mask`` ``[N, D]``, ``nodes`` ``[N, V, F]``,
+        ``port_nodes`` ``[N, D]`` -> (logits ``[N, D]``, value ``[N]``)."""
+        h = torch.relu(self.s0(nodes) + self.n0(self.adj @ nodes))
+        h = torch.relu(self.s1(h) + self.n1(self.adj @ h))
+        at = h.gather(1, port_nodes[..., None].expand(-1, -1, h.shape[-1]))
+        logits = self.head(torch.cat([at, x.transpose(1, 2)], dim=-1))[..., 0]
+        value = self.value(torch.cat([h.mean(1), h.max(1).values], dim=-1))[..., 0]
+        logits = torch.where(mask, logits, torch.full_like(logits, -1e9))
+        return logits, value
+
+
+def save(agent: nn.Module, path: Path, args: argparse.Namespace, steps: int) -> None:
     """The weights as ``policy: neural`` reads them (:mod:`qpatrol.strategies.neural`)."""
-    a = [m for m in agent.actor if isinstance(m, nn.Linear)]
     arrays = {
         "format": np.array(FORMAT),
         "features": np.array(features.PORT),
@@ -123,9 +153,21 @@ def save(agent: Agent, path: Path, args: argparse.Namespace, steps: int) -> None
         "steps": np.array(str(steps)),
         "command": np.array("python -m qpatrol.learners.ppo " + shlex.join(sys.argv[1:])),
     }
-    for i, layer in enumerate(a):
-        arrays[f"actor_w{i}"] = layer.weight.detach().numpy().astype(np.float32)
-        arrays[f"actor_b{i}"] = layer.bias.detach().numpy().astype(np.float32)
+
+    def np32(p: torch.Tensor) -> np.ndarray:
+        return p.detach().numpy().astype(np.float32)
+
+    if isinstance(agent, GraphAgent):
+        arrays["kind"] = np.array("graph-sage")
+        for i, (s, nb) in enumerate(((agent.s0, agent.n0), (agent.s1, agent.n1))):
+            arrays[f"gnn_self{i}"], arrays[f"gnn_b{i}"] = np32(s.weight), np32(s.bias)
+            arrays[f"gnn_nb{i}"] = np32(nb.weight)
+        for i, layer in enumerate(m for m in agent.head if isinstance(m, nn.Linear)):
+            arrays[f"head_w{i}"], arrays[f"head_b{i}"] = np32(layer.weight), np32(layer.bias)
+    else:
+        arrays["kind"] = np.array("ports-mlp")
+        for i, layer in enumerate(m for m in agent.actor if isinstance(m, nn.Linear)):
+            arrays[f"actor_w{i}"], arrays[f"actor_b{i}"] = np32(layer.weight), np32(layer.bias)
     path.parent.mkdir(parents=True, exist_ok=True)
     with open(path, "wb") as f:
         np.savez_compressed(f, **arrays)
@@ -149,7 +191,21 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
     b, k = env.num_envs, env.n_agents
     n, p, d = b * k, len(features.PORT), env.batch.n_ports
     target = env.batch.params.target
-    agent = Agent(p, args.hidden)
+    tab = env.tables
+    f_n, v_n = len(features.NODE), tab.targets.size
+    graph = args.net == "graph"
+    if graph:
+        agent = GraphAgent(p, f_n, args.hidden, tab.adjacency())
+    else:
+        agent = Agent(p, args.hidden)
+
+    def graph_inputs() -> tuple:
+        """The graph network's inputs of this step: node features, ports' far targets."""
+        if not graph:
+            return ()
+        nodes = torch.from_numpy(env.graph()[0].reshape(n, v_n, f_n).copy())
+        return nodes, torch.from_numpy(tab.port_nodes(env.batch.state.pos).reshape(n, d))
+
     opt = torch.optim.Adam(agent.parameters(), lr=args.lr, eps=1e-5)
     s_n = args.rollout
     obs_b = torch.zeros((s_n, n, p, d))
@@ -160,6 +216,8 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
     done_b = torch.zeros((s_n, n))
     val_b = torch.zeros((s_n, n))
     dec_b = torch.zeros((s_n, n), dtype=torch.bool)
+    nodes_b = torch.zeros((s_n, n, v_n, f_n) if graph else (s_n, 0))
+    pn_b = torch.zeros((s_n, n, d) if graph else (s_n, 0), dtype=torch.long)
     obs, infos = env.reset(seed=args.seed)
     scale = args.reward_scale * 1_000_000  # the world pays idle / 1e6
     curve: list[dict[str, float]] = []
@@ -171,8 +229,11 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
             x = torch.from_numpy(obs.reshape(n, p, d).copy())
             m = torch.from_numpy(infos["action_mask"].reshape(n, d).astype(bool))
             decide = m.any(-1)
+            g = graph_inputs()
+            if graph:
+                nodes_b[s], pn_b[s] = g
             with torch.no_grad():
-                logits, v = agent(x, m | ~decide[:, None])
+                logits, v = agent(x, m | ~decide[:, None], *g)
                 dist = torch.distributions.Categorical(logits=logits)
                 a = dist.sample()
             obs_b[s], mask_b[s], act_b[s], val_b[s], dec_b[s] = (
@@ -212,7 +273,7 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
         with torch.no_grad():
             x = torch.from_numpy(obs.reshape(n, p, d).copy())
             m = torch.from_numpy(infos["action_mask"].reshape(n, d).astype(bool))
-            _, nxt = agent(x, m | ~m.any(-1, keepdim=True))
+            _, nxt = agent(x, m | ~m.any(-1, keepdim=True), *graph_inputs())
             adv = torch.zeros_like(rew_b)
             last = torch.zeros(n)
             for s in reversed(range(s_n)):
@@ -224,8 +285,8 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
             ret = adv + val_b
         # --- the update: decisions train the actor, every step the critic ---------------
         flat = lambda t: t.reshape(s_n * n, *t.shape[2:])  # noqa: E731
-        batch = (obs_b, mask_b, act_b, logp_b, adv, ret, dec_b)
-        fo, fm_, fa, flp, fadv, fret, fdec = map(flat, batch)
+        batch = (obs_b, mask_b, act_b, logp_b, adv, ret, dec_b, nodes_b, pn_b)
+        fo, fm_, fa, flp, fadv, fret, fdec, fnodes, fpn = map(flat, batch)
         idx = np.arange(s_n * n)
         size = len(idx) // args.minibatches
         dec_adv = fadv[fdec]
@@ -234,7 +295,8 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
             np.random.default_rng(update).shuffle(idx)
             for i in range(args.minibatches):
                 mb = torch.from_numpy(idx[i * size : (i + 1) * size])
-                logits, v = agent(fo[mb], fm_[mb])
+                g = (fnodes[mb], fpn[mb]) if graph else ()
+                logits, v = agent(fo[mb], fm_[mb], *g)
                 dist = torch.distributions.Categorical(logits=logits)
                 ratio = (dist.log_prob(fa[mb]) - flp[mb]).exp()
                 a_n = (fadv[mb] - mu) / sd

@@ -104,6 +104,20 @@ class Tables:
         """int: the port that leads back the way a robot came, from its heading."""
         return (head + 2) % 4 if self.grid else head
 
+    def adjacency(self) -> np.ndarray:
+        """float64 ``[N, N]``: row i averages over target i's neighbours (the far targets
+        of its ports): a graph network's mean aggregation."""
+        index, _ = self.graph_edges()
+        n = self.targets.size
+        a = np.zeros((n, n))
+        a[index[1], index[0]] = 1.0
+        return a / np.maximum(a.sum(axis=1, keepdims=True), 1.0)
+
+    def port_nodes(self, pos: np.ndarray) -> np.ndarray:
+        """int ``[..., D]``: the index among the targets of each port's far target from
+        cells ``pos`` (0 where the port has none)."""
+        return np.maximum(self.index[self.far0[pos]], 0) * self.legal[pos]
+
     def graph_edges(self) -> tuple[np.ndarray, np.ndarray]:
         """``(edge_index int64 [2, E], edge_attr float32 [E, 1])`` between targets."""
         src, port = np.nonzero(self.legal & self.target[:, None])

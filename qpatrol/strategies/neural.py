@@ -4,7 +4,9 @@ The policy is the one :mod:`qpatrol.learners.ppo` trains on
 :class:`qpatrol.envs.PatrolVectorEnv`: a small network shared by every robot that
 scores each port of the robot's vertex from that port's features
 (:func:`qpatrol.strategies.features.ports`, the same function the environment's
-observations come from) and takes a port by the scores' softmax, over the moves a
+observations come from; a ``graph-sage`` policy also from a graph network's embedding
+of the port's far target, over :func:`~qpatrol.strategies.features.nodes`) and takes a
+port by the scores' softmax, over the moves a
 strategy may choose (its open moves, :func:`base.prefer_open`). Drawing from the
 probabilities uses the run's tie-break uniform ``u[..., 1]`` (the inverse of the
 cumulative distribution, ports in order), so a run is reproducible and the same on
@@ -45,9 +47,22 @@ SHIPPED = WEIGHTS_DIR / "ps_cumberland_6_seed0.npz"
 LAYERS = ("actor_w0", "actor_b0", "actor_w1", "actor_b1", "actor_w2", "actor_b2")
 
 
+#: The layers of a ``graph-sage`` policy: two mean-aggregation layers over the graph
+#: features (``gnn_self*``, ``gnn_nb*`` ``[H, F]`` then ``[H, H]``, ``gnn_b*``; ReLU),
+#: then a head over each port's far target's embedding and the port's features
+#: (``head_w0`` ``[H, H + P]``, ``head_b0``, tanh, ``head_w1`` ``[1, H]``, ``head_b1``).
+GRAPH_LAYERS = (
+    "gnn_self0", "gnn_nb0", "gnn_b0", "gnn_self1", "gnn_nb1", "gnn_b1",
+    "head_w0", "head_b0", "head_w1", "head_b1",
+)  # fmt: skip
+KINDS = {"ports-mlp": LAYERS, "graph-sage": GRAPH_LAYERS}
+
+
 class PortPolicy:
-    """The actor of a weights file: ``logits(x)`` float64 ``[..., D]`` from port
-    features ``x`` ``[..., P, D]``."""
+    """The actor of a weights file: ``logits(x, ...)`` float64 ``[..., D]`` from port
+    features ``x`` ``[..., P, D]`` (and, for a ``graph-sage`` policy, the graph
+    features ``nodes`` ``[..., N, F]``, the mean-aggregation matrix ``[N, N]`` and each
+    port's far target ``[..., D]``)."""
 
     def __init__(self, path: str | Path):
         path = Path(path)
@@ -64,20 +79,35 @@ class PortPolicy:
         with np.load(path, allow_pickle=False) as z:
             fmt = str(z["format"]) if "format" in z else ""
             names = tuple(str(x) for x in z["features"]) if "features" in z else ()
-            if fmt != FORMAT or names != features.PORT or any(k not in z for k in LAYERS):
+            self.kind = str(z["kind"]) if "kind" in z else "ports-mlp"
+            layers = KINDS.get(self.kind, LAYERS)
+            if fmt != FORMAT or names != features.PORT or any(k not in z for k in layers):
                 raise ConfigError(
                     f"neural.weights: {path} is no {FORMAT} file of port features "
-                    f"{', '.join(features.PORT)} with layers {', '.join(LAYERS)}"
+                    f"{', '.join(features.PORT)} with layers {', '.join(layers)}"
                 )
-            self.layers = [np.asarray(z[k], dtype=np.float64) for k in LAYERS]
+            self.layers = [np.asarray(z[k], dtype=np.float64) for k in layers]
             self.facts = {k: str(z[k]) for k in ("map", "agents", "seed", "steps") if k in z}
 
-    def logits(self, x: np.ndarray) -> np.ndarray:
-        w0, b0, w1, b1, w2, b2 = self.layers
-        h = np.swapaxes(x, -1, -2).astype(np.float64)  # [..., D, P]
-        h = np.tanh(h @ w0.T + b0)
-        h = np.tanh(h @ w1.T + b1)
-        return (h @ w2.T + b2)[..., 0]
+    @property
+    def graph(self) -> bool:
+        """The policy reads the graph features too."""
+        return self.kind == "graph-sage"
+
+    def logits(self, x, nodes=None, adjacency=None, port_nodes=None) -> np.ndarray:
+        ports = np.swapaxes(x, -1, -2).astype(np.float64)  # [..., D, P]
+        if not self.graph:
+            w0, b0, w1, b1, w2, b2 = self.layers
+            h = np.tanh(ports @ w0.T + b0)
+            h = np.tanh(h @ w1.T + b1)
+            return (h @ w2.T + b2)[..., 0]
+        s0, n0, b0, s1, n1, b1, hw0, hb0, hw1, hb1 = self.layers
+        h = nodes.astype(np.float64)
+        h = np.maximum(h @ s0.T + (adjacency @ h) @ n0.T + b0, 0.0)
+        h = np.maximum(h @ s1.T + (adjacency @ h) @ n1.T + b1, 0.0)
+        at = np.take_along_axis(h, port_nodes[..., None], axis=-2)  # [..., D, H]
+        z = np.tanh(np.concatenate([at, ports], axis=-1) @ hw0.T + hb0)
+        return (z @ hw1.T + hb1)[..., 0]
 
 
 class Strategy(base.Strategy):
@@ -89,12 +119,18 @@ class Strategy(base.Strategy):
         super().__init__(cfg, m, p, start_cells)
         self.policy = PortPolicy(cfg["neural.weights"] or SHIPPED)
         self.feature_tables = features.Tables(m, p)
+        self.adjacency = self.feature_tables.adjacency() if self.policy.graph else None
         self.greedy = bool(cfg["neural.greedy"])
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
-        x = features.ports(obs, self.feature_tables)
+        tab = self.feature_tables
+        x = features.ports(obs, tab)
         mask = base.prefer_open(obs) & obs.choosing[..., None]
-        logits = self.policy.logits(x)
+        if self.policy.graph:
+            nodes = features.nodes(obs, tab)
+            logits = self.policy.logits(x, nodes, self.adjacency, tab.port_nodes(obs.state.pos))
+        else:
+            logits = self.policy.logits(x)
         if self.greedy:
             return base.choose_min(-logits, mask, u[..., 1])
         return sample(logits, mask, u[..., 1])
@@ -102,6 +138,7 @@ class Strategy(base.Strategy):
     def describe(self) -> dict[str, object]:
         return {
             "weights": self.policy.path.name,
+            "network": self.policy.kind,
             "weights_sha256": self.policy.sha256,
             "greedy": self.greedy,
             **{f"trained_{k}": v for k, v in self.policy.facts.items()},
