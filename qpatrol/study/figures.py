@@ -1096,7 +1096,7 @@ def neural_data(sweep_dir: str | Path) -> pd.DataFrame:
       the shipped weights (``team_steps`` trained, ``avg_idleness`` of a batch of runs).
     """
     from qpatrol.strategies import neural
-    from qpatrol.study.sweep import NEURAL_TRAIN_STEPS
+    from qpatrol.study.sweep import NEURAL_TEAM, NEURAL_TRAIN_STEPS
 
     res = _read_csv(Path(sweep_dir) / "results.csv", "per-run results of the sweep")
     res = res.assign(map=[m.split("/")[-1].removesuffix(".txt") for m in res["map"].astype(str)])
@@ -1139,7 +1139,7 @@ def neural_data(sweep_dir: str | Path) -> pd.DataFrame:
                 "avg_idleness_mean": float(pd.to_numeric(g["avg_idleness"]).mean()),
             }
         )
-    for path in sorted(neural.WEIGHTS_DIR.glob("*.curve.csv")):
+    for path in sorted(neural.WEIGHTS_DIR.glob(f"ps_cumberland_{NEURAL_TEAM}_seed*.curve.csv")):
         seed = int(path.name.split("seed")[-1].split(".")[0])
         curve = read_csv(path)
         for _, r in curve.iterrows():
