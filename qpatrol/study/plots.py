@@ -1349,7 +1349,8 @@ def neural(csv: str | Path, out: str | Path) -> Path:
     fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(13, 4.6), gridspec_kw={"width_ratios": [1, 1.6]})
     curve = df[df["kind"] == "curve"]
     for seed, g in curve.groupby("seed"):
-        ax0.plot(g["team_steps"] / 1e6, g["avg_idleness_mean"], lw=1.2, label=f"PPO seed {seed}")
+        label = f"PPO seed {int(seed)}"
+        ax0.plot(g["team_steps"] / 1e6, g["avg_idleness_mean"], lw=1.2, label=label)
     base = df[df["kind"] == "baseline"]
     for pol, style in (("cyclic", ":"), ("sebs", "--")):
         b = base[base["policy"] == pol]["avg_idleness_mean"]
@@ -1385,11 +1386,13 @@ def neural(csv: str | Path, out: str | Path) -> Path:
         ax1.bar(x + (i - 1.5) * width, vals, width, yerr=err, capsize=2, label=name)
     for xi, (v, name) in enumerate(zip(bars["best"], best_names, strict=True)):
         ax1.text(xi - 0.5 * width, v, name, rotation=90, fontsize=6, ha="center", va="bottom")
-    ax1.set_xticks(x, [f"{m}\n{f} fail" for m, f in settings], fontsize=7)
+    names = [f"{m.removeprefix('ps_')}\n{int(f)} failing" for m, f in settings]
+    ax1.set_xticks(x, names, fontsize=7)
     ax1.set_ylabel("average idleness (mean over runs)")
     ax1.set_yscale("log")
     ax1.set_title(
-        "6 robots, interference, window of 3,000 steps; bars: neural over seeds", fontsize=9
+        "6 robots, interference, 3,000 steps after 1,000; neural: mean and range over seeds",
+        fontsize=9,
     )
     ax1.legend(fontsize=7)
     fig.tight_layout()

@@ -1206,7 +1206,7 @@ def neural(fig: pd.DataFrame) -> Section:
         total = len(scores)
         best = others.loc[others["avg_idleness_mean"].idxmin()]
         if mean < float(best["avg_idleness_mean"]):
-            wins.append(f"{m} with {f} failing")
+            wins.append(f"{m} with {int(f)} failing")
         w = nn.loc[nn["worst_run_avg_idleness"].idxmax()]
 
         def of(pol: str, d=others) -> str:
@@ -1216,7 +1216,7 @@ def neural(fig: pd.DataFrame) -> Section:
         rng = f"{_fmt(float(nn['avg_idleness_mean'].min()))} to "
         rng += _fmt(float(nn["avg_idleness_mean"].max()))
         rows.append(
-            f"| {m} | {f} | {_fmt(mean)} [{rng}] | {rank} | {best['policy']} "
+            f"| {m} | {int(f)} | {_fmt(mean)} [{rng}] | {rank} | {best['policy']} "
             f"({_fmt(float(best['avg_idleness_mean']))}) | {of('sebs')} | {of('cyclic')} | "
             f"seed {int(w['seed'])}, run {int(w['worst_run'])}: "
             f"{_fmt(float(w['worst_run_avg_idleness']))} |"
