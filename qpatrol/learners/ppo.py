@@ -34,7 +34,9 @@ Run (the shipped policy; ``--minutes`` bounds the wall time)::
 
 It prints one line per finished batch of episodes and writes ``--curve`` (CSV:
 team steps trained, agent-steps, seconds, the batch's mean average idleness) beside
-the weights.
+the weights. ``--minutes`` makes the updates done depend on the machine's speed; the
+same weights again (same torch, one thread): ``--updates U`` with the file's
+``updates`` (for the shipped files, its ``steps`` / (``--runs`` x ``--rollout``)).
 """
 
 from __future__ import annotations
@@ -142,7 +144,9 @@ class GraphAgent(nn.Module):
         return logits, value
 
 
-def save(agent: nn.Module, path: Path, args: argparse.Namespace, steps: int) -> None:
+def save(
+    agent: nn.Module, path: Path, args: argparse.Namespace, steps: int, updates: int = 0
+) -> None:
     """The weights as ``policy: neural`` reads them (:mod:`qpatrol.strategies.neural`)."""
     arrays = {
         "format": np.array(FORMAT),
@@ -151,6 +155,7 @@ def save(agent: nn.Module, path: Path, args: argparse.Namespace, steps: int) -> 
         "agents": np.array(str(args.agents)),
         "seed": np.array(str(args.seed)),
         "steps": np.array(str(steps)),
+        "updates": np.array(str(updates)),
         "command": np.array("python -m qpatrol.learners.ppo " + shlex.join(sys.argv[1:])),
     }
 
@@ -216,8 +221,8 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
     done_b = torch.zeros((s_n, n))
     val_b = torch.zeros((s_n, n))
     dec_b = torch.zeros((s_n, n), dtype=torch.bool)
-    nodes_b = torch.zeros((s_n, n, v_n, f_n) if graph else (s_n, 0))
-    pn_b = torch.zeros((s_n, n, d) if graph else (s_n, 0), dtype=torch.long)
+    nodes_b = torch.zeros((s_n, n, v_n, f_n) if graph else (s_n, n, 0))
+    pn_b = torch.zeros((s_n, n, d) if graph else (s_n, n, 0), dtype=torch.long)
     obs, infos = env.reset(seed=args.seed)
     scale = args.reward_scale * 1_000_000  # the world pays idle / 1e6
     curve: list[dict[str, float]] = []
@@ -314,7 +319,7 @@ def train(args: argparse.Namespace) -> list[dict[str, float]]:
         if (args.updates and update >= args.updates) or elapsed > 60 * args.minutes:
             break
     out = Path(args.out)
-    save(agent, out, args, team_steps * b)
+    save(agent, out, args, team_steps * b, update)
     path = Path(args.curve) if args.curve else out.with_suffix(".curve.csv")
     if curve:
         with open(path, "w", newline="") as f:
