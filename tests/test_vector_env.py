@@ -56,13 +56,14 @@ DRIVEN = [
 ]  # fmt: skip
 
 
-def drive(flat: dict, engine: str, policy: str = "conscientious") -> run.RunResult:
+def drive(
+    flat: dict, engine: str, policy: str = "conscientious", threads: int = 1
+) -> run.RunResult:
     """``flat``'s runs moved through the env by ``policy``'s choices (fed the env's
     observation and uniforms, learning from its outcomes); the batch's result."""
     over = [f"{k}={json.dumps(v) if isinstance(v, bool) else v}" for k, v in flat.items()]
-    env = PatrolVectorEnv(
-        None, [*over, f"policy={policy}"], num_envs=flat["runs"], engine=engine, autoreset=False
-    )
+    kw = {"num_envs": flat["runs"], "engine": engine, "autoreset": False, "threads": threads}
+    env = PatrolVectorEnv(None, [*over, f"policy={policy}"], **kw)
     b = env.batch
     env.reset(seed=int(b.cfg["seed"]))
     team = strategies.make(policy, b.cfg, b.map, b.params, b.starts)
@@ -89,6 +90,36 @@ def test_driven_by_conscientious_it_writes_trains_files(tmp_path, flat, engine):
     if "episodes" in flat:  # the quota ended runs early: they sat out, as in train
         steps = [r["steps"] for r in json.loads(a["summary.json"])["runs"]]
         assert min(steps) < flat["steps"]
+
+
+@pytest.mark.skipif(not HAS_NUMBA, reason="numba")
+def test_lanes_of_runs_in_threads_give_the_same_files(tmp_path):
+    """Two lanes of runs, each stepped by its own thread, write one lane's files."""
+    flat = {"map": "ps_example", "agents": 4, "runs": 16, "steps": 150}
+    env = PatrolVectorEnv(None, ["map=ps_example", "agents=4"], num_envs=16, threads=2)
+    env.reset(seed=0)
+    assert len(env.batch.lanes) == 2
+    one = run.write_run(drive(flat, "numba"), tmp_path / "one", meta={})
+    two = run.write_run(drive(flat, "numba", threads=2), tmp_path / "two", meta={})
+    assert folder_bytes(one) == folder_bytes(two)
+
+
+def test_pettingzoo_dicts_and_graph_observations():
+    """Actions as PettingZoo's ``{agent: [B]}`` are the array's; ``observation="graph"``
+    gives the graph features, with the map's edges."""
+    over = ["map=ps_example", "agents=3"]
+    a = PatrolVectorEnv(None, over, num_envs=2, max_steps=20, engine="numpy")
+    b = PatrolVectorEnv(None, over, num_envs=2, max_steps=20, engine="numpy", observation="graph")
+    _, ia = a.reset(seed=1)
+    ob, _ = b.reset(seed=1)
+    n = a.tables.targets.size
+    assert ob.shape == (2, 3, n, len(features.NODE)) and b.edge_index.shape[0] == 2
+    for _ in range(20):
+        acts = ia["action_mask"].argmax(-1)
+        oa, ra, _, _, ia = a.step(a.agent_dict(acts))
+        ob, rb, _, _, _ = b.step(acts)
+        assert (ra == rb).all()
+        assert (a.graph()[0] == ob).all() or a.batch.t == 0  # (after autoreset: new runs)
 
 
 def calls(fn) -> list[str]:
