@@ -50,17 +50,26 @@ def run(
         if quota and not state.active.any():
             break
         out = advance(state, p, strategy, streams.next(), rec)
-        failing = None
-        if i + 1 == p.failures_at:  # robots fail at the end of the step, before it is measured
-            failing = failures.apply(state, p, np.flatnonzero(out.active))
-        watch.observe(out, state.wait, state.charge if p.battery else None, failing)
-        tail.observe(state)
-        timeline.observe(out)
+        measure(state, p, out, watch, tail, timeline)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
         if checkpoint is not None:
             checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
     return "general"
+
+
+def measure(
+    state: State, p: Params, out: Outcome, watch: Measures, tail: Tail, timeline: Timeline
+) -> None:
+    """After the world's step ``out``: robots fail if it is their step (at the end of the
+    step, before it is measured), then the measures, the trajectory and the timeline
+    take the step in."""
+    failing = None
+    if out.t == p.failures_at:
+        failing = failures.apply(state, p, np.flatnonzero(out.active))
+    watch.observe(out, state.wait, state.charge if p.battery else None, failing)
+    tail.observe(state)
+    timeline.observe(out)
 
 
 def advance(
