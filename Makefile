@@ -9,9 +9,18 @@ STAMP  := $(VENV)/.installed
 $(BIN)/python:
 	$(PYTHON) -m venv $(VENV)
 
+# PyTorch for the reference learner (extra `rl`): the CPU build from this machine's disk
+# (pip's find-links), never a download: a plain torch requirement would take a CUDA build
+# of several GB. Where the file is not on disk, no torch: its tests are skipped.
+TORCH  ?= 2.13.0
+
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
-	$(BIN)/python -m pip install --quiet -e ".[dev,envs,fast]"
+	if $(BIN)/python -m pip install --quiet --no-index --no-deps "torch==$(TORCH)" 2>/dev/null; \
+	then extras="dev,envs,fast,rl"; \
+	else echo "no CPU build of torch $(TORCH) on disk: installing without the rl extra"; \
+	extras="dev,envs,fast"; fi; \
+	$(BIN)/python -m pip install --quiet -e ".[$$extras]"
 	touch $(STAMP)
 
 install: $(STAMP)

@@ -295,7 +295,7 @@ def train(
     **command(
         examples=(
             "qpatrol sweep gamma                      (a named sweep: gamma, multiplier, "
-            "team-size, strategies, policies, learning, field, security)",
+            "team-size, strategies, policies, learning, field, security, neural)",
             "qpatrol sweep learning.gamma --values 0.1,0.5,0.9 configs/paper.yaml --runs 16",
             "qpatrol sweep --grid agents=1,2,4 --grid team.communication=on,off "
             "configs/team_size.yaml --jobs 2",
@@ -309,7 +309,7 @@ def sweep(
         typer.Argument(
             metavar="[NAME|PARAM] [CONFIG]",
             help="A named sweep (gamma, multiplier, team-size, strategies, policies, learning, "
-            "field, security) with an optional "
+            "field, security, neural) with an optional "
             "CONFIG, or a config key PARAM with --values and a CONFIG, or just CONFIG with --grid.",
         ),
     ] = None,
@@ -466,8 +466,8 @@ def plot(
         typer.Argument(
             metavar="FIGURE",
             help="figure-2, figure-3, figure-4, gamma, figure-5, figure-6, team-size, "
-            "strategies, policies, learning, field, field-models, security, security-failures or "
-            "security-recovery.",
+            "strategies, policies, learning, field, field-models, security, security-failures, "
+            "security-recovery or neural.",
         ),
     ],
     from_: Annotated[

@@ -106,6 +106,10 @@ POLICIES: tuple[str, ...] = (
     "hpcc",
     "gravitational",
 )
+#: Learned policies read from a file of weights (``neural.weights``): valid ``policy``
+#: values, kept apart from :data:`POLICIES` (every classic strategy, which the named
+#: studies sweep) and measured against them by ``qpatrol sweep neural``.
+LEARNED_POLICIES: tuple[str, ...] = ("neural",)
 #: How robots meet (``team.interaction``): one per cell (the paper's avoiding), passing
 #: each other with patrolling_sim's interference stops, or ignoring each other.
 INTERACTIONS: tuple[str, ...] = ("exclusive", "interference", "none")
@@ -118,13 +122,14 @@ QL = ("qlearning",)
 QI = ("qlearning-idleness",)
 SCHEMA: tuple[Field, ...] = (
     F("map", "str", "map_a", "map name in maps/ (see `qpatrol maps list`) or path to a map file"),
-    F("agents", "int", 4, "robots in the team", low=1, high=64),
+    F("agents", "int", 4, "robots in the team", low=1, high=1024),
     F(
         "policy",
         "choice",
         "qlearning",
-        "patrol strategy: the paper's Q-learning or a classic baseline",
-        choices=POLICIES,
+        "patrol strategy: the paper's Q-learning, a classic baseline, or a trained "
+        "neural policy (neural)",
+        choices=POLICIES + LEARNED_POLICIES,
     ),
     F("runs", "int", 1, "independent runs, each with its own seed", low=1, high=100000),
     F("seed", "int", 0, "root seed; run r draws from SeedSequence(seed, spawn_key=(r,))", low=0),
@@ -395,6 +400,24 @@ SCHEMA: tuple[Field, ...] = (
         used_by=("learned-tour",),
     ),
     F(
+        "neural.weights",
+        "str",
+        None,
+        "neural: the policy's weights, an .npz file written by `python -m "
+        "qpatrol.learners.ppo` or the name of one shipped with qpatrol (null: the one "
+        "trained on ps_cumberland with 6 robots, seed 0)",
+        nullable=True,
+        used_by=("neural",),
+    ),
+    F(
+        "neural.greedy",
+        "bool",
+        False,
+        "neural: take the policy's most probable port (ties by the run's stream) instead "
+        "of drawing a port from its probabilities with the run's stream",
+        used_by=("neural",),
+    ),
+    F(
         "bayes.g1",
         "float",
         0.1,
@@ -590,10 +613,10 @@ SCHEMA: tuple[Field, ...] = (
     F(
         "security.attack_steps",
         "durations",
-        "auto",
+        [],
         "durations D (team steps) of the intruder measures capture_random and "
         "capture_observer; auto: T/8, T/4, T/2, T and 2T for a map of T targets, rounded "
-        "up; [] turns them off",
+        "up; [] (the default outside the security study) turns them off",
     ),
     F(
         "engine",

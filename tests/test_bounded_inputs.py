@@ -181,11 +181,12 @@ def test_a_map_file_beyond_16_mib_is_refused_unread(run, tmp_path):
     refused(run("maps", "check", big), "big.txt: more than 16 MiB", "a map file")
 
 
-def test_the_memory_refusal_names_the_distance_table(run, tmp_path):
+def test_a_strategy_that_keeps_a_distance_table_is_refused_on_a_large_map(run, tmp_path):
+    """A map of 150,001 cells: no table is built on the way of train, but a strategy
+    that keeps one (hcr) is refused before any work, naming the limit."""
     m = graph_map(tmp_path / "g.txt", "v 0 0 0 start=0", "v 1 1 0", "e 0 1 150000")
-    res = run("train", config(tmp_path / "c.yaml"), "--set", f"map={m}")
-    line = refused(res, "all-pairs distances alone", "150,001 x 150,001", limit=600)
-    assert "used to place" not in line
+    res = run("train", config(tmp_path / "c.yaml"), "--set", f"map={m}", "--set", "policy=hcr")
+    refused(res, "hcr keeps a cells x cells table", "150,001 cells", "at most 4,096", limit=600)
     assert sorted(tree(tmp_path)) == ["c.yaml", "g.txt"]
 
 

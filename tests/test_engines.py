@@ -959,3 +959,32 @@ def test_transitions_on_a_graph_of_fewer_than_four_ports(tmp_path):
     assert both(flat, tmp_path, strategy=True) == ("numba", "")
     rows = (tmp_path / "numba" / "transitions.csv").read_text().splitlines()
     assert len(rows) > 50 and rows[0].startswith("run,step,agent,cell,heading,action")
+
+
+@pytest.mark.parametrize("battery", [True, False])
+@pytest.mark.parametrize("agents", [1, 4])
+def test_cyclic_by_rows_of_moves_equals_the_table(
+    rooms_map, tmp_path, monkeypatch, agents, battery
+):
+    """cyclic without its [C, C] table (a map above TABLE_CELLS: each robot searches its
+    goal's row) writes the files of the table, on both engines."""
+    from qpatrol.maps import core
+
+    flat = {
+        **BASE,
+        "map": str(rooms_map),
+        "agents": agents,
+        "policy": "cyclic",
+        "battery.enabled": battery,
+        "battery.capacity": 40,
+        "battery.charge_steps": 5,
+        "steps": 200,
+    }
+    table = write_run(simulate(from_flat({**flat, "engine": "numpy"})), tmp_path / "t", meta=META)
+    monkeypatch.setattr(core, "TABLE_CELLS", 0)
+    numpy_rows = simulate(from_flat({**flat, "engine": "numpy"}))
+    assert numpy_rows.strategy.dist is None
+    assert numpy_rows.strategy.goal_rows or (agents == 1 and not battery)  # rows searched
+    same_files(table, write_run(numpy_rows, tmp_path / "r", meta=META), flat)
+    assert both(flat, tmp_path, strategy=True) == ("numba", "")
+    same_files(table, tmp_path / "numba", flat)

@@ -33,7 +33,7 @@ import pandas as pd
 import pytest
 
 from qpatrol import measures, world
-from qpatrol.config import ConfigError, from_flat
+from qpatrol.config import ConfigError, from_flat, load_config
 from qpatrol.maps import get_map
 from qpatrol.run import simulate, write_run
 from qpatrol.world.rng import Streams, run_keys
@@ -196,7 +196,8 @@ def test_a_brute_force_recount_from_the_trajectory(tmp_path, engine, case):
 
 def test_attack_steps_auto_and_validation(tmp_path):
     """``auto`` gives T/8, T/4, T/2, T and 2T rounded up (the 12-ring: 2, 3, 6, 12, 24);
-    a duration below 1 is refused naming the key; [] turns the measures off."""
+    a duration below 1 is refused naming the key; [] (the default) turns the measures off,
+    and the security study's config turns them on."""
     assert measures.attack_steps("auto", 12) == (2, 3, 6, 12, 24)
     assert measures.attack_steps("auto", 1) == (1, 2)
     assert measures.attack_steps([30, 5, 5], 12) == (5, 30)
@@ -210,9 +211,10 @@ def test_attack_steps_auto_and_validation(tmp_path):
         "steps": 40,
         "battery.enabled": False,
     }
-    row = simulate(from_flat(base)).summary[0]
+    row = simulate(from_flat({**base, "security.attack_steps": "auto"})).summary[0]
     assert [k for k in row if k.startswith("capture_random")] == [
         f"capture_random_d{d}" for d in (2, 3, 6, 12, 24)
     ]
-    off = simulate(from_flat({**base, "security.attack_steps": []})).summary[0]
+    off = simulate(from_flat(base)).summary[0]
     assert not [k for k in off if k.startswith("capture")]
+    assert load_config("security")["security.attack_steps"] == "auto"

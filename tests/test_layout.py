@@ -29,6 +29,7 @@ LAYERS = {
     "study": 8,
     "envs": 8,
     "cli": 9,
+    "learners": 9,
 }
 
 

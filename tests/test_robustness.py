@@ -150,14 +150,14 @@ def test_bad_paths_and_options(run, tmp_path, make, words):
     assert tree(tmp_path) == before
 
 
-def test_huge_map_line_is_refused_by_memory(run, tmp_path):
+def test_huge_map_line_is_refused_for_a_table_strategy(run, tmp_path):
     m = tmp_path / "line.txt"
     m.write_text("0" + "." * 199_999 + "\n")
     cfg = tiny(tmp_path, map=str(m), agents=2)
     before = tree(tmp_path)
-    res = run("train", cfg, "--out", tmp_path / "o")
-    assert_one_line_error(res, 2, "memory: runs=1, steps=200, agents=2 on map line")
-    assert "all-pairs distances" in res.err
+    res = run("train", cfg, "--out", tmp_path / "o", "--set", "policy=gravitational")
+    assert_one_line_error(res, 2, "policy: gravitational keeps a cells x cells table")
+    assert "200,000 cells" in res.err
     assert tree(tmp_path) == before
 
 

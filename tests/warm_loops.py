@@ -25,10 +25,13 @@ LOOPS = {
 }
 MAPS = {"grid": "map_b", "graph": "ps_grid"}
 
-#: Two halves of about equal compile time (``any`` costs about as much as the others).
+#: Two halves of about equal compile time (``any`` costs about as much as the others);
+#: ``vector@graph`` is the batched env's kernel and features
+#: (:mod:`qpatrol.engines.vector`, :mod:`qpatrol.strategies.features`; its tests run on
+#: patrol graphs only).
 HALVES = (
     ["any@grid", "qlearning@graph", "qlearning-solo@graph", "qlearning-team@grid"],
-    ["any@graph", "qlearning@grid", "qlearning-solo@grid", "qlearning-team@graph"],
+    ["any@graph", "qlearning@grid", "qlearning-solo@grid", "qlearning-team@graph", "vector@graph"],
 )
 
 
@@ -46,7 +49,24 @@ def warm(names: list[str]) -> None:
     from qpatrol.run import simulate
 
     for name in names:
-        simulate(config(name))
+        if name.startswith("vector@"):
+            warm_vector(MAPS[name.split("@")[1]])
+        else:
+            simulate(config(name))
+
+
+def warm_vector(map_name: str) -> None:
+    """A few steps of the batched env on the compiled engine, and its features."""
+    import importlib.util
+
+    if importlib.util.find_spec("gymnasium") is None:
+        return
+    from qpatrol.envs import PatrolVectorEnv
+
+    env = PatrolVectorEnv(None, [f"map={map_name}", "agents=2"], num_envs=2, max_steps=3)
+    _, infos = env.reset(seed=0)
+    env.step(infos["action_mask"].argmax(-1))
+    env.graph()
 
 
 if __name__ == "__main__":

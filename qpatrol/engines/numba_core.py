@@ -790,18 +790,7 @@ class Loop:
                 self.timeline.add_rows(rows_tl)
         s.t = int(t_end)
         compiled.unpack(self.strategy, self.pack, s)
-        # a run that stopped before the batch did sat out its last steps: no wait, no
-        # token, and a robot leaving a station released it
-        out = s.steps_done < s.t
-        if out.any():
-            s.wait[out] = 0
-            if p.avoid_collisions and p.n_agents > 1:
-                s.token[out] = -1
-                s.token_held[out] = 0
-            rows_out, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
-            s.reserved[rows_out, s.goal[rows_out, ks]] = -1
-            s.goal[rows_out, ks] = -1
-            s.depart_left[rows_out, ks] = 0
+        sat_out(s, p)
         one = len(eps) == 1
         return (
             int(t_end) - t0,
@@ -809,6 +798,22 @@ class Loop:
             ups_i[0] if one else np.concatenate(ups_i),
             ups_f[0] if one else np.concatenate(ups_f),
         )
+
+
+def sat_out(s: State, p: Params) -> None:
+    """After a call of the compiled loop (or a step of the batched env): a run that
+    stopped before the batch did (its episode quota met) sat out its last steps, as on
+    the numpy engine: no wait, no token, and a robot leaving a station released it."""
+    out = s.steps_done < s.t
+    if out.any():
+        s.wait[out] = 0
+        if p.avoid_collisions and p.n_agents > 1:
+            s.token[out] = -1
+            s.token_held[out] = 0
+        rows_out, ks = np.nonzero(out[:, None] & (s.depart_left > 0))
+        s.reserved[rows_out, s.goal[rows_out, ks]] = -1
+        s.goal[rows_out, ks] = -1
+        s.depart_left[rows_out, ks] = 0
 
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}

@@ -50,18 +50,27 @@ def run(
         if quota and not state.active.any():
             break
         out = advance(state, p, strategy, streams.next(), rec)
-        failing = None
-        if i + 1 == p.failures_at:  # robots fail at the end of the step, before it is measured
-            failing = failures.apply(state, p, np.flatnonzero(out.active))
-        stall = np.where(state.mode != GONE, out.t - state.since, 0)
-        watch.observe(out, state.wait, state.charge if p.battery else None, failing, stall)
-        tail.observe(state)
-        timeline.observe(out)
+        measure(state, p, out, watch, tail, timeline)
         if progress is not None and (i + 1) % every == 0:
             progress(i + 1, total)
         if checkpoint is not None:
             checkpoint.tick(i + 1, (state, strategy, watch, streams, rec, tail, timeline))
     return "general"
+
+
+def measure(
+    state: State, p: Params, out: Outcome, watch: Measures, tail: Tail, timeline: Timeline
+) -> None:
+    """After the world's step ``out``: robots fail if it is their step (at the end of the
+    step, before it is measured), then the measures, the trajectory and the timeline
+    take the step in."""
+    failing = None
+    if out.t == p.failures_at:
+        failing = failures.apply(state, p, np.flatnonzero(out.active))
+    stall = np.where(state.mode != GONE, out.t - state.since, 0)
+    watch.observe(out, state.wait, state.charge if p.battery else None, failing, stall)
+    tail.observe(state)
+    timeline.observe(out)
 
 
 def advance(

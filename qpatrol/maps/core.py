@@ -6,10 +6,11 @@ both give a :class:`Map`.
 
 from __future__ import annotations
 
-from collections import deque
 from dataclasses import dataclass, field
 
 import numpy as np
+
+from qpatrol.maps.search import bfs  # noqa: F401 (moves from one cell: maps.bfs)
 
 NORTH, EAST, SOUTH, WEST = 0, 1, 2, 3
 DIRECTIONS = ("north", "east", "south", "west")
@@ -27,8 +28,13 @@ NO_DOT, SMALL_DOT, BIG = 0, 1, 2
 
 #: Most cells a map may have: free cells of a grid, vertices + waypoints of a graph. Every
 #: map (a file, or one ``maps import`` makes) is refused beyond it before its arrays are
-#: built; training needs a cells x cells distance table anyway (2.3 GiB at 12,000 cells).
+#: built. Nothing on the way of training builds a cells x cells table
+#: (:mod:`qpatrol.maps.search`); a strategy keeps one only up to :data:`TABLE_CELLS`.
 MAX_CELLS = 200_000
+#: Largest map whose ``[C, C]`` distance table (:meth:`Map.distances`, int64: 128 MiB
+#: here) a strategy may keep; on larger maps the strategies that follow walks search
+#: from their goals instead (:mod:`qpatrol.strategies.follow`) and the others are refused.
+TABLE_CELLS = 4096
 #: Most (cell, port) slots of a graph map, cells x D: its neighbour arrays are that large
 #: (a hub of 100,000 edges would give every cell 100,000 ports). 8 ports per cell at
 #: MAX_CELLS.
@@ -100,6 +106,7 @@ class Map:
     source: str = ""
     text: str = field(default="", repr=False, compare=False)
     _dist: list = field(default_factory=list, repr=False, compare=False)
+    _memo: dict = field(default_factory=dict, repr=False, compare=False)
 
     @property
     def n_cells(self) -> int:
@@ -134,11 +141,22 @@ class Map:
     def distances(self) -> np.ndarray:
         """int ``[cells, cells]``: shortest-path length in moves between two states.
 
-        Computed once by breadth-first search from every cell, then cached.
+        Computed once by breadth-first search from every cell, then cached: for small
+        maps only (a strategy's table, :data:`TABLE_CELLS`; tests); the setup of a run
+        searches from the cells it needs (:mod:`qpatrol.maps.search`).
         """
         if not self._dist:
             self._dist.append(all_pairs_distances(self.neighbors))
         return self._dist[0]
+
+    def diameter(self) -> int:
+        """The longest shortest path between two cells (of one component), in moves;
+        exact, without the all-pairs table (:func:`qpatrol.maps.search.diameter`)."""
+        if "diameter" not in self._memo:
+            from qpatrol.maps.search import diameter
+
+            self._memo["diameter"] = diameter(self.neighbors)
+        return self._memo["diameter"]
 
     def state_at(self, row: int, col: int) -> int:
         """State number of the free cell at (row, col); raises if it is a wall."""
@@ -146,20 +164,6 @@ class Map:
         if s < 0:
             raise ValueError(f"({row}, {col}) is a wall")
         return s
-
-
-def bfs(neighbors: np.ndarray, source: int) -> np.ndarray:
-    """int ``[cells]``: moves from ``source`` to every state (-1 if unreachable)."""
-    dist = np.full(neighbors.shape[0], -1, dtype=np.int64)
-    dist[source] = 0
-    queue = deque([source])
-    while queue:
-        c = queue.popleft()
-        for nb in neighbors[c]:
-            if nb >= 0 and dist[nb] < 0:
-                dist[nb] = dist[c] + 1
-                queue.append(nb)
-    return dist
 
 
 def far_targets(

@@ -42,13 +42,14 @@ from functools import lru_cache
 
 import numpy as np
 
-from qpatrol.maps import Map, all_pairs_distances
+from qpatrol.maps import Map, all_pairs_distances, bfs
 from qpatrol.maps.tours import _double_bridge, _mst, _nearest_neighbour
 
 __all__ = [
     "EFFORTS",
     "closed_walk",
     "closed_walk_lower_bound",
+    "closed_walk_methods",
     "partition_regions",
     "region_walks",
     "walk_is_closed_cover",
@@ -61,6 +62,12 @@ _KICK_WINDOW = 40  # kicks swap two segments within this many tour positions
 _HK_ITERATIONS = 120  # subgradient steps of the Held-Karp bound
 _DELAY_ROUNDS = 40  # rounds of delay tuning in partition_regions
 _DELAY_STEP = 4.0  # delay added per unit of relative cost excess
+#: Most targets of a region whose walk is searched over the metric closure of its targets
+#: (a [t, t] table; 695 on the largest shipped map): larger regions take the depth-first
+#: walk of :func:`_large_walk`. Also the most cells of a piece whose lower bound adds the
+#: Held-Karp bound (:func:`closed_walk_lower_bound`); larger pieces keep the counting
+#: bounds and say so (:func:`closed_walk_methods`).
+SEARCH_TARGETS = 2000
 
 
 class _MapKey:
@@ -270,17 +277,10 @@ def _parity_bound(m: Map, cells: np.ndarray, nb: np.ndarray) -> int:
         return cells.size
     n_bridges, label = _two_edge_components(nb)
     colour, bipartite = _colours(nb, label)
-    total = 2 * n_bridges
-    for comp in range(int(label.max()) + 1):
-        inside = label == comp
-        size = int(inside.sum())
-        if size >= 2:
-            if bipartite[comp]:
-                b = int(colour[inside].sum())
-                total += max(size, 2 * b, 2 * (size - b))
-            else:
-                total += size
-    return total
+    size = np.bincount(label)
+    black = np.bincount(label, weights=colour, minlength=size.size).astype(np.int64)
+    each = np.where(bipartite, np.maximum(size, 2 * np.maximum(black, size - black)), size)
+    return 2 * n_bridges + int(each[size >= 2].sum())
 
 
 # --- tour search -------------------------------------------------------------------
@@ -492,6 +492,9 @@ def _walk_cached(key: _MapKey, cells: tuple[int, ...], seed: int, effort: str) -
         return _out_and_back(m, int(arr[tgt[0]]))
     if tgt.size == arr.size and arr.size <= 2:
         return arr
+    if tgt.size > SEARCH_TARGETS:
+        local_back = np.where(nb >= 0, m.back[arr], -1)
+        return arr[_large_walk(nb, local_back, m.target[arr])]
     D = all_pairs_distances(nb)
     if (nb >= 0).sum() // 2 == arr.size - 1:  # a tree: depth-first order is optimal
         order = _depth_first_order(nb, int(tgt[0]))
@@ -502,6 +505,140 @@ def _walk_cached(key: _MapKey, cells: tuple[int, ...], seed: int, effort: str) -
         per_cell, cap = EFFORTS[effort]
         order = tgt[_shortest_tour(D[np.ix_(tgt, tgt)], min(cap, per_cell * tgt.size), seed)]
     return arr[_expand(nb, D, order)]
+
+
+def _join(adj: list, dist: list, cur: int, goal: int, out: list) -> None:
+    """Append to ``out`` the cells after ``cur`` of the shortest path from ``cur`` to
+    ``goal`` that steps to the first neighbour (port order) one move nearer: what
+    :func:`_expand` takes over the table, from a search out of ``goal`` that stops once
+    it reaches ``cur`` (every cell nearer to ``goal`` is then labelled). ``dist`` is a
+    list of -1 of the graph's size, left so."""
+    if cur == goal:
+        return
+    dist[goal] = 0
+    seen = [goal]
+    head = 0
+    while dist[cur] < 0:
+        v = seen[head]
+        head += 1
+        dv = dist[v] + 1
+        for w in adj[v]:
+            if w >= 0 and dist[w] < 0:
+                dist[w] = dv
+                seen.append(w)
+    while cur != goal:
+        here = dist[cur] - 1
+        cur = next(x for x in adj[cur] if x >= 0 and dist[x] == here)
+        out.append(cur)
+    for v in seen:
+        dist[v] = -1
+
+
+def _nearest_walk(adj: list, is_target: list, first: int) -> list:
+    """The nearest-neighbour closed walk: from ``first``, again and again the shortest
+    path (breadth-first, port order) to the nearest target not yet visited, then back."""
+    n = len(adj)
+    left = sum(is_target) - 1
+    seen = [False] * n
+    seen[first] = True
+    cur, walk = first, [first]
+    dist, parent = [-1] * n, [-1] * n
+    while left:
+        dist[cur] = 0
+        queue, head, found = [cur], 0, -1
+        while found < 0:
+            v = queue[head]
+            head += 1
+            for w in adj[v]:
+                if w >= 0 and dist[w] < 0:
+                    dist[w], parent[w] = dist[v] + 1, v
+                    queue.append(w)
+                    if is_target[w] and not seen[w]:
+                        found = w
+                        break
+        path, x = [], found
+        while x != cur:
+            path.append(x)
+            x = parent[x]
+        for x in reversed(path):
+            walk.append(x)
+            if is_target[x] and not seen[x]:
+                seen[x] = True
+                left -= 1
+        for v in queue:
+            dist[v] = -1
+        cur = found
+    _join(adj, dist, cur, first, walk)
+    return walk[:-1]
+
+
+def _postman_walk(adj: list, back: list, first: int) -> list:
+    """A closed walk along every move of a connected region (every cell a target): the
+    moves once, plus the shortest paths that pair its cells of odd degree (each, in cell
+    order, with the nearest unpaired one, breadth-first), so that every degree is even,
+    then an Euler circuit from ``first`` (Hierholzer, ports in order). Chinese
+    postman's walk with a greedy matching: short on corridors, long on open floors."""
+    n, ports = len(adj), len(adj[0])
+    mult = [[1 if x >= 0 else 0 for x in row] for row in adj]
+    odd = [sum(row) % 2 == 1 for row in mult]
+    dist, parent, via = [-1] * n, [-1] * n, [-1] * n
+    for s in range(n):
+        if not odd[s]:
+            continue
+        odd[s] = False
+        dist[s] = 0
+        queue, head, found = [s], 0, -1
+        while found < 0:
+            v = queue[head]
+            head += 1
+            for p, w in enumerate(adj[v]):
+                if w >= 0 and dist[w] < 0:
+                    dist[w], parent[w], via[w] = dist[v] + 1, v, p
+                    queue.append(w)
+                    if odd[w]:
+                        found = w
+                        break
+        odd[found] = False
+        x = found
+        while x != s:
+            v, p = parent[x], via[x]
+            mult[v][p] += 1
+            mult[x][back[v][p]] += 1
+            x = v
+        for v in queue:
+            dist[v] = -1
+    circuit, stack, nxt = [], [first], [0] * n
+    while stack:
+        v = stack[-1]
+        p = nxt[v]
+        while p < ports and mult[v][p] == 0:
+            p += 1
+        nxt[v] = p
+        if p == ports:
+            circuit.append(stack.pop())
+        else:
+            w = adj[v][p]
+            mult[v][p] -= 1
+            mult[w][back[v][p]] -= 1
+            stack.append(w)
+    circuit.reverse()
+    return circuit[:-1]
+
+
+def _large_walk(nb: np.ndarray, back: np.ndarray, is_target: np.ndarray) -> np.ndarray:
+    """int ``[L]``: the closed walk of a region of more than :data:`SEARCH_TARGETS`
+    targets (nodes ``0..n-1``, moves ``nb``, ports back ``back``, bool ``is_target``),
+    from its first target: the shorter of the nearest-neighbour walk
+    (:func:`_nearest_walk`) and, when every cell is a target, the postman's walk
+    (:func:`_postman_walk`; the first on a tie). Time about linear in the cells."""
+    adj = nb.tolist()
+    first = int(np.flatnonzero(is_target)[0])
+    best = _nearest_walk(adj, is_target.tolist(), first)
+    if is_target.all():
+        other = _postman_walk(adj, back.tolist(), first)
+        if len(other) < len(best):
+            best = other
+    return np.array(best, dtype=np.int64)
 
 
 def _out_and_back(m: Map, c: int) -> np.ndarray:
@@ -640,12 +777,15 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
         return _steiner_bound(m, arr)
     n_bridges, label = _two_edge_components(nb)
     total = 2 * n_bridges
-    for comp in range(int(label.max()) + 1):
-        part = arr[label == comp]
+    order = np.argsort(label, kind="stable")
+    for part in np.split(arr[order], np.flatnonzero(np.diff(label[order])) + 1):
         if part.size < 2:
             continue
         sub = _local_neighbors(m, part)
         cheap = _parity_bound(m, part, sub)
+        if part.size > SEARCH_TARGETS:  # no Held-Karp on a large piece (its [n, n] table)
+            total += cheap
+            continue
         D = all_pairs_distances(sub)
         tour = _nearest_neighbour(D)
         upper = int(D[tour, np.roll(tour, -1)].sum())
@@ -660,14 +800,16 @@ def _required_bound(nb: np.ndarray, tgt: np.ndarray) -> int:
     ``tgt`` (step 2 of the waypoint case of :func:`closed_walk_lower_bound`)."""
     if tgt.size == 1:
         return 1
-    D = all_pairs_distances(nb)
     if tgt.size == 2:
-        return 2 * int(D[tgt[0], tgt[1]])
+        return 2 * int(bfs(nb, int(tgt[0]))[tgt[1]])
     colour, bipartite = _colours(nb)
     cheap = tgt.size
     if bipartite.all():
         b = int(colour[tgt].sum())
         cheap = max(cheap, 2 * b, 2 * (tgt.size - b))
+    if nb.shape[0] > SEARCH_TARGETS:  # no Held-Karp on a large piece (its [n, n] table)
+        return cheap + cheap % 2 if bipartite.all() else cheap
+    D = all_pairs_distances(nb)
     DT = D[np.ix_(tgt, tgt)]
     tour = _nearest_neighbour(DT)
     upper = int(DT[tour, np.roll(tour, -1)].sum())
@@ -715,8 +857,8 @@ def _steiner_bound(m: Map, cells: np.ndarray) -> int:
     for u, v in bridges:
         required[u] = required[v] = True
     total = 2 * n_bridges
-    for comp in range(n_comp):
-        part = np.flatnonzero(label == comp)
+    order = np.argsort(label, kind="stable")
+    for part in np.split(order, np.flatnonzero(np.diff(label[order])) + 1):
         need = np.flatnonzero(required[part])
         if need.size >= 2:
             total += _required_bound(_local_neighbors(m, cells[part]), need)
@@ -775,6 +917,35 @@ def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
     subtree holding every target.
     """
     return _bound_cached(_MapKey(m), _cell_set(m, cells))
+
+
+def closed_walk_methods(m: Map, cells: np.ndarray | None = None) -> dict[str, str]:
+    """How :func:`closed_walk` and :func:`closed_walk_lower_bound` compute a region's walk
+    and bound (``walk_method``, ``walk_lower_bound_method``), for ``summary.json``."""
+    arr = np.array(_cell_set(m, cells), dtype=np.int64)
+    t = int(m.target[arr].sum())
+    nb = _local_neighbors(m, arr)
+    if t <= 2 or (t == arr.size and arr.size <= 2):
+        return {"walk_method": "exact (at most two targets)", "walk_lower_bound_method": "exact"}
+    if t > SEARCH_TARGETS:
+        walk = (
+            f"above {SEARCH_TARGETS} targets: the shorter of the nearest-neighbour walk and "
+            "the postman walk (every move, odd cells paired greedily)"
+        )
+    elif (nb >= 0).sum() // 2 == arr.size - 1:
+        walk = "tree: depth-first order (optimal)"
+    else:
+        walk = "tour search over the targets' distances: nearest neighbour, 2-opt, or-opt, kicks"
+    if t < arr.size:
+        # the Held-Karp part runs on every piece of at most SEARCH_TARGETS cells
+        large = arr.size > SEARCH_TARGETS
+    else:
+        _, label = _two_edge_components(nb)
+        large = bool((np.bincount(label) > SEARCH_TARGETS).any())
+    bound = "bridges, counts, colours and Held-Karp per 2-edge-connected piece"
+    if large:
+        bound += f" (Held-Karp skipped on pieces of more than {SEARCH_TARGETS} cells)"
+    return {"walk_method": walk, "walk_lower_bound_method": bound}
 
 
 # --- partition ---------------------------------------------------------------------

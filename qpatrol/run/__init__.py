@@ -207,29 +207,11 @@ def _batch(
         coldstart.warm_in_background(cfg, engines.compiled_loop(cfg))
     resumed = checkpoint.resumed if checkpoint is not None else None
     if resumed is None:
-        # blocks of uniforms no longer than the run (the same numbers for any block)
-        block = max(1, min(Streams.BLOCK, cfg["steps"]))
-        streams = Streams(seeds, p.n_agents, block)
-        starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
-        failed = failures.choose(seeds, p.n_agents, cfg["failures.robots"])
-        state = world.init_state(p, starts, failed)
+        streams, state, watch, rec, tail, timeline = new_batch(cfg, m, p, seeds, run_ids)
+        starts = state.pos.copy()
         strategy = strategies.make(cfg["policy"], cfg, m, p, starts)
         if values:
             strategy.use_run_values(values)
-        # with failures, every measure's window starts at the failure
-        watch = measures.Measures(
-            state.n_runs,
-            p.n_agents,
-            p.n_cells,
-            max(cfg["record.warmup"], p.failures_at),
-            p.target,
-            measures.attack_steps(cfg["security.attack_steps"], p.n_targets),
-            cfg["steps"],
-            state.pos,
-        )
-        rec = Recorder(run_ids, transitions=cfg["record.transitions"], watch=cfg["record.watch"])
-        tail = Tail(cfg["record.trajectory"], state)
-        timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"], p.target)
         first = 0
     else:
         (state, strategy, watch, streams, rec, tail, timeline) = resumed.payload
@@ -248,6 +230,55 @@ def _batch(
         loop = numpy_loop.run(*args, checkpoint)
     if progress is not None:
         progress(total, total)
+    return result_of(cfg, m, p, state, strategy, watch, rec, tail, timeline, engine, note, loop)
+
+
+def new_batch(
+    cfg: Config, m: Map, p: world.Params, seeds: Sequence[Seed], run_ids: np.ndarray
+) -> tuple[Streams, world.State, measures.Measures, Recorder, Tail, Timeline]:
+    """A batch before its first step: each row's random stream (``seeds``), the robots
+    placed from it, the world (with the robots that will fail), the measures, the
+    recorders (rows named ``run_ids``), the trajectory and the timeline."""
+    # blocks of uniforms no longer than the run (the same numbers for any block)
+    block = max(1, min(Streams.BLOCK, cfg["steps"]))
+    streams = Streams(seeds, p.n_agents, block)
+    starts = np.stack([world.place_agents(p, m, g) for g in streams.generators])
+    failed = failures.choose(seeds, p.n_agents, cfg["failures.robots"])
+    state = world.init_state(p, starts, failed)
+    # with failures, every measure's window starts at the failure
+    watch = measures.Measures(
+        state.n_runs,
+        p.n_agents,
+        p.n_cells,
+        max(cfg["record.warmup"], p.failures_at),
+        p.target,
+        measures.attack_steps(cfg["security.attack_steps"], p.n_targets),
+        cfg["steps"],
+        state.pos,
+    )
+    rec = Recorder(run_ids, transitions=cfg["record.transitions"], watch=cfg["record.watch"])
+    tail = Tail(cfg["record.trajectory"], state)
+    timeline = Timeline(state.n_runs, p.n_cells, cfg["record.timeline"], p.target)
+    return streams, state, watch, rec, tail, timeline
+
+
+def result_of(
+    cfg: Config,
+    m: Map,
+    p: world.Params,
+    state: world.State,
+    strategy: Strategy,
+    watch: measures.Measures,
+    rec: Recorder,
+    tail: Tail,
+    timeline: Timeline,
+    engine: str,
+    note: str,
+    loop: str,
+) -> RunResult:
+    """The :class:`RunResult` of a batch whose time loop has run (here, or stepped from
+    outside by :class:`qpatrol.envs.PatrolVectorEnv`): the tables, the summaries (with
+    the failures' and the strategy's facts) and the objects."""
     episodes = rec.episode_table()
     bound = measures.stall_bound(p)
     summary = measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound)

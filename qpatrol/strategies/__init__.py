@@ -12,19 +12,22 @@ from __future__ import annotations
 import importlib
 from typing import TYPE_CHECKING, Any
 
-from qpatrol.config import POLICIES
+from qpatrol.config import LEARNED_POLICIES, POLICIES
 
 if TYPE_CHECKING:
     from qpatrol.strategies.base import Strategy
 
-#: Every strategy, by its ``policy`` name: the config's list of allowed policies.
+#: Every classic strategy, by its ``policy`` name (the studies sweep them all).
 NAMES: tuple[str, ...] = POLICIES
+#: Policies learned outside qpatrol and read from a file (``neural``): allowed as a
+#: ``policy`` too, and measured against :data:`NAMES` by ``qpatrol sweep neural``.
+LEARNED: tuple[str, ...] = LEARNED_POLICIES
 
 
 def strategy_class(name: str) -> type[Strategy]:
     """The ``Strategy`` class of policy ``name``."""
-    if name not in NAMES:
-        raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(NAMES)}")
+    if name not in NAMES + LEARNED:
+        raise ValueError(f"unknown policy {name!r}; allowed: {', '.join(NAMES + LEARNED)}")
     module = importlib.import_module(f"qpatrol.strategies.{name.replace('-', '_')}")
     return module.Strategy
 

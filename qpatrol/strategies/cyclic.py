@@ -19,7 +19,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
-from qpatrol.maps import walks
+from qpatrol.maps import search, walks
 from qpatrol.strategies import follow
 from qpatrol.world.battery import GONE
 
@@ -38,10 +38,11 @@ class Strategy(follow.WalkFollower):
         walk = walks.closed_walk(m)
         super().__init__(cfg, m, p, start_cells, [walk])
         self.bound = walks.closed_walk_lower_bound(m)
+        self.methods = walks.closed_walk_methods(m)
         # slots on targets that are not stations (robots wait only on targets)
         slots = slot_indices(walk, p.n_agents, (p.station_of >= 0) | ~p.target)
         for r in range(self.n_runs):
-            self.target[r] = match_slots(self.dist, walk, slots, start_cells[r])
+            self.target[r] = match_slots(self.dist, walk, slots, start_cells[r], m.neighbors)
         self.hold[:] = True
         self.start_spacing()
         self.gather_until = 3 * p.diameter
@@ -61,6 +62,7 @@ class Strategy(follow.WalkFollower):
         return {
             "walk_length": L,
             "walk_lower_bound": int(self.bound),
+            **getattr(self, "methods", {}),
             "walk_per_robot": L / self.n_agents,
         }
 
@@ -84,10 +86,18 @@ def slot_indices(walk: np.ndarray, k: int, is_station: np.ndarray) -> np.ndarray
 
 
 def match_slots(
-    dist: np.ndarray, walk: np.ndarray, slots: np.ndarray, starts: np.ndarray
+    dist: np.ndarray | None,
+    walk: np.ndarray,
+    slots: np.ndarray,
+    starts: np.ndarray,
+    neighbors: np.ndarray | None = None,
 ) -> np.ndarray:
-    """int ``[K]``: the slot (walk index) of each robot, nearest pairs matched first."""
-    cost = dist[starts][:, walk[slots]]  # [K robots, K slots]
+    """int ``[K]``: the slot (walk index) of each robot, nearest pairs matched first
+    (without a table, ``dist`` None, by a search from each robot over ``neighbors``)."""
+    if dist is None:
+        cost = np.stack([search.bfs(neighbors, int(c))[walk[slots]] for c in starts])
+    else:
+        cost = dist[starts][:, walk[slots]]  # [K robots, K slots]
     out = np.full(starts.size, -1, dtype=np.int64)
     taken = np.zeros(slots.size, dtype=bool)
     for flat in np.argsort(cost, axis=None, kind="stable"):

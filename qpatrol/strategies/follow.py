@@ -18,6 +18,12 @@ A target in the pocket of a charging station that another robot holds (see
 :mod:`qpatrol.world.battery`) is skipped: the robot heads for the first cell of its walk past
 the pocket, and patrols the pocket again on a later lap.
 
+Distances. On a map of at most :data:`qpatrol.maps.core.TABLE_CELLS` cells the robots
+read the ``[C, C]`` table (``dist``); on a larger one (``dist`` None) a robot next to its
+target steps onto it, and a robot farther away reads its own row of moves to its target,
+searched when its target changes (``goal_rows``: breadth-first from the target, kept per
+robot): the same first moves, as the distances are the same.
+
 Robots on one walk keep their spacing. Each robot's plan carries a *spacing*: how many
 walk steps its target must stay behind the target of the next patrolling robot ahead on
 the same walk (for ``cyclic`` the distance between their slots, about ``L / K``; a robot
@@ -36,6 +42,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from qpatrol.maps import bfs, core
 from qpatrol.strategies import base
 
 if TYPE_CHECKING:
@@ -75,7 +82,9 @@ class WalkFollower(base.Strategy):
         walks: list[np.ndarray],
     ):
         super().__init__(cfg, m, p, start_cells)
-        self.dist = m.distances()
+        self.dist = m.distances() if m.n_cells <= core.TABLE_CELLS else None
+        # rows mode (no table): each robot's (goal, row of moves to it) last searched
+        self.goal_rows: dict[tuple[int, int], tuple[int, np.ndarray]] = {}
         R = self.n_runs
         length = np.array([w.size for w in walks], dtype=np.int64)
         width = int(length.max())
@@ -204,11 +213,42 @@ class WalkFollower(base.Strategy):
         """int ``[R, K]``: the first move of a shortest path (lowest port first: N, E, S, W
         on a grid); -1 there."""
         nbr = self.params.neighbors[pos]  # [R, K, D]
+        if self.dist is None:
+            return self._step_by_rows(pos, goal, nbr)
         d_next = self.dist[np.maximum(nbr, 0), goal[..., None]]
         closer = (nbr >= 0) & (d_next == self.dist[pos, goal][..., None] - 1)
         return np.where(closer.any(axis=-1), closer.argmax(axis=-1), -1)
 
+    def _step_by_rows(self, pos: np.ndarray, goal: np.ndarray, nbr: np.ndarray) -> np.ndarray:
+        """:meth:`step_towards` without the table: onto a neighbouring goal by its first
+        port; else by the robot's row of moves to its goal (searched anew when the goal
+        is not the one of its row)."""
+        next_to = nbr == goal[..., None]
+        out = np.where(next_to.any(axis=-1), next_to.argmax(axis=-1), -1)
+        far = (pos != goal) & ~next_to.any(axis=-1)
+        for r, k in zip(*np.nonzero(far), strict=True):
+            g, c = int(goal[r, k]), int(pos[r, k])
+            kept = self.goal_rows.get((r, k))
+            if kept is not None and kept[0] == g:
+                row = kept[1]
+            else:
+                row = bfs(self.params.neighbors, g)
+                self.goal_rows[(r, k)] = (g, row)
+            ok = (nbr[r, k] >= 0) & (row[np.maximum(nbr[r, k], 0)] == row[c] - 1)
+            out[r, k] = int(ok.argmax()) if ok.any() else -1
+        return out
 
-def nearest_index(dist: np.ndarray, walk: np.ndarray, cell: int) -> int:
-    """The index of the walk cell nearest to ``cell`` (first such index)."""
-    return int(np.argmin(dist[cell, walk]))
+    def __getstate__(self) -> dict:
+        """The state a checkpoint keeps: not the rows, searched again on demand."""
+        state = dict(vars(self))
+        state["goal_rows"] = {}
+        return state
+
+
+def nearest_index(
+    dist: np.ndarray | None, walk: np.ndarray, cell: int, neighbors: np.ndarray | None = None
+) -> int:
+    """The index of the walk cell nearest to ``cell`` (first such index); without a table
+    (``dist`` None) by a search from ``cell`` over ``neighbors``."""
+    row = bfs(neighbors, cell) if dist is None else dist[cell]
+    return int(np.argmin(row[walk]))

@@ -1082,3 +1082,78 @@ def security_recovery_data(sweep_dir: str | Path) -> pd.DataFrame:
             }
         )
     return _order_rows(pd.DataFrame(rows), list(dict.fromkeys(maps)))
+
+
+def neural_data(sweep_dir: str | Path) -> pd.DataFrame:
+    """The neural policy's study (``qpatrol sweep neural``) and its training, one table:
+
+    * ``kind`` = ``study``: one row per map, robots failing (``failures``), strategy and,
+      for ``neural``, training ``seed`` (-1 for the others): ``runs``,
+      ``avg_idleness_mean`` and ``worst_idleness_mean`` over runs, the run of the
+      highest average idleness (``worst_run``, its ``worst_run_avg_idleness``), the
+      lowest ``coverage``;
+    * ``kind`` = ``baseline``: cyclic and SEBS in the training's setting (ps_cumberland,
+      1,000-step runs measured after 200 steps): ``avg_idleness_mean``;
+    * ``kind`` = ``curve``: each training seed's curve as its learner wrote it beside
+      the shipped weights (``team_steps`` trained, ``avg_idleness`` of a batch of runs).
+    """
+    from qpatrol.strategies import neural
+    from qpatrol.study.sweep import NEURAL_TEAM, NEURAL_TRAIN_STEPS
+
+    res = _read_csv(Path(sweep_dir) / "results.csv", "per-run results of the sweep")
+    res = res.assign(map=[m.split("/")[-1].removesuffix(".txt") for m in res["map"].astype(str)])
+    weights = res["neural.weights"] if "neural.weights" in res.columns else None
+    seeds = [
+        int(str(w).split("seed")[-1].split(".")[0]) if p == "neural" and isinstance(w, str) else -1
+        for p, w in zip(
+            res["policy"], weights if weights is not None else [None] * len(res), strict=True
+        )
+    ]
+    res = res.assign(seed=seeds, failures=pd.to_numeric(res["failures.robots"]).astype(int))
+    train = pd.to_numeric(res["steps"]) == NEURAL_TRAIN_STEPS
+    rows = []
+    for (m, f, pol, seed), g in res[~train].groupby(
+        ["map", "failures", "policy", "seed"], sort=False
+    ):
+        worst = g.loc[pd.to_numeric(g["avg_idleness"]).idxmax()]
+        rows.append(
+            {
+                "kind": "study",
+                "map": m,
+                "failures": f,
+                "policy": pol,
+                "seed": seed,
+                "runs": len(g),
+                "avg_idleness_mean": float(pd.to_numeric(g["avg_idleness"]).mean()),
+                "worst_idleness_mean": float(pd.to_numeric(g["worst_idleness"]).mean()),
+                "worst_run": int(worst["run"]),
+                "worst_run_avg_idleness": float(worst["avg_idleness"]),
+                "coverage_min": float(pd.to_numeric(g["coverage"]).min()),
+            }
+        )
+    for pol, g in res[train].groupby("policy", sort=False):
+        rows.append(
+            {
+                "kind": "baseline",
+                "map": "ps_cumberland",
+                "policy": pol,
+                "runs": len(g),
+                "avg_idleness_mean": float(pd.to_numeric(g["avg_idleness"]).mean()),
+            }
+        )
+    for path in sorted(neural.WEIGHTS_DIR.glob(f"ps_cumberland_{NEURAL_TEAM}_seed*.curve.csv")):
+        seed = int(path.name.split("seed")[-1].split(".")[0])
+        curve = read_csv(path)
+        for _, r in curve.iterrows():
+            rows.append(
+                {
+                    "kind": "curve",
+                    "map": "ps_cumberland",
+                    "policy": "neural",
+                    "seed": seed,
+                    "team_steps": int(r["team_steps"]),
+                    "seconds": float(r["seconds"]),
+                    "avg_idleness_mean": float(r["avg_idleness"]),
+                }
+            )
+    return pd.DataFrame(rows)

@@ -1338,3 +1338,62 @@ def security_recovery(csv: str | Path, out: str | Path) -> Path:
     )
     fig.tight_layout()
     return _save(fig, out, dpi=120)  # (many lines: a smaller file)
+
+
+def neural(csv: str | Path, out: str | Path) -> Path:
+    """The neural policy: its training (average idleness of each batch of runs against
+    team steps trained, one line per training seed, with cyclic and SEBS in the same
+    setting as lines), and its study (per map and robots failing: the policy, mean over
+    its training seeds with their range, beside the best strategy, SEBS and cyclic)."""
+    df = read_csv(csv)
+    fig, (ax0, ax1) = plt.subplots(1, 2, figsize=(13, 4.6), gridspec_kw={"width_ratios": [1, 1.6]})
+    curve = df[df["kind"] == "curve"]
+    for seed, g in curve.groupby("seed"):
+        label = f"PPO seed {int(seed)}"
+        ax0.plot(g["team_steps"] / 1e6, g["avg_idleness_mean"], lw=1.2, label=label)
+    base = df[df["kind"] == "baseline"]
+    for pol, style in (("cyclic", ":"), ("sebs", "--")):
+        b = base[base["policy"] == pol]["avg_idleness_mean"]
+        if len(b):
+            ax0.axhline(
+                float(b.iloc[0]), color="k", ls=style, lw=1, label=f"{pol} ({b.iloc[0]:.1f})"
+            )
+    ax0.set_xlabel("team steps trained (millions, all runs)")
+    ax0.set_ylabel("average idleness")
+    ax0.set_title("training on ps_cumberland, 6 robots (1,000-step runs)", fontsize=9)
+    ax0.legend(fontsize=7)
+    study = df[df["kind"] == "study"]
+    settings = list(dict.fromkeys(zip(study["map"], study["failures"], strict=True)))
+    x = np.arange(len(settings))
+    width = 0.2
+    bars = {"neural": [], "best": [], "sebs": [], "cyclic": []}
+    lo, hi, best_names = [], [], []
+    for m, f in settings:
+        d = study[(study["map"] == m) & (study["failures"] == f)]
+        nn = d[d["policy"] == "neural"]["avg_idleness_mean"]
+        bars["neural"].append(nn.mean())
+        lo.append(nn.mean() - nn.min())
+        hi.append(nn.max() - nn.mean())
+        others = d[d["policy"] != "neural"]
+        b = others.loc[others["avg_idleness_mean"].idxmin()]
+        bars["best"].append(b["avg_idleness_mean"])
+        best_names.append(str(b["policy"]))
+        for pol in ("sebs", "cyclic"):
+            v = others[others["policy"] == pol]["avg_idleness_mean"]
+            bars[pol].append(float(v.iloc[0]) if len(v) else np.nan)
+    for i, (name, vals) in enumerate(bars.items()):
+        err = (lo, hi) if name == "neural" else None
+        ax1.bar(x + (i - 1.5) * width, vals, width, yerr=err, capsize=2, label=name)
+    for xi, (v, name) in enumerate(zip(bars["best"], best_names, strict=True)):
+        ax1.text(xi - 0.5 * width, v, name, rotation=90, fontsize=6, ha="center", va="bottom")
+    names = [f"{m.removeprefix('ps_')}\n{int(f)} failing" for m, f in settings]
+    ax1.set_xticks(x, names, fontsize=7)
+    ax1.set_ylabel("average idleness (mean over runs)")
+    ax1.set_yscale("log")
+    ax1.set_title(
+        "6 robots, interference, 3,000 steps after 1,000; neural: mean and range over seeds",
+        fontsize=9,
+    )
+    ax1.legend(fontsize=7)
+    fig.tight_layout()
+    return _save(fig, out)

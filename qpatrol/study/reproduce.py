@@ -398,6 +398,8 @@ def _figures() -> dict[str, Figure]:
                 plots.security_recovery,
                 sweep_key="policy",
             ),
+            # the neural policy's study: `qpatrol sweep neural`, not part of reproduce
+            Figure("neural", "neural", fd.neural_data, plots.neural, sweep_key="policy"),
         )
     }
 

@@ -344,6 +344,70 @@ def learning_overrides(quick: bool = False) -> list[dict[str, Any]]:
     return [{"policy": n, "steps": steps(n)} for n in STRATEGY_NAMES if n != "random"]
 
 
+#: The neural policy's study (``qpatrol sweep neural``): the trained policy (one point per
+#: training seed's weights, :data:`NEURAL_SEEDS`) against every strategy, 6 robots (the
+#: team it was trained with) on the field's four graphs and a grid maze it never saw,
+#: without and with 2 robots failing :data:`NEURAL_FAIL_AFTER` steps into the window.
+NEURAL_MAPS = ("ps_grid", "ps_example", "ps_cumberland", "ps_diag_floor1", "map_a")
+NEURAL_TEAM = 6
+NEURAL_FAILURES = (0, 2)
+NEURAL_FAIL_AFTER = 1_000
+NEURAL_SEEDS = (0, 1, 2)
+#: The training's setting (:mod:`qpatrol.learners.ppo`): runs of this many steps,
+#: measured after the first NEURAL_TRAIN_WARMUP, for the training curve's lines.
+NEURAL_TRAIN_STEPS = 1_000
+NEURAL_TRAIN_WARMUP = 200
+
+
+def neural_weights(seed: int) -> str:
+    """The shipped weights of training seed ``seed`` (a name ``neural.weights`` finds)."""
+    return f"ps_cumberland_{NEURAL_TEAM}_seed{seed}.npz"
+
+
+def neural_overrides(quick: bool = False) -> list[dict[str, Any]]:
+    """Every strategy and each training seed's neural policy x map x failures, with the
+    policies study's warm-up and window; then cyclic and SEBS in the training's setting
+    on ps_cumberland (the training curve's lines).
+
+    ``quick``: two graphs, no failure and 2 failing, short runs (a smoke test)."""
+    maps = ("ps_example", "ps_cumberland") if quick else NEURAL_MAPS
+    window, fail_after = (600, 200) if quick else (POLICY_WINDOW, NEURAL_FAIL_AFTER)
+    points = []
+    classic = [p for p in _every_strategy(maps, (NEURAL_TEAM,), window, quick)]
+    neural = []
+    warm = 200 if quick else POLICY_WARMUP
+    for seed in NEURAL_SEEDS:
+        for m in maps:
+            neural.append(
+                {
+                    "map": m,
+                    "policy": "neural",
+                    "neural.weights": neural_weights(seed),
+                    "agents": NEURAL_TEAM,
+                    "steps": warm + window,
+                    "record.warmup": warm,
+                }
+            )
+    for p in classic + neural:
+        for failed in NEURAL_FAILURES:
+            at = p["record.warmup"] + fail_after
+            points.append({**p, "failures.robots": failed, "failures.at": at})
+    for name in ("cyclic", "sebs"):
+        points.append(
+            {
+                "map": "ps_cumberland",
+                "policy": name,
+                "agents": NEURAL_TEAM,
+                "steps": NEURAL_TRAIN_STEPS,
+                "record.warmup": NEURAL_TRAIN_WARMUP,
+                "failures.robots": 0,
+                "failures.at": 0,
+                "runs": 100,
+            }
+        )
+    return points
+
+
 NAMED_SWEEPS: dict[str, NamedSweep] = {
     "gamma": NamedSweep(
         "configs/gamma.yaml", "learning.gamma", [round(0.1 * i, 1) for i in range(1, 10)]
@@ -363,6 +427,7 @@ NAMED_SWEEPS: dict[str, NamedSweep] = {
     "field": NamedSweep("configs/field.yaml", field_overrides, None),
     "security": NamedSweep("configs/security.yaml", security_overrides, None),
     "learning": NamedSweep("configs/learning.yaml", learning_overrides, None),
+    "neural": NamedSweep("configs/neural.yaml", neural_overrides, None),
 }
 
 

@@ -40,7 +40,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from qpatrol.config import INTERACTIONS, Config, ConfigError
-from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs
+from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs, search
 from qpatrol.maps.core import balls, far_targets
 from qpatrol.world import battery, interference, traffic
 
@@ -240,7 +240,6 @@ def make_params(cfg: Config, m: Map) -> Params:
             )
     if battery_on and exclusive:
         check_battery_room(k, m, pocket_of, station_of, home_dir, pocket_entry)
-    dist = m.distances()
     onward = onward_ports(m)
     return Params(
         n_cells=c,
@@ -261,7 +260,7 @@ def make_params(cfg: Config, m: Map) -> Params:
         pocket_entry=pocket_entry,
         starts=m.starts,
         target=m.target,
-        diameter=int(dist.max()),
+        diameter=m.diameter(),
         # on a patrol graph a heading is a port, not a compass direction: port 0
         initial_heading=0 if m.is_graph else DIRECTIONS.index(cfg["learning.initial_heading"]),
         incremental_value=float(cfg["reward.incremental_value"]),
@@ -516,18 +515,20 @@ def place_agents(p: Params, m: Map, rng: np.random.Generator) -> np.ndarray:
     every robot placed so far, ties broken by ``rng``, which spreads the team over the map.
     """
     k = p.n_agents
-    placed = list(p.starts[:k])
+    placed = [int(x) for x in p.starts[:k]]
     if len(placed) < k:
-        dist = m.distances()
+        # moves to the nearest robot placed (a map is connected), kept by one pruned
+        # search per robot (search.relax), not a [C, C] table
+        near = np.full(p.n_cells, np.iinfo(np.int64).max // 4, dtype=np.int64)
+        for c in placed:
+            search.relax(m.neighbors, c, near)
         while len(placed) < k:
-            if placed:
-                far = dist[placed].min(axis=0)
-            else:
-                far = np.ones(p.n_cells, dtype=np.int64)
+            far = near.copy() if placed else np.ones(p.n_cells, dtype=np.int64)
             far[placed] = -1
             far[~p.target] = -1  # a graph's robots start on vertices, not inside edges
             best = np.flatnonzero(far == far.max())
             placed.append(int(best[rng.integers(best.size)]))
+            search.relax(m.neighbors, placed[-1], near)
     return np.array(placed, dtype=np.int64)
 
 

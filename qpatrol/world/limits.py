@@ -4,7 +4,11 @@
 * The memory a run needs is estimated from the world's and the strategy's arrays
   (:func:`bytes_per_run`: for Q-learning agents x cells x D x D Q-values and visit counts;
   dot maps, visit counts, the trajectory buffer, the Q-update log), plus what a batch
-  needs whatever its runs (:func:`batch_bytes`: the all-pairs distances of the map).
+  needs whatever its runs (:func:`batch_bytes`: the stations' rows of moves, and the
+  strategy's ``[C, C]`` distance table for the strategies that keep one).
+* The strategies that keep that table (:data:`TABLE_POLICIES`) are refused on maps of
+  more than :data:`qpatrol.maps.core.TABLE_CELLS` cells; ``cyclic`` there reads rows of
+  moves searched per robot instead, and nothing else needs a table.
   :func:`qpatrol.run.simulate` computes the runs in consecutive batches of at most
   :func:`batch_runs` runs, so that a batch stays under ``memory.limit_gib``; a config
   whose batch still needs more than the machine has available is refused with one
@@ -18,7 +22,26 @@ import os
 from dataclasses import dataclass
 
 from qpatrol.config import Config, ConfigError
-from qpatrol.maps import Map
+from qpatrol.maps import Map, core
+
+#: Strategies that keep the map's ``[C, C]`` distance table (or build one for their walks
+#: or regions): refused above ``TABLE_CELLS`` cells.
+TABLE_POLICIES = (
+    "partition",
+    "hcr",
+    "cc",
+    "gbs",
+    "sebs",
+    "dta-greedy",
+    "dta-ssi",
+    "dta-ssi-part",
+    "cbls",
+    "learned-tour",
+    "hpcc",
+    "gravitational",
+)
+#: Strategies that read distances per robot on a large map (rows of moves to a goal).
+ROW_POLICIES = ("cyclic",)
 
 #: Memory of the Python process before any array (interpreter, numpy, pandas).
 BASE_BYTES = 200 * 2**20
@@ -28,7 +51,7 @@ ROW_BYTES = 17 * 8 * 2
 
 @dataclass(frozen=True)
 class Estimate:
-    """Bytes a batch needs: ``total``, and the part taken by all-pairs distances."""
+    """Bytes a batch needs: ``total``, and the part taken by the distance table."""
 
     total: int
     distances: int
@@ -50,6 +73,8 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
         # dot maps
         "qlearning-idleness": k * c * d**3 * (8 + 4) + g * c * 9,
     }.get(policy, 0)
+    if policy in ROW_POLICIES and c > core.TABLE_CELLS:  # each robot's row, the run's queue
+        strategy += (k + 1) * c * 8 * 2  # the numpy and the compiled copy
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
     intruders = intruder_bytes(cfg, m)
     timeline = 0
@@ -81,9 +106,18 @@ def intruder_bytes(cfg: Config, m: Map) -> int:
 
 
 def batch_bytes(cfg: Config, m: Map) -> int:
-    """Estimated bytes of a batch that do not grow with its runs: the all-pairs distances
-    and homes of the map, and the compiled engine's block of uniforms (up to 16 MiB)."""
-    return 2 * m.n_cells * m.n_cells * 8 + 2 * len(m.homes) * m.n_cells * 8 + 16 * 2**20
+    """Estimated bytes of a batch that do not grow with its runs: the distance table (of
+    the strategies that keep one, and its compiled copy), the stations' rows, and the
+    compiled engine's block of uniforms (up to 16 MiB)."""
+    return table_bytes(cfg, m) + 2 * len(m.homes) * m.n_cells * 8 + 16 * 2**20
+
+
+def table_bytes(cfg: Config, m: Map) -> int:
+    """Bytes of the ``[C, C]`` distance table a strategy keeps (0 for the others)."""
+    keeps = cfg["policy"] in TABLE_POLICIES or (
+        cfg["policy"] in ROW_POLICIES and m.n_cells <= core.TABLE_CELLS
+    )
+    return 2 * m.n_cells * m.n_cells * 8 if keeps else 0
 
 
 def batch_runs(cfg: Config, m: Map) -> int:
@@ -121,7 +155,7 @@ def estimate_memory(cfg: Config, m: Map) -> Estimate:
     """Estimated peak memory (bytes) of simulating ``cfg`` on ``m`` in batches of at most
     :func:`batch_runs` runs: one batch's arrays and the results of all runs."""
     r = min(cfg["runs"], batch_runs(cfg, m))
-    dist = 2 * m.n_cells * m.n_cells * 8  # all-pairs distances (diameter, walks, placement)
+    dist = table_bytes(cfg, m)
     total = (
         BASE_BYTES
         + batch_bytes(cfg, m)
@@ -158,22 +192,20 @@ def check_config_on_map(cfg: Config, m: Map, available: int | None = None) -> No
             f"record.watch: got {bad}; allowed: states 0 to {m.n_cells - 1} of map {m.name} "
             "(`qpatrol maps show` numbers them)"
         )
+    if cfg["policy"] in TABLE_POLICIES and m.n_cells > core.TABLE_CELLS:
+        raise ConfigError(
+            f"policy: {cfg['policy']} keeps a cells x cells table of distances, and map "
+            f"{m.name} has {m.n_cells:,} cells (allowed: at most {core.TABLE_CELLS:,}); on larger "
+            "maps use cyclic, qlearning, qlearning-idleness, conscientious, "
+            "shared-conscientious, evap or random, or a map of fewer cells (a larger --cell "
+            "or --edge-step when importing)"
+        )
     need = estimate_memory(cfg, m)
     have = available if available is not None else available_memory()
-    if have is not None and need.distances > have:  # the map alone is too large
-        c = m.n_cells
-        raise ConfigError(
-            f"memory: runs={cfg['runs']}, steps={cfg['steps']}, agents={cfg['agents']} on map "
-            f"{m.name} ({c:,} cells) need about {_gib(need.total)}, {_gib(need.distances)} of "
-            f"it for the map's all-pairs distances alone (a {c:,} x {c:,} table of moves that "
-            "every run computes before its first step, whatever runs, steps and agents); "
-            f"this machine has {_gib(have)} available; use a map of fewer cells (a larger "
-            "--cell or --edge-step when importing)"
-        )
     if have is not None and need.total > have:
         why = ""
         if need.distances > need.total / 2:
-            why = f", mostly the all-pairs distances of its {m.n_cells:,} cells"
+            why = f", mostly the distance table of its {m.n_cells:,} cells"
         raise ConfigError(
             f"memory: runs={cfg['runs']}, steps={cfg['steps']}, agents={cfg['agents']} on map "
             f"{m.name} ({m.n_cells:,} cells) need about {_gib(need.total)}{why}; this machine "

@@ -13,12 +13,16 @@ E, S, W on a grid) of a shortest path to its target cell. Then (collisions avoid
 robots each of whose next cell is the other's cell swap plans, advance, skip and ask
 again. Robots whose tasks the world exchanged exchange plans (:func:`exchange`).
 
-Pack: ``robot_i`` int64 ``[R, K, 5]`` = (``wid``, ``target``, ``hold`` as 0/1,
-``spacing``, scratch) of each robot, copied from the strategy and back by
-:func:`unpack` (not the scratch); ``table_i`` = ``walk`` int64 ``[W, Lmax]``;
-``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, C]``; ``ipar = [gather (1:
+Pack: ``robot_i`` int64 ``[R, K, 6]`` = (``wid``, ``target``, ``hold`` as 0/1,
+``spacing``, scratch, the goal of the robot's row) of each robot, copied
+from the strategy and back by :func:`unpack` (not the last two); ``table_i`` = ``walk``
+int64 ``[W, Lmax]``; ``row_i`` = ``length`` int64 ``[W]``; ``dist`` int64 ``[C, C]``
+(the strategy's table) or, on a map of more than ``TABLE_CELLS`` cells (rows mode), int64
+``[R (K + 1), C]``: each robot's row of moves to the goal it last searched, then its
+run's search queue (as the numpy twin's ``goal_rows``: a robot next to its goal steps onto it,
+one farther away searches from its goal when the goal changes); ``ipar = [gather (1:
 cyclic), gather_until, Lmax, early exchanges on (collisions avoided), spacing rule
-on]``.
+on, five slots learned-tour uses (0 here), rows mode]``.
 """
 
 from __future__ import annotations
@@ -29,7 +33,7 @@ from numba import njit
 from qpatrol.engines.compiled.pack import Pack, dummy_pack
 
 #: Columns of ``robot_i``.
-WID, TARGET, HOLD, SPACING, SCRATCH = 0, 1, 2, 3, 4
+WID, TARGET, HOLD, SPACING, SCRATCH, ROWGOAL = 0, 1, 2, 3, 4, 5
 GONE = 4  # battery.GONE
 
 
@@ -37,8 +41,22 @@ def pack(strategy) -> Pack:
     """The walks, distances and each robot's walk, target, hold and spacing."""
     scratch = np.zeros_like(strategy.target)
     robots = np.stack(
-        [strategy.wid, strategy.target, strategy.hold, strategy.spacing, scratch], axis=-1
+        [
+            strategy.wid,
+            strategy.target,
+            strategy.hold,
+            strategy.spacing,
+            scratch,
+            np.full_like(strategy.target, -1),
+        ],
+        axis=-1,
     ).astype(np.int64)
+    by_rows = strategy.dist is None
+    if by_rows:
+        R, K = strategy.target.shape
+        dist = np.zeros((R * (K + 1), strategy.params.n_cells), dtype=np.int64)
+    else:
+        dist = np.ascontiguousarray(strategy.dist, dtype=np.int64)
     gather = strategy.name == "cyclic"
     ipar = [
         int(gather),
@@ -46,13 +64,15 @@ def pack(strategy) -> Pack:
         int(strategy.length.max()),
         int(strategy.params.avoid_collisions and strategy.exchange_early),
         int(strategy.keep_spacing),
+        *[0] * 5,  # learned-tour's parameters (compiled/tour.py)
+        int(by_rows),
     ]
     return dummy_pack(
         ipar=np.array(ipar, dtype=np.int64),
         robot_i=np.ascontiguousarray(robots),
         table_i=np.ascontiguousarray(strategy.walk[0], dtype=np.int64),
         row_i=np.ascontiguousarray(strategy.length[0], dtype=np.int64),
-        dist=np.ascontiguousarray(strategy.dist, dtype=np.int64),
+        dist=dist,
     )
 
 
@@ -123,6 +143,44 @@ def _advance_on_target(r, pos, target, choosing, mask, ipar, ri, walk, length):
             _advance(ri, k, length)
 
 
+@njit(cache=True, nogil=True, _nrt=False)
+def _row_step(r, k, c, goal, nbrs, ri, dist):
+    """Rows mode: the first move (lowest port) of a shortest path from c to goal, -1 on
+    it: onto a neighbouring goal directly, else by robot k's row, searched from the goal
+    (breadth-first, into ``dist``'s row of the robot, the run's last row the queue) when
+    the goal is not its row's."""
+    if c == goal:
+        return -1
+    for d in range(nbrs.shape[1]):
+        if nbrs[c, d] == goal:
+            return d
+    n_agents = ri.shape[0]
+    row = dist[r * (n_agents + 1) + k]
+    if ri[k, ROWGOAL] != goal:
+        queue = dist[r * (n_agents + 1) + n_agents]
+        for x in range(row.shape[0]):
+            row[x] = -1
+        row[goal] = 0
+        queue[0] = goal
+        head, tail = 0, 1
+        while head < tail:
+            v = queue[head]
+            head += 1
+            for d in range(nbrs.shape[1]):
+                x = nbrs[v, d]
+                if x >= 0 and row[x] < 0:
+                    row[x] = row[v] + 1
+                    queue[tail] = x
+                    tail += 1
+        ri[k, ROWGOAL] = goal
+    closer = row[c] - 1
+    for d in range(nbrs.shape[1]):
+        nb = nbrs[c, d]
+        if nb >= 0 and row[nb] == closer:
+            return d
+    return -1
+
+
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _skip_and_ask(
     r, nbrs, battery, pocket_of, pos, reserved, choosing, ask, ipar, ri, walk, length, dist
@@ -146,6 +204,9 @@ def _skip_and_ask(
             continue
         c = pos[r, k]
         goal = walk[ri[k, WID], ri[k, TARGET]]
+        if ipar[10] != 0:
+            ask[k] = _row_step(r, k, c, goal, nbrs, ri, dist)
+            continue
         closer = dist[c, goal] - 1
         for d in range(nbrs.shape[1]):
             nb = nbrs[c, d]

@@ -18,7 +18,7 @@ Pack: ``robot_i`` as :mod:`~qpatrol.engines.compiled.follow`'s; ``cell_i`` int64
 learner), two rows per learner of history (team steps, lengths), three scratch rows;
 ``table_i`` = the nearest targets ``[C, n]``; ``dist`` int64 ``[C, C]``; ``ipar = [0,
 0, width, early exchanges on, spacing rule on, G, kick_after, T, kick window,
-learn_steps (-1: the whole run)]``.
+learn_steps (-1: the whole run), 0 (follow.py's rows mode, off)]``.
 """
 
 from __future__ import annotations
@@ -76,7 +76,8 @@ def pack(strategy) -> Pack:
             cell[r, h, : len(hist)] = [s for s, _ in hist]
             cell[r, h + 1, : len(hist)] = [n for _, n in hist]
     ipar = np.array(
-        [0, 0, width, fp.ipar[3], fp.ipar[4], G, strategy.kick_after, T, 40, strategy.learn_steps],
+        [0, 0, width, fp.ipar[3], fp.ipar[4], G, strategy.kick_after, T, 40, strategy.learn_steps]
+        + [0],  # no rows mode (follow.py): learned-tour keeps the table
         dtype=np.int64,
     )
     return dummy_pack(
