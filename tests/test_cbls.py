@@ -144,5 +144,5 @@ def test_safe_and_live(name, k, battery):
     seed = sum(map(ord, name + "cbls")) + k
     extra = {} if battery else {"battery.enabled": False}
     engine = FAST if battery else "numpy"
-    max_wait, bound, _ = drive(m, "cbls", k, seed, steps=600, engine=engine, **extra)
-    assert max_wait.max() <= bound, f"{name} K={k} cbls: max_wait {max_wait} > {bound}"
+    stall, bound, _ = drive(m, "cbls", k, seed, steps=600, engine=engine, **extra)
+    assert stall.max() <= bound, f"{name} K={k} cbls: max_stall {stall} > {bound}"

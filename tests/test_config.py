@@ -77,7 +77,7 @@ def test_nested_yaml_and_overrides(tmp_path: Path):
             {"learning.gamma": 1.5},
             "learning.gamma: got 1.5 (out of range); allowed: a number in [0, 1]",
         ),
-        ({"agents": 0}, "agents: got 0 (out of range); allowed: an integer in [1, 64]"),
+        ({"agents": 0}, "agents: got 0 (out of range); allowed: an integer in [1, 1024]"),
         ({"agents": 2.5}, "agents: got 2.5; allowed: an integer"),
         ({"agents": True}, "agents: got True"),
         ({"learning.gama": 0.1}, "unknown config key 'learning.gama'"),

@@ -238,5 +238,5 @@ def test_safe_and_live(policy, name, k, battery):
     seed = sum(map(ord, name + policy)) + k
     extra = {} if battery else {"battery.enabled": False}
     engine = FAST if battery else "numpy"
-    max_wait, bound, _ = drive(m, policy, k, seed, steps=600, engine=engine, **extra)
-    assert max_wait.max() <= bound, f"{name} K={k} {policy}: max_wait {max_wait} > {bound}"
+    stall, bound, _ = drive(m, policy, k, seed, steps=600, engine=engine, **extra)
+    assert stall.max() <= bound, f"{name} K={k} {policy}: max_stall {stall} > {bound}"

@@ -560,5 +560,5 @@ def test_safe_and_live(name, k, bat):
     m = get_map("map_a") if name == "map_a" else parse_map(GRAPH)
     extra = {} if bat else {"battery.enabled": False}
     engine = FAST if bat else "numpy"
-    max_wait, bound, _ = drive(m, "gravitational", k, 7 + k, steps=400, engine=engine, **extra)
-    assert max_wait.max() <= bound, f"{name} K={k}: max_wait {max_wait} > {bound}"
+    stall, bound, _ = drive(m, "gravitational", k, 7 + k, steps=400, engine=engine, **extra)
+    assert stall.max() <= bound, f"{name} K={k}: max_stall {stall} > {bound}"

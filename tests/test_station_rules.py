@@ -302,11 +302,11 @@ def test_pockets_of_one_junction_are_not_taken_at_once(engine):
     assert s.goal[0].tolist() == [0, 1]
 
 
-def test_wait_bound_exact_value():
-    """``measures.wait_bound``, the fair-queue bound of docs/model.md, on a map whose
-    quantities are counted by hand: ``K x (charge_steps + 2 x max depart_len +
-    2 x diameter + 1) + diameter`` with the battery on, ``(K - 1)(diameter + 1) + 1``
-    without."""
+def test_stall_bound_exact_value():
+    """``measures.stall_bound``, the bound on a stretch without progress of docs/model.md,
+    on a map whose quantities are counted by hand: a trip of ``diameter + 2`` steps;
+    ``K x (charge_steps + 2 x max depart_len + 2 x trip + 1) + trip`` with the battery
+    on, ``K x trip`` without."""
     K, charge_steps = 3, 4
     cfg = from_flat({"agents": K, "battery.capacity": 20, "battery.charge_steps": charge_steps})
     p = world.make_params(cfg, parse_map(TWO_DEAD_ENDS))
@@ -317,12 +317,13 @@ def test_wait_bound_exact_value():
     depart_len, diameter = [2, 3], 5
     assert p.homes.tolist() == [3, 10]
     assert p.depart_len.tolist() == depart_len and p.diameter == diameter
-    # the formula's terms, spelled out (a new formula: rewrite these two lines from the
-    # hand-counted quantities above, not from what wait_bound returns)
-    turnaround = charge_steps + 2 * max(depart_len) + 2 * diameter + 1  # 4 + 6 + 11 = 21
-    assert measures.wait_bound(p) == K * turnaround + diameter == 3 * 21 + 5 == 68
+    # the formula's terms, spelled out (a new formula: rewrite these lines from the
+    # hand-counted quantities above, not from what stall_bound returns)
+    trip = diameter + 2  # 7
+    turnaround = charge_steps + 2 * max(depart_len) + 2 * trip + 1  # 4 + 6 + 14 + 1 = 25
+    assert measures.stall_bound(p) == K * turnaround + trip == 3 * 25 + 7 == 82
     off = world.make_params(cfg.replace(**{"battery.enabled": False}), parse_map(TWO_DEAD_ENDS))
-    assert measures.wait_bound(off) == (K - 1) * (diameter + 1) + 1 == 2 * 6 + 1 == 13
+    assert measures.stall_bound(off) == K * trip == 21
 
 
 # --- 4. charging, then holding the station while leaving -----------------------------------
@@ -623,7 +624,7 @@ ROW_DEEP = ".....-.....\n#####.#####\n#####.#####\n#####H#####\n"
 def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
     """Robots 1, 2, 3 patrol in the pocket (11, 12, 13) of H, which robot 0 holds; robot
     4 waits for a station on the junction 5. Shut in, the three step out, robot 1 first,
-    blocked by robot 4. Robot 3, deepest and the longest waiting, gets the right of way
+    blocked by robot 4. Robot 3, deepest and with the oldest task, gets the right of way
     and pushes the whole row out: robots 2 and 1 one cell towards the junction (a push
     inside a held pocket may go towards its junction), robot 4 off the junction, East.
     Stepping out is yielding: free; robot 4, pushed away from H, is credited a move."""
@@ -633,10 +634,9 @@ def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
     team.holds(0, 0, mode=HOMING)
     s.mode[0, 4] = QUEUED
     s.charge[0, 4] = 4  # 4 <= 3 + 0 + 1 (three moves from H): it still needs a station
-    s.wait[0, 3] = 5
+    s.since[0, 3] = -5  # robot 3's task is the oldest
     # step 1: robot 0 walks East, 0 -> 1 (19). Robots 1, 2, 3 ask for 5, 11, 12: all
-    #   taken, they wait (1, 1, 6); robot 4 waits for H. Right of way: robot 3, the
-    #   longest waiting.
+    #   taken, they wait; robot 4 waits for H. Right of way: robot 3, the oldest task.
     team.step([FIRST] * 5)
     assert s.pos[0].tolist() == [1, 11, 12, 13, 5] and s.token[0] == 3
     # step 2: robot 3 asks for 12: the push search from 12 goes to 11 (towards the
@@ -649,27 +649,24 @@ def test_a_push_shifts_robots_out_of_a_held_pocket(engine):
 
 
 @pytest.mark.parametrize("longest", [0, 2])
-def test_the_right_of_way_goes_to_the_longest_waiting_whatever_it_does(engine, longest):
+def test_the_right_of_way_goes_to_the_oldest_task_whatever_it_does(engine, longest):
     """Robot 0, homing to H, is blocked by robot 3 (queued on 2); robot 2, shut in the
     pocket behind robot 1, and robot 1, blocked by robot 4 on the junction, step out.
-    One of robot 0 (homing) and robot 2 (stepping out of a pocket) has waited 9 steps,
-    the others none. After a step in which all three are blocked, the right of way goes
-    to the one that has waited longest: one order for every robot, whether it patrols,
-    homes or steps out of a pocket."""
+    One of robot 0 (homing) and robot 2 (stepping out of a pocket) began its task 9
+    steps before the others. After a step in which all three are blocked, the right of
+    way goes to the one with the oldest task: one order for every robot, whether it
+    patrols, homes or steps out of a pocket."""
     team = Team(engine, ROW_DEEP, [1, 11, 12, 2, 5])
     s = team.s
     team.holds(0, 0, mode=HOMING)
     s.mode[0, [3, 4]] = QUEUED
     s.charge[0, [3, 4]] = [4, 4]  # at most 3 + 0 + 1 moves from H: both still queue
-    s.wait[0, longest] = 9
+    s.since[0, longest] = -9
     # step 1: robot 0 asks for 2, robot 1 for 5, robot 2 for 11: all taken, each waits
-    #   one step more (10 for the one that had waited 9, 1 for the others). Right of way:
-    #   that one.
+    #   a step. Right of way: the oldest task.
     team.step([FIRST] * 5)
     assert s.pos[0].tolist() == [1, 11, 12, 2, 5]
-    want = [1, 1, 1]
-    want[longest] = 10
-    assert s.wait[0, :3].tolist() == want
+    assert s.wait[0, :3].tolist() == [1, 1, 1]
     assert s.token[0] == longest
     if longest != 0:
         return

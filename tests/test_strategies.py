@@ -308,16 +308,16 @@ def test_cyclic_head_on_robots_exchange_their_plans():
         assert s.pos[0].tolist() == [walk[i0], walk[i1]] and out.as_asked[0].all()
 
 
-def test_walk_followers_that_blocked_each_other_exchange_their_plans():
-    """The fallback: two robots that blocked each other in the last step (the outcome's
-    ``blocked_by``) exchange walks, targets and spacings when they next choose, wherever
-    they stand (on the 12-ring, robots on cells 0 and 11, far from meeting)."""
+def test_walk_followers_whose_tasks_the_world_exchanged_exchange_their_plans():
+    """When the world exchanges two robots' tasks (``Outcome.swapped``,
+    :func:`qpatrol.world.traffic.hand_on`) they exchange walks, targets and spacings,
+    wherever they stand (on the 12-ring, robots on cells 0 and 11); others keep theirs."""
     _, m, p, s, strat = setup(RING12, [0, 11], "cyclic")
-    strat.hold[:] = False
     strat.target[0] = [1, 6]
     strat.spacing[0] = [5, 7]
-    strat.blocked_by[0] = [1, 0]
-    strat.act(world.begin_step(s, p), u_for(0.0, agents=2))
+    strat.exchange(np.array([[1, 0]]))
+    assert strat.target[0].tolist() == [6, 1] and strat.spacing[0].tolist() == [7, 5]
+    strat.exchange(np.array([[-1, -1]]))
     assert strat.target[0].tolist() == [6, 1] and strat.spacing[0].tolist() == [7, 5]
 
 

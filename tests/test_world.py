@@ -354,7 +354,10 @@ def test_head_on_robots_never_swap_and_the_token_holder_pushes_through():
     assert out.moved[0].tolist() == [True, True]
     assert out.as_asked[0].tolist() == [True, False]
     assert w.s.wait[0].tolist() == [0, 2]
-    assert w.s.token[0] == 0 and w.s.token_held[0] == 1  # a successful push keeps it
+    # robot 0's task (no aim: enter a target) ended with its move; robot 1's, blocked,
+    # is now the oldest and takes the right of way
+    assert out.progressed[0].tolist() == [True, False]
+    assert w.s.token[0] == 1 and w.s.token_held[0] == 0
 
 
 def test_two_robots_asking_for_one_cell_the_turn_decides():
@@ -762,13 +765,17 @@ def test_the_token_holder_is_offered_only_moves_a_push_can_make_room_for():
     assert obs.open[0, 3].tolist() == [False, True, False, False]  # not the holder
     out = world.step(w.s, w.p, obs, np.array([[EAST, -1, -1, -1]]))
     assert out.as_asked[0, 0] and w.s.pos[0].tolist() == [4, 7, 8, 5]
-    # a move it was not offered (a walk follower's or a homing robot's insisting) fails:
-    # it steps aside instead, into the first move it can make
+    # a move it was not offered (into the full dead end: an insisting robot's) cannot be
+    # made: the holder's task goes on through the robot in its way, robot 1 on 7 (both
+    # patrol: they exchange tasks, and robot 1 takes the right of way)
     w = build(text, [3, 7, 8, 4], **on)
     w.s.token[0] = 0
+    w.s.since[0] = [-4, 0, 0, 0]
     obs = world.begin_step(w.s, w.p)
     out = world.step(w.s, w.p, obs, np.array([[SOUTH, -1, -1, -1]]))
-    assert out.moved[0, 0] and not out.as_asked[0, 0] and w.s.pos[0, 0] == 4
+    assert not out.moved[0, 0] and w.s.pos[0].tolist() == [3, 7, 8, 4]
+    assert out.swapped[0].tolist() == [1, 0, -1, -1]
+    assert w.s.since[0].tolist() == [0, -4, 0, 0] and w.s.token[0] == 1
 
 
 # --- homing around a busy station ---------------------------------------------------------

@@ -179,7 +179,9 @@ class Sim:
         out = world.step(self.state, self.params, self.obs, np.asarray(choice)[None, :])
         self.recorder.episodes(out.t, out.episodes)
         p = self.params
-        self.measures.observe(out, self.state.wait, self.state.charge if p.battery else None)
+        s = self.state
+        stall = np.where(s.mode != world.GONE, out.t - s.since, 0)
+        self.measures.observe(out, s.wait, s.charge if p.battery else None, None, stall)
         self.outcome = out
         if not self.done:
             self._begin()

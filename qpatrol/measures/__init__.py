@@ -341,20 +341,21 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
 def stall_bound(p: Params) -> int:
     """The longest stretch without progress a live team may show (``max_stall``).
 
-    ``trip`` is the most steps a task takes once its robot moves for it: under
-    ``exclusive`` ``2 x diameter + 1`` (a task's aim is at most ``diameter`` moves away,
-    and its robot, blocked, holds the right of way from the next step on: docs/model.md,
-    "What is proven"); under ``interference`` a trip of ``diameter`` moves with stops
+    ``trip`` is the most steps a task takes once it is the oldest: under ``exclusive``
+    ``diameter + 2`` (its aim is at most ``diameter`` moves away; it moves one cell
+    closer every step but one, and from the step after it is first blocked its robot
+    holds the right of way: docs/model.md, "What is proven"); under ``interference`` a
+    trip of ``diameter`` moves with stops
     (:func:`qpatrol.world.interference.travel_steps`); under ``none`` ``diameter``.
     Without battery a task waits at most for the K - 1 older tasks: ``K x trip`` (a
-    theorem under every interaction). With the battery a robot may queue behind every
+    theorem for strategies that keep asking for a shortest way to their aim). With the battery a robot may queue behind every
     other robot of the team, each of which travels to a station, charges
     (``charge_steps``) and clears the station's pocket (``2 x depart_len``): ``K x
     (charge_steps + 2 x max depart_len + 2 x trip + 1) + trip``, a yardstick under
     ``exclusive`` and a theorem when robots pass each other (docs/model.md).
     """
     if p.avoid_collisions:
-        trip = 2 * p.diameter + 1
+        trip = p.diameter + 2
     else:
         trip = interference.travel_steps(p.diameter, p)
     if not p.battery:

@@ -304,9 +304,9 @@ def team_size(fig: pd.DataFrame) -> Section:
                 ]
             ),
             trend,
-            f"Frozen runs (a robot waited longer than a fair station queue, "
-            f"`wait_bound` in summary.json): {frozen} of {total}. 'Longest wait' is the "
-            "largest `max_wait` of any run of the point, in team steps.",
+            f"Frozen runs (a robot went longer without progress than the rules allow, "
+            f"`max_stall` above `stall_bound` in summary.json): {frozen} of {total}. "
+            "'Longest wait' is the largest `max_wait` of any run of the point, in team steps.",
             "Without communication each agent clears its own private dot map, so an "
             "'episode' is one agent's and does not shorten with the team.",
             *_communication_effect(fig),
@@ -700,8 +700,8 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             f"learn, {lwarm} (see docs/model.md and the learning-over-time section for "
             "why). L/K: K robots evenly spaced on the closed walk of length L through every "
             "cell.",
-            f"Runs that went wrong: {frozen} frozen (a wait longer than `wait_bound`, "
-            "(K - 1)(D + 1) + 1 without battery), "
+            f"Runs that went wrong: {frozen} frozen (a stretch without progress longer "
+            "than `stall_bound`, K (2D + 1) without battery), "
             f"{missing} without an idleness value.{uncovered}{_no_episode(res)}"
             f"{_wide_spread(res)}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
@@ -968,7 +968,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             + f". The table and the first figure are {main}'s; the second figure and the "
             "ranks below compare the three. L/K: K robots evenly spaced on the closed walk "
             "of length L through every vertex.",
-            f"Runs that went wrong, by interaction: frozen (a wait longer than `wait_bound`): "
+            f"Runs that went wrong, by interaction: frozen (a stretch without progress longer than `stall_bound`): "
             f"{frozen}; {missing} without an idleness value.{uncovered} "
             + " ".join(wrong)
             + passing
@@ -1129,7 +1129,7 @@ def security(cap: pd.DataFrame, recovery: pd.DataFrame, res: pd.DataFrame | None
             "target unvisited for the whole window after the failure.",
             ftable,
             (never_text or "Every strategy visited every target again after the failure.")
-            + f" Runs that froze (a wait longer than `wait_bound`): {frozen}."
+            + f" Runs that froze (a stretch without progress longer than `stall_bound`): {frozen}."
             + _episodes_note(res)
             + _wide_spread(no_failure),
             "Every number: `figures/security.csv` (capture by D, with 95% t-intervals), "

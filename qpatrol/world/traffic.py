@@ -14,15 +14,16 @@ rotates with the step number. The moves are resolved in three parts:
    one cell on all the same: when both the holder and the robot in its way patrol,
    they *exchange tasks* (aims, ages, and the strategies' plans: :attr:`Resolution.swapped`),
    so the holder's task is now carried from the cell it asked for; otherwise the robot
-   in its way *inherits* the holder's age (its task becomes at least as old) and the
-   token, and clears the way on its own task.
+   in its way *inherits* the holder's age when it is the older (the two exchange ages:
+   the holder, whose way is full, takes the younger) and clears the way on its own task. Either way that robot is first for the token among
+   equal ages (3).
 2. **Everyone else**, in priority order, moves if the asked cell is empty at that
    moment: a robot may follow one that left its cell this step, but never enters a
    cell that is still occupied, so no two robots meet and no two swap.
-3. **Passing the token** at the end of the step: to the robot that received the
-   holder's task or age (1); else to the robot of highest priority among the blocked
-   robots and the holder if it still pursues its task (asked a move and did not reach
-   its aim).
+3. **Passing the token** at the end of the step: to the robot with the oldest task
+   among the blocked robots, the holder if it still pursues its task (asked a move and
+   did not reach its aim) and the robot that received the holder's task or age (1);
+   among equal ages that robot first, then the holder, then the turn.
 
 The holder sees every legal move into a cell it can empty as open
 (:func:`qpatrol.world.begin_step`), so it insists on its way instead of fleeing; the
@@ -211,14 +212,16 @@ def _holder_move(
 def hand_on(s: State, r: int, k: int, b: int, res: Resolution) -> None:
     """The holder k of run r could not enter robot b's cell: if both patrol, they
     exchange tasks (``aim`` and ``since``; ``res.swapped``), so the holder's task is
-    carried on from b's cell; otherwise b inherits the holder's age (``since`` the
-    older of the two). Either way b takes the token (``res.handoff``)."""
+    carried on from b's cell; otherwise b inherits the holder's age if it is the older,
+    and the holder takes b's (the two exchange ``since``, the older to b). Either way b
+    is handed the task (``res.handoff``): first for the token among equal ages. The
+    ages of a run are only ever permuted here, never made older."""
     if s.mode[r, k] == battery.PATROL and s.mode[r, b] == battery.PATROL:
         for a in (s.aim, s.since):
             a[r, k], a[r, b] = a[r, b], a[r, k]
         res.swapped[r, k], res.swapped[r, b] = b, k
-    else:
-        s.since[r, b] = min(s.since[r, b], s.since[r, k])
+    elif s.since[r, k] < s.since[r, b]:
+        s.since[r, k], s.since[r, b] = s.since[r, b], s.since[r, k]
     res.handoff[r] = b
 
 
@@ -308,17 +311,19 @@ def pass_token(
     had = tok >= 0
     t0 = np.maximum(tok, 0)
     pursues = had & (want[rows, t0] >= 0) & ~progressed[rows, t0] & s.active
+    handed = res.handoff >= 0
     candidates = blocked.copy()
     candidates[rows[pursues], tok[pursues]] = True
-    # by age, the holder first among equals (it keeps the token unless a strictly older
-    # task is blocked), then the turn
+    candidates[rows[handed], res.handoff[handed]] = True
+    # by age; among equals the robot handed the holder's task first, then the holder
+    # (it keeps the token unless a strictly older task is blocked), then the turn
     age = np.clip(s.t + 1 - s.since, 0, 1 << 30)
     turn = (K - 1) - (np.arange(K) - (s.t + 1)) % K
-    first = np.zeros((R, K), dtype=np.int64)
+    first = np.broadcast_to(turn[None, :], (R, K)).copy()
     first[rows[pursues], tok[pursues]] = K
-    key = np.where(candidates, age * (K + 1) + np.maximum(turn[None, :], first), -1)
-    best = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
-    new = np.where(res.handoff >= 0, res.handoff, best)
+    first[rows[handed], res.handoff[handed]] = K + 1
+    key = np.where(candidates, age * (K + 2) + first, -1)
+    new = np.where(key.max(axis=1) >= 0, key.argmax(axis=1), -1)
     s.token_held = np.where((new == tok) & (new >= 0), s.token_held + 1, 0)
     s.token = new
 

@@ -302,14 +302,15 @@ def resolve(r, t, tok, t_mod, battery, avoid, p, s, w):
 def hand_on(r, k, b, s, w):
     """:func:`qpatrol.world.traffic.hand_on`: the holder k of run r could not enter robot
     b's cell: if both patrol they exchange tasks (``aim``, ``since``; ``w.swapped``),
-    else b inherits the holder's age. Returns b (it takes the token)."""
+    else b inherits the holder's age if it is the older and the holder takes b's.
+    Returns b (handed the task: first for the token among equal ages)."""
     if s.mode[r, k] == PATROL and s.mode[r, b] == PATROL:
         s.aim[r, k], s.aim[r, b] = s.aim[r, b], s.aim[r, k]
         s.since[r, k], s.since[r, b] = s.since[r, b], s.since[r, k]
         w.swapped[k] = b
         w.swapped[b] = k
     elif s.since[r, k] < s.since[r, b]:
-        s.since[r, b] = s.since[r, k]
+        s.since[r, k], s.since[r, b] = s.since[r, b], s.since[r, k]
     return b
 
 
@@ -340,28 +341,30 @@ def waits(r, battery, avoid, s, w, unchanged=False):
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def pass_token(r, t_next, t_next_mod, tok, held, handoff, s, w):
     """:func:`qpatrol.world.traffic.pass_token` of run ``r`` after its moves: to the robot
-    that received the failed holder's task or age (``handoff``); else to the robot of
-    highest priority at step ``t_next`` among the blocked robots (asked, did not move
-    as asked) and the holder if it still pursues its task (asked, did not progress),
-    the holder first among equal ages; none: -1. Returns ``(holder, steps it has held
-    it)``."""
+    with the oldest task at step ``t_next`` among the blocked robots (asked, did not
+    move as asked), the holder if it still pursues its task (asked, did not progress)
+    and the robot that received the failed holder's task or age (``handoff``); among
+    equal ages that robot first, then the holder, then the turn; none: -1. Returns
+    ``(holder, steps it has held it)``."""
     want, as_asked = w.want, w.as_asked
     n_agents = want.shape[0]
-    new = handoff
-    if new < 0:
-        best_key = -1
-        for k in range(n_agents):
-            holder = k == tok and want[k] >= 0 and not w.progressed[k] and s.active[r]
-            if not holder and not (want[k] >= 0 and not as_asked[k] and s.active[r]):
-                continue
-            turn = turn_of(k, n_agents, t_next_mod)
-            if holder:
-                turn = n_agents
-            age = min(max(t_next - s.since[r, k], 0), 1 << 30)
-            kk = age * (n_agents + 1) + turn
-            if kk > best_key:
-                best_key = kk
-                new = k
+    new = -1
+    best_key = -1
+    for k in range(n_agents):
+        holder = k == tok and want[k] >= 0 and not w.progressed[k] and s.active[r]
+        handed = k == handoff
+        if not (handed or holder or (want[k] >= 0 and not as_asked[k] and s.active[r])):
+            continue
+        first = turn_of(k, n_agents, t_next_mod)
+        if holder:
+            first = n_agents
+        if handed:
+            first = n_agents + 1
+        age = min(max(t_next - s.since[r, k], 0), 1 << 30)
+        kk = age * (n_agents + 2) + first
+        if kk > best_key:
+            best_key = kk
+            new = k
     return new, (held + 1 if (new == tok and new >= 0) else 0)
 
 
