@@ -12,52 +12,62 @@ over, :func:`replay` re-runs a found cycle with R = 1).
 Adversaries (:class:`Case.adversary`)
     ``open``: each choosing (patrolling) robot asks for any one of its open moves, or any
     legal move when none is open (:func:`qpatrol.strategies.base.prefer_open`, what
-    every avoiding strategy chooses among). ``legal``: any non-wall move (the walk
-    followers insist on their walk, which may run into a robot). Robots that are not
-    choosing (homing, queued, charging) ask what the rules make them ask. A patrolling
-    robot always asks for some move (every strategy does).
+    every avoiding strategy chooses among). ``legal``: any non-wall move. ``goal``: each
+    patrolling robot has a goal cell (its aim, :attr:`qpatrol.world.State.aim`), any
+    cell outside another robot's held pocket, chosen by the adversary when the robot has
+    none or stands on it and kept until reached, and asks for a first move of a
+    shortest path to it (the lowest open one, else it insists on the lowest): the goal
+    and walk followers. Robots that are not choosing (homing, queued, charging) ask
+    what the rules make them ask. A patrolling robot always asks for some move.
 
 State (what the rules read), :func:`Checker.encode`
-    Robot positions (``occ`` is derived from them and checked), the token and how long it
-    has been held, ``t mod K`` (priority's rotating turn), and per robot mode, charge,
-    charging steps left, held station, ``depart_left`` and the order of ``queued_since``;
-    ``reserved`` is derived from the held stations and checked. Any field of
+    Robot positions (``occ`` is derived from them and checked), the token, ``t mod K``
+    (the turn), and per robot mode, charge, charging steps left, held station,
+    ``depart_left``, aim, and the order of ``since`` and ``queued_since``; ``reserved``
+    is derived from the held stations and checked. Any field of
     :class:`qpatrol.world.State` not named in :data:`IGNORED` or :data:`ORDER_ONLY` is
     kept as it is, so a field the rules gain later is part of the state (if it grows
     without bound the exploration stops at ``max_states`` and says so).
 
 Abstraction of the unbounded counters (why it is sound, and exact)
-    ``wait`` grows by one each step a robot fails and drops to 0 otherwise; the rules read
-    it only by comparing robots (:func:`qpatrol.world.traffic.priority`: class, then
-    wait, then a turn). ``queued_since`` is the step a robot began to need a station,
-    read only to order the queued robots (first come, first served, ties by index). ``t``
-    is read through ``t mod K`` (the turn) and as the ``queued_since`` given to robots
-    that start queueing, which is later than every earlier one. So two states that agree
-    on everything else, on the *order with ties* of the waits together with 0, and on the
-    order with ties of the queued robots' ``queued_since``, take the same moves under the
-    same choices, and their successors again agree in that sense (failing robots' waits
-    all grow by one, so their order is kept and they rise above the 0 of the others). The
-    checker therefore stores waits as dense ranks among ``{0} | waits`` and
-    ``queued_since`` as dense ranks among the queued robots: the quotient is a
-    bisimulation, every abstract cycle is an infinite run of the real rules along which
-    the waits really grow (:func:`replay` shows it with R = 1), and every real run is a
-    path of the graph. ``test_abstraction_is_exact`` checks the claim on the live rules
-    (random order-preserving waits and queue times, garbage in the ignored fields, same
+    ``since`` is the step a robot's task began; the rules read it only through ages
+    ``t - since`` compared between robots (:func:`qpatrol.world.traffic.priority`,
+    :func:`~qpatrol.world.traffic.pass_token`), exchange it between robots
+    (:func:`~qpatrol.world.traffic.hand_on`) and set it to ``t``, later than every
+    earlier one, when a task ends. ``queued_since`` is read only to order the queued
+    robots (first come, first served, ties by index). ``t`` is read through ``t mod K``
+    and as the value given to new tasks and queues. So two states that agree on
+    everything else and on the *order with ties* of ``since`` and of the queued robots'
+    ``queued_since`` take the same moves under the same choices, and their successors
+    again agree in that sense. The checker stores both as dense ranks: the quotient is a
+    bisimulation, every abstract cycle is an infinite run of the real rules (:func:`replay`
+    shows it with R = 1), and every real run is a path of the graph.
+    ``test_abstraction_is_exact`` checks the claim on the live rules (random
+    order-preserving task starts and queue times, garbage in the ignored fields, same
     successors). Fields in :data:`IGNORED` are read only by strategies, rewards,
-    episodes and measures (``episodes`` is null, so no run ever stops).
+    episodes and measures (``wait`` is measured, not read; ``episodes`` is null, so no
+    run ever stops).
 
 Livelock (the fairness notion)
-    Robot i is *starved* on an infinite run if from some step on it fails at every step:
-    it asks for a move and does not make it, or waits for a station (exactly the steps
-    that add to its ``wait``; ``max_wait`` grows without bound). In the finite graph
-    that is a cycle all of whose edges fail robot i: a strongly connected component (more
-    than one state, or one state with a self-loop) of the subgraph of edges that fail i
-    (iterative Tarjan, :func:`strong_components`). Every state is reachable, so each such
-    component is a reachable livelock. The checker reports, for each, the robot, a
-    shortest path from a starting placement and one cycle, and whether the robot is at
-    least pushed around on it or never leaves its cell. Safety is checked on every
-    transition on the way: one robot per cell, no swaps, moves between neighbours only,
-    no charge below 0.
+    A robot has a *task* while it patrols, homes or queues; the task ends when the robot
+    reaches its aim or, without one, enters a target (``Outcome.progressed``), and a
+    token holder that cannot push hands it on (``Outcome.swapped``). Robot i *fails* on
+    a step if it has a task that did not end and that it did not hand on. A task can fail
+    to end in two ways, and the criterion catches both: (1) a robot keeps a task that
+    never ends, so it fails at every step of a cycle (edge bit i); (2) a task passes from
+    robot to robot and never ends, so no robot fails at every step but the oldest age
+    of the team is kept on every step (edge bit K: some robot still carries, at the end
+    of the step, the oldest ``since`` of its beginning and did not end it). As every
+    other task is younger, (1) implies (2) once the starving task is the oldest; both
+    are checked. In the finite graph a livelock is a strongly connected component (more
+    than one state, or one state with a self-loop) of the subgraph of edges that carry
+    the bit (iterative Tarjan, :func:`strong_components`). Every state is reachable, so
+    each such component is a reachable livelock, along which ``max_stall`` grows without
+    bound. The checker reports, for each, the robot (K: the oldest task), a shortest
+    path from a starting placement and one cycle, and whether the robot is at least
+    pushed around on it or never leaves its cell. Safety is checked on every transition
+    on the way: one robot per cell, no swaps, moves between neighbours only, no charge
+    below 0.
 """
 
 from __future__ import annotations
@@ -573,8 +583,8 @@ class Checker:
 def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
     """Run the witness with R = 1 from its start through ``loops`` turns of its cycle,
     with concrete steps; returns the robot's *stall* (steps since its task began, ``t -
-    since``) after each turn (int ``[loops]``), and asserts every state met is the one
-    the graph predicts."""
+    since``; for robot ``K``, the oldest task's age) after each turn (int ``[loops]``),
+    and asserts every state met is the one the graph predicts."""
     seq = w.prefix + w.cycle * loops
     s = ck.decode(np.frombuffer(seq[0][0], dtype=np.int8)[None].copy(), t=0)
     K = ck.case.k
@@ -585,7 +595,10 @@ def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
         aims = np.array([aim], dtype=np.int64) if ck.case.adversary == "goal" else None
         world.step(s, ck.p, obs, np.array([ch], dtype=np.int64), aims)
         if n >= len(w.prefix) and (n - len(w.prefix)) % len(w.cycle) == len(w.cycle) - 1:
-            waits.append(int(s.t - s.since[0, w.robot]))
+            if w.robot < K:
+                waits.append(int(s.t - s.since[0, w.robot]))
+            else:  # the oldest task, whoever carries it
+                waits.append(int(s.t - s.since[0][s.mode[0] != world.GONE].min()))
     assert ck.encode(s, s.t % K).tobytes() == w.cycle[0][0]
     return np.array(waits)
 

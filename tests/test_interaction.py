@@ -327,6 +327,27 @@ def test_twelve_robots_with_docks_in_dead_end_rooms_are_refused_only_when_exclus
         world.make_params(from_flat({**flat, "team.interaction": interaction}), m)
 
 
+@pytest.mark.parametrize("policy", ["conscientious", "cyclic", "cc", "qlearning"])
+def test_eleven_exclusive_robots_on_dock_rooms_are_accepted_and_live(tmp_path, policy):
+    """Under ``exclusive`` the room rules accept 11 robots on the dock rooms (12 are
+    refused: the room ahead of a room's door), and 11 run live with the battery on:
+    every target visited in the window, no stretch without progress past the bound,
+    no charge below 0."""
+    from qpatrol.run import simulate
+
+    path = tmp_path / "dock.txt"
+    path.write_text(DOCK_ROOMS)
+    flat = {
+        "map": str(path), "agents": 11, "policy": policy, "runs": 2, "steps": 3000,
+        "record.warmup": 1000, "battery.capacity": 100, "battery.charge_steps": 10,
+        "seed": 5, "engine": "numba",
+    }  # fmt: skip
+    for r in simulate(from_flat(flat)).summary:
+        assert r["live"] and r["max_stall"] <= r["stall_bound"]
+        assert r["coverage"] == 1.0
+        assert r["min_charge"] >= 0
+
+
 @pytest.mark.parametrize("interaction", ["interference", "none"])
 @pytest.mark.parametrize("policy", ["conscientious", "cyclic", "cc"])
 def test_twelve_robots_on_dock_rooms_are_live(tmp_path, interaction, policy):

@@ -223,7 +223,7 @@ def test_regression_dead_end_station():
     """A homing robot finds a robot in the dead end of its station: the one inside leaves
     first (the pocket is closed to others), then the homing robot goes in."""
     m = parse_map("..0..\n##.##\n##.##\n##H##\n")
-    p_stall, bound, p = drive(m, "random", 2, 3, steps=800, runs=4)
+    stall, bound, p = drive(m, "random", 2, 3, steps=800, runs=4)
     assert p.pocket_entry.tolist() == [2]
     assert stall.max() <= bound
 

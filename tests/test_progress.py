@@ -1,55 +1,120 @@
-import io
+"""Progress under ``exclusive``: what ``live`` sees, and the three rules that keep it.
 
-from qpatrol.util.progress import Bar
+A robot makes progress when its task ends: it reaches its aim (a goal follower's goal,
+a walk follower's next walk cell, the vertex ahead on an edge, its station) or, without
+an aim, enters a target (:func:`qpatrol.world.step`). ``max_stall`` is the longest
+stretch without progress; ``live`` is false when it exceeds ``stall_bound`` or a target
+stays unvisited for the whole window. Each of the three rules of issue "Exclusive cells,
+honestly live" is broken here on purpose, and each break is seen:
 
+1. ``live`` by progress: a robot that shuttles never waits long, so only the stall sees
+   it (the waits stay within the old ``(K - 1)(D + 1) + 1``);
+2. the right of way by the task's age: with the turn alone deciding, insisting robots
+   starve on small maps (the model checker finds the cycles);
+3. hand on (exchange tasks with the robot in the way): without it, two ``cc`` robots on
+   the 7-cell T block each other for good.
+"""
 
-class Tty(io.StringIO):
-    def isatty(self) -> bool:
-        return True
+from __future__ import annotations
 
+import sys
+from pathlib import Path
 
-def test_bar_draws_on_a_terminal_only():
-    piped = io.StringIO()
-    bar = Bar("train", stream=piped)
-    bar(5, 10)
-    bar(10, 10)
-    bar.close()
-    assert piped.getvalue() == ""
-    tty = Tty()
-    bar = Bar("train", stream=tty)
-    bar(10, 10)
-    bar.close()
-    out = tty.getvalue()
-    assert "train" in out and "10/10 steps" in out and out.endswith("\n")
+import numpy as np
+import pytest
 
+from qpatrol.config import from_flat
+from qpatrol.run import simulate
+from qpatrol.world import traffic
 
-def test_piped_progress_reports_a_line_every_so_often():
-    piped = io.StringIO()
-    bar = Bar("sweep gamma", stream=piped, unit="runs", every=0.0)
-    bar(2.5, 10)
-    bar(5, 10)
-    bar.close()
-    lines = piped.getvalue().splitlines()
-    assert lines[0].startswith("sweep gamma: 2.5/10 runs (25%), ") and "left" in lines[0]
-    assert lines[1].startswith("sweep gamma: 5/10 runs (50%)")
-    quiet = Tty()
-    bar = Bar("x", stream=quiet, quiet=True)
-    bar(1, 2)
-    bar.close()
-    assert quiet.getvalue() == ""
+sys.path.insert(0, str(Path(__file__).parent))
+import modelcheck as mc  # noqa: E402
+
+#: The 7-cell T of the issue: a corridor of 5 cells with a stem of 2 under its middle.
+T7 = "#######\n#.....#\n###.###\n###.###\n#######\n"
 
 
-def test_sweep_progress_moves_during_a_point(tmp_path):
-    """One point of 2 runs: progress reports fractions of its runs before it ends."""
-    from qpatrol.config import from_flat
-    from qpatrol.study.sweep import points_for, run_sweep
+def _t_runs(tmp_path: Path, engine: str = "numpy") -> list[dict]:
+    """``cc``, 2 robots, battery off, seed 3, 4 runs x 1,500 steps, warm-up 500."""
+    path = tmp_path / "t7.txt"
+    path.write_text(T7)
+    flat = {
+        "map": str(path), "agents": 2, "policy": "cc", "runs": 4, "steps": 1500, "seed": 3,
+        "record.warmup": 500, "battery.enabled": False, "engine": engine,
+    }  # fmt: skip
+    return simulate(from_flat(flat)).summary
 
-    base = from_flat(
-        {"map": "map_b", "agents": 2, "runs": 2, "steps": 4000, "battery.enabled": False}
-    )
-    calls = []
-    run_sweep(base, points_for("seed", [1]), tmp_path / "s", progress=lambda d, t: calls.append(d))
-    inside = [d for d in calls if 0 < d < 2]
-    assert inside, calls
-    assert calls == sorted(calls) and calls[-1] == 2
-    assert not list((tmp_path / "s" / "points").glob(".*progress*"))
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_two_cc_robots_on_the_t_are_live(tmp_path, engine):
+    """The issue's shuttle: every run covers all 7 cells and no stretch without progress
+    exceeds the bound, K (D + 2) = 2 x 6 = 12 (D = 4: an arm's end to the stem's)."""
+    for r in _t_runs(tmp_path, engine):
+        assert r["stall_bound"] == 2 * (4 + 2)
+        assert r["live"] and r["coverage"] == 1.0 and r["max_stall"] <= 12
+
+
+def test_without_hand_on_the_t_freezes(tmp_path, monkeypatch):
+    """Break rule 3: a holder that cannot push only hands the token on (no exchange of
+    tasks, no exchange of ages). Two ``cc`` robots heading for each other's side then
+    block each other in the corridor for good: every run ends ``live: false``."""
+
+    def no_exchange(s, r, k, b, res):
+        res.handoff[r] = b
+
+    monkeypatch.setattr(traffic, "hand_on", no_exchange)
+    runs = _t_runs(tmp_path)
+    assert not any(r["live"] for r in runs)
+    assert all(r["max_stall"] > 1000 for r in runs)
+
+
+def test_a_shuttle_is_seen_by_its_stall_not_by_its_waits(tmp_path, monkeypatch):
+    """Break rule 3 the way the earlier rules did it: a holder that cannot push steps
+    aside into an empty neighbour. The two robots then shuttle: they move nearly every
+    step (the longest wait is 1, within the old ``(K - 1)(D + 1) + 1`` = 6), cover 3 of
+    the 7 cells, and no task ever ends. The stall (rule 1) sees it: ``max_stall`` above
+    the bound and ``live: false``."""
+    seen = {}
+    resolve = traffic.resolve
+
+    def remember(s, p, want):
+        seen["p"] = p
+        return resolve(s, p, want)
+
+    def step_aside(s, r, k, b, res):
+        for c in traffic._neighbour_lists(seen["p"])[int(s.pos[r, k])]:
+            if c >= 0 and s.occ[r, c] < 0:
+                traffic._move(s, r, k, c)
+                res.moved[r, k] = True
+                return
+
+    monkeypatch.setattr(traffic, "resolve", remember)
+    monkeypatch.setattr(traffic, "hand_on", step_aside)
+    for r in _t_runs(tmp_path):
+        assert r["max_wait"] <= (2 - 1) * (4 + 1) + 1
+        assert r["max_stall"] > r["stall_bound"] and not r["live"]
+        assert r["coverage"] < 1.0
+
+
+def test_without_the_age_insisting_robots_starve(monkeypatch):
+    """Break rule 2: every task as young as the others when the token passes, so the
+    turn alone decides. On the 4- and 5-cell maps with two robots heading for goals
+    (the model checker's goal adversary) robots then starve; with the age, none does."""
+    cases = mc.family(range(4, 6), ks=range(2, 3), adversary="goal")
+    assert not any(r.livelocks for r in mc.check_all(cases))
+    pass_token = traffic.pass_token
+
+    def by_turn(s, p, want, res, progressed):
+        kept = s.since.copy()
+        s.since[:] = s.t + 1
+        try:
+            pass_token(s, p, want, res, progressed)
+        finally:
+            s.since[:] = kept
+
+    monkeypatch.setattr(traffic, "pass_token", by_turn)
+    starved = [r for r in mc.check_all(cases) if r.livelocks]
+    assert len(starved) >= 10
+    w = starved[0].livelocks[0]
+    stalls = mc.replay(starved[0].checker, w, loops=3)
+    assert (np.diff(stalls) > 0).all()

@@ -354,9 +354,9 @@ def test_head_on_robots_never_swap_and_the_token_holder_pushes_through():
     assert out.moved[0].tolist() == [True, True]
     assert out.as_asked[0].tolist() == [True, False]
     assert w.s.wait[0].tolist() == [0, 2]
-    # robot 0's task (no aim: enter a target) ended with its move; robot 1's, blocked,
-    # is now the oldest and takes the right of way
-    assert out.progressed[0].tolist() == [True, False]
+    # both entered a target (no aim: their task ends there), robot 1 pushed; robot 1,
+    # the only blocked robot, takes the right of way
+    assert out.progressed[0].tolist() == [True, True]
     assert w.s.token[0] == 1 and w.s.token_held[0] == 0
 
 
