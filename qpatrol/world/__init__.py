@@ -720,7 +720,9 @@ def step(
     if p.interaction == INTERFERENCE:
         interference.meet(s, p, prev_pos, res.moved)
     if p.ahead is not None and (res.swapped >= 0).any():
-        turn_back(s, p, (res.swapped >= 0) & on_edge)
+        partner_asked = np.take_along_axis(want, np.maximum(res.swapped, 0), axis=1)
+        head_on = (res.swapped >= 0) & (partner_asked == s.pos)
+        turn_back(s, p, (res.swapped >= 0) & on_edge, head_on)
 
     # --- what entering a cell does: dots, visits, reward, heading, charge ----------------
     moved = res.moved
@@ -819,13 +821,15 @@ def task_aims(
     return out
 
 
-def turn_back(s: State, p: Params, who: np.ndarray) -> None:
-    """Robots ``who`` (bool ``[R, K]``, travelling a graph's edge) that took over a task
-    whose aim is the vertex behind them turn round: their heading becomes the port they
-    were leaving by, so that they travel on towards that aim."""
+def turn_back(s: State, p: Params, who: np.ndarray, head_on: np.ndarray) -> None:
+    """Robots ``who`` (bool ``[R, K]``, travelling a graph's edge, that exchanged tasks)
+    turn round when their new task's aim is the vertex behind them, or when they took
+    over the task of a robot that asked for their cell (``head_on``: its way goes on
+    behind them): their heading becomes the port they were leaving by."""
     onward = p.onward[s.pos, s.head]
     behind = p.ahead[s.pos, np.maximum(onward, 0)]
-    flip = who & (onward >= 0) & (s.aim == behind) & (s.aim != p.ahead[s.pos, s.head])
+    back = (s.aim == behind) & (s.aim != p.ahead[s.pos, s.head])
+    flip = who & (onward >= 0) & (head_on | back)
     s.head = np.where(flip, onward, s.head)
 
 

@@ -389,7 +389,8 @@ def tasks(r, battery, p, s, w):
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def turn_back(r, p, s, w):
     """:func:`qpatrol.world.turn_back`: robots of run ``r`` travelling an edge that took
-    over a task whose aim is the vertex behind them turn round."""
+    over a task whose aim is the vertex behind them, or the task of a robot that asked
+    for their cell, turn round."""
     for k in range(s.pos.shape[1]):
         if w.swapped[k] < 0 or w.travel[k] < 0:
             continue
@@ -398,7 +399,8 @@ def turn_back(r, p, s, w):
         if onward < 0:
             continue
         behind = p.ahead[c, onward]
-        if s.aim[r, k] == behind and s.aim[r, k] != p.ahead[c, s.head[r, k]]:
+        head_on = w.want[w.swapped[k]] == c
+        if head_on or (s.aim[r, k] == behind and s.aim[r, k] != p.ahead[c, s.head[r, k]]):
             s.head[r, k] = onward
 
 
