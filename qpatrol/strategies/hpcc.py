@@ -85,8 +85,10 @@ class Strategy(goals.GoalFollower):
         return obs.t - self.memory[rows.reshape(rows.shape + (1,) * (cells.ndim - 1)), k, cells]
 
     def aims(self, obs: Observation) -> np.ndarray:
-        """The target of its route each robot makes for (its hop), else its goal."""
-        return np.where(self.hop >= 0, self.hop, self.goal)
+        """Each robot's goal (not the next target of its route: a task of one hop would
+        end at every move, and two robots whose routes cross would push each other back
+        and forth, each holding the right of way for one step)."""
+        return self.goal.copy()
 
     def exchange(self, swapped: np.ndarray) -> None:
         """Robots that exchanged tasks exchange goals, hops and routes."""

@@ -189,9 +189,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, battery, p, s, w, sp.ipar, sp.fpar, sp.robot_i, sp.cell_i, sp.table_i,
             sp.row_i, sp.dist, sp.cell_f, sp.cell_b,
         )  # fmt: skip
-        for k in range(w.aim.shape[0]):  # its hop, else its goal (hpcc.Strategy.aims)
-            hop = sp.robot_i[r, k, 1]
-            w.aim[k] = hop if hop >= 0 else sp.robot_i[r, k, 0]
+        _goal_aims(r, sp.robot_i, w.aim)  # its goal (hpcc.Strategy.aims)
     elif code == CBLS:
         cbls.act(
             r, t, ur, battery, p, s, w, sp.robot_i, sp.q, sp.cell_i, sp.cell_f, sp.row_f,

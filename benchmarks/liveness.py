@@ -1,0 +1,77 @@
+"""Every strategy under ``exclusive`` on every shipped map, K = 2 to 16, battery on and off.
+
+For each (map, strategy, K, battery) the runs of ``qpatrol train`` with the shipped
+defaults but these keys; counts the runs that are not ``live`` (a stretch without
+progress above ``stall_bound``, or a target unvisited for the whole window) and those
+that leave a target unvisited, and writes every run's summary row to a CSV. Teams the
+config refuses (the density and room rules) are listed as refused.
+
+    python benchmarks/liveness.py --out /tmp/liveness.csv [--runs 2 --steps 6000]
+"""
+
+from __future__ import annotations
+
+import argparse
+import time
+
+import pandas as pd
+
+from qpatrol import strategies
+from qpatrol.config import ConfigError, from_flat
+from qpatrol.maps import available_maps
+from qpatrol.run import simulate
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--out", required=True)
+    ap.add_argument("--runs", type=int, default=2)
+    ap.add_argument("--steps", type=int, default=6000)
+    ap.add_argument("--warmup", type=int, default=1000)
+    ap.add_argument("--agents", default="2,4,8,16")
+    ap.add_argument("--maps", default=",".join(available_maps()))
+    ap.add_argument("--policies", default=",".join(strategies.NAMES))
+    a = ap.parse_args()
+    rows, refused = [], []
+    t0 = time.perf_counter()
+    for mp in a.maps.split(","):
+        for pol in a.policies.split(","):
+            for k in (int(x) for x in a.agents.split(",")):
+                for bat in (False, True):
+                    flat = {
+                        "map": mp, "policy": pol, "agents": k, "runs": a.runs,
+                        "steps": a.steps, "record.warmup": a.warmup, "seed": 0,
+                        "battery.enabled": bat, "team.interaction": "exclusive",
+                        "engine": "numba",
+                    }  # fmt: skip
+                    try:
+                        res = simulate(from_flat(flat))
+                    except ConfigError as e:
+                        refused.append((mp, pol, k, bat, str(e)))
+                        continue
+                    for r in res.summary:
+                        rows.append({"map": mp, "policy": pol, "agents": k, "battery": bat, **r})
+            done = pd.DataFrame(rows)
+            bad = done[~done["live"].astype(bool)] if len(done) else done
+            print(
+                f"{mp} {pol}: {len(done)} runs so far, {len(bad)} not live, "
+                f"{time.perf_counter() - t0:.0f} s",
+                flush=True,
+            )
+    df = pd.DataFrame(rows)
+    df.to_csv(a.out, index=False)
+    not_live = df[~df["live"].astype(bool)]
+    unvisited = df[df["coverage"] < 1.0]
+    print(f"{len(df)} runs, {len(refused)} teams refused; not live: {len(not_live)}")
+    print(f"a target unvisited for the whole window: {len(unvisited)}")
+    cols = ["map", "policy", "agents", "battery", "run", "coverage", "max_stall", "stall_bound"]
+    if len(not_live):
+        print(not_live[cols].to_string(index=False))
+    if len(unvisited):
+        print(unvisited.groupby("policy").size().to_string())
+    for r in refused:
+        print("refused:", *r[:4])
+
+
+if __name__ == "__main__":
+    main()
