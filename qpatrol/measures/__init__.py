@@ -342,7 +342,8 @@ def stall_bound(p: Params) -> int:
     """The longest stretch without progress a live team may show (``max_stall``).
 
     ``trip`` is the most steps a task takes once it is the oldest: under ``exclusive``
-    ``diameter + 2`` (its aim is at most ``diameter`` moves away; it moves one cell
+    ``task_moves + 2`` (its aim is at most ``task_moves`` moves away, the diameter but
+    for ``hpcc``'s routes, ``Params.task_moves``; it moves one cell
     closer every step but one, and from the step after it is first blocked its robot
     holds the right of way: docs/model.md, "What is proven"); under ``interference`` a
     trip of ``diameter`` moves with stops
@@ -355,9 +356,9 @@ def stall_bound(p: Params) -> int:
     ``exclusive`` and a theorem when robots pass each other (docs/model.md).
     """
     if p.avoid_collisions:
-        trip = p.diameter + 2
+        trip = p.task_moves + 2
     else:
-        trip = interference.travel_steps(p.diameter, p)
+        trip = interference.travel_steps(p.task_moves, p)
     if not p.battery:
         return p.n_agents * trip
     turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * trip + 1

@@ -76,6 +76,9 @@ class Params:
     starts: np.ndarray  # int [n], start cells given by the map's digits
     target: np.ndarray  # bool [C], the cells the measures count (every grid cell; graph vertices)
     diameter: int  # longest shortest path between two cells
+    # the most moves a task's aim lies from its robot (the stall bound's trip): the
+    # diameter, or for hpcc, whose route is a simple path weighed by idleness, C - 1
+    task_moves: int
     initial_heading: int
     # the reward's weights: a float, or float64 [R] when the rows of a batch differ
     # (:func:`with_run_values`; read a row's value with :func:`per_row`)
@@ -241,6 +244,7 @@ def make_params(cfg: Config, m: Map) -> Params:
     if battery_on and exclusive:
         check_battery_room(k, m, pocket_of, station_of, home_dir, pocket_entry)
     onward = onward_ports(m)
+    diameter = m.diameter()
     return Params(
         n_cells=c,
         n_agents=k,
@@ -260,7 +264,8 @@ def make_params(cfg: Config, m: Map) -> Params:
         pocket_entry=pocket_entry,
         starts=m.starts,
         target=m.target,
-        diameter=m.diameter(),
+        diameter=diameter,
+        task_moves=m.n_cells - 1 if cfg["policy"] == "hpcc" else diameter,
         # on a patrol graph a heading is a port, not a compass direction: port 0
         initial_heading=0 if m.is_graph else DIRECTIONS.index(cfg["learning.initial_heading"]),
         incremental_value=float(cfg["reward.incremental_value"]),
