@@ -102,15 +102,28 @@ def close_tasks(s: State, p: Params, t: int) -> None:
     """A patrolling robot whose aim lies in the pocket of a station another robot holds
     (closed to it, rule 4) has lost its task: the task ends (``since = t``, no aim);
     its strategy chooses another goal (:mod:`qpatrol.strategies.goals` drops goals in
-    held pockets)."""
+    held pockets). Then a robot standing in the pocket of a station another robot holds
+    (it must step out, rule 4) inherits that robot's age when it is the older: it steps
+    out on the holder's behalf."""
+    rows = np.arange(s.n_runs)[:, None]
     a = np.maximum(s.aim, 0)
     h = p.pocket_of[a]
-    holder = s.reserved[np.arange(s.n_runs)[:, None], np.maximum(h, 0)]
+    holder = s.reserved[rows, np.maximum(h, 0)]
     me = np.arange(s.pos.shape[1])[None, :]
     lost = (s.aim >= 0) & (h >= 0) & (holder >= 0) & (holder != me) & (s.mode == PATROL)
     if lost.any():
         s.since[lost] = t
         s.aim[lost] = -1
+    h = p.pocket_of[s.pos]
+    holder = np.where(h >= 0, s.reserved[rows, np.maximum(h, 0)], -1)
+    moving = (s.mode == PATROL) | (s.mode == QUEUED) | (s.mode == HOMING)
+    holder = np.where(moving & (holder != me), holder, -1)
+    # (not from a holder itself shut in: one level)
+    free = np.take_along_axis(holder, np.maximum(holder, 0), axis=1) < 0
+    shut = s.active[:, None] & (holder >= 0) & free
+    if shut.any():
+        theirs = np.take_along_axis(s.since, np.maximum(holder, 0), axis=1)
+        s.since = np.where(shut, np.minimum(s.since, theirs), s.since)
 
 
 def _assign_stations(s: State, p: Params) -> None:

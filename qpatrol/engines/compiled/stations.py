@@ -80,7 +80,8 @@ def way_out(nbrs, pocket_of, pocket_depth, pocket_entry, occ_r, c, station):
 def close_tasks(r, t, p, s):
     """:func:`qpatrol.world.battery.close_tasks` of run ``r``: a patrolling robot whose aim
     lies in the pocket of a station another robot holds loses its task (``since = t``,
-    no aim)."""
+    no aim); then a robot standing in such a pocket inherits the holder's age when it is
+    the older."""
     for k in range(s.pos.shape[1]):
         a = s.aim[r, k]
         if a < 0 or s.mode[r, k] != PATROL:
@@ -89,6 +90,27 @@ def close_tasks(r, t, p, s):
         if h >= 0 and s.reserved[r, h] >= 0 and s.reserved[r, h] != k:
             s.since[r, k] = t
             s.aim[r, k] = -1
+    if not s.active[r]:
+        return
+    for k in range(s.pos.shape[1]):
+        j = _shut_by(r, k, p, s)
+        # (not from a holder itself shut in: one level, the same whatever the order)
+        if j >= 0 and _shut_by(r, j, p, s) < 0 and s.since[r, j] < s.since[r, k]:
+            s.since[r, k] = s.since[r, j]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _shut_by(r, k, p, s):
+    """The robot holding the station whose pocket robot k of run r stands in, when k
+    patrols, queues or homes and is not that robot; -1 otherwise."""
+    m = s.mode[r, k]
+    if m != PATROL and m != QUEUED and m != HOMING:
+        return -1
+    h = p.pocket_of[s.pos[r, k]]
+    if h < 0:
+        return -1
+    j = s.reserved[r, h]
+    return j if j != k else -1
 
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
