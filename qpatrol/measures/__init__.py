@@ -349,9 +349,10 @@ def stall_bound(p: Params) -> int:
     trip of ``diameter`` moves with stops
     (:func:`qpatrol.world.interference.travel_steps`); under ``none`` ``diameter``.
     Without battery a task waits at most for the K - 1 older tasks: ``K x trip`` (a
-    theorem for strategies that keep asking for a shortest way to their aim). With the battery a robot may queue behind every
-    other robot of the team, each of which travels to a station, charges
-    (``charge_steps``) and clears the station's pocket (``2 x depart_len``): ``K x
+    theorem for strategies that keep asking for a shortest way to their aim). With the
+    battery a robot may queue behind every other robot of the team, each of which
+    travels to a station, charges (``charge_steps``) and clears the station's pocket
+    (``2 x depart_len``): ``K x
     (charge_steps + 2 x max depart_len + 2 x trip + 1) + trip``, a yardstick under
     ``exclusive`` and a theorem when robots pass each other (docs/model.md).
     """

@@ -968,7 +968,8 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             + f". The table and the first figure are {main}'s; the second figure and the "
             "ranks below compare the three. L/K: K robots evenly spaced on the closed walk "
             "of length L through every vertex.",
-            f"Runs that went wrong, by interaction: frozen (a stretch without progress longer than `stall_bound`): "
+            "Runs that went wrong, by interaction: frozen (a stretch without progress "
+            f"longer than `stall_bound`): "
             f"{frozen}; {missing} without an idleness value.{uncovered} "
             + " ".join(wrong)
             + passing
@@ -1364,6 +1365,7 @@ def build(
             "verdicts to cite.",
             "",
         ]
+    lines += _movement_note(data)
     lines += [
         "| figure | verdict |",
         "|---|---|",
@@ -1402,6 +1404,31 @@ def build(
                 "",
             ]
     return "\n".join(lines).rstrip() + "\n"
+
+
+def _movement_note(data: Path) -> list[str]:
+    """How robots meet in the studies, and how many runs of each were not live."""
+    counts = []
+    for path in sorted(data.glob("*-results.csv")):
+        res = read_csv(path)
+        if "live" not in res.columns or not len(res):
+            continue
+        live = res["live"].astype(str).str.lower().isin(("true", "1", "1.0"))
+        name = path.name.removesuffix("-results.csv")
+        counts.append(f"{name} {int((~live).sum()):,} of {len(res):,}")
+    if not counts:
+        return []
+    return [
+        "Robots hold a cell each (`team.interaction: exclusive`, the paper's *avoiding*) in "
+        "every study but the field's, which also runs robots that pass each other. Under "
+        "`exclusive` every robot has a task (its goal, its next walk cell, the vertex ahead, "
+        "its station); the right of way goes to the oldest task, and a robot that cannot "
+        "push through hands its task on to the robot in its way (docs/model.md, 'Movement, "
+        "collisions and charging'). A run is *live* when no robot goes longer without "
+        "progress than `stall_bound` and every target is visited in the window. Runs not "
+        "live, by experiment: " + "; ".join(counts) + ".",
+        "",
+    ]
 
 
 def write(

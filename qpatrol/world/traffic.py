@@ -12,10 +12,11 @@ rotates with the step number. The moves are resolved in three parts:
    empty cell, and every robot on that path moves one cell along it, away from the
    holder, which then takes its cell. If no such path exists the holder's task goes
    one cell on all the same: when both the holder and the robot in its way patrol,
-   they *exchange tasks* (aims, ages, and the strategies' plans: :attr:`Resolution.swapped`),
-   so the holder's task is now carried from the cell it asked for; otherwise the robot
-   in its way *inherits* the holder's age when it is the older (the two exchange ages:
-   the holder, whose way is full, takes the younger) and clears the way on its own task. Either way that robot is first for the token among
+   they *exchange tasks* (aims, ages, and the strategies' plans:
+   :attr:`Resolution.swapped`), so the holder's task is now carried from the cell it
+   asked for; otherwise the robot in its way *inherits* the holder's age when it is the
+   older (the two exchange ages: the holder, whose way is full, takes the younger) and
+   clears the way on its own task. Either way that robot is first for the token among
    equal ages (3).
 2. **Everyone else**, in priority order, moves if the asked cell is empty at that
    moment: a robot may follow one that left its cell this step, but never enters a

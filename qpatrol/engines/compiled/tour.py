@@ -380,4 +380,3 @@ def routes(cell_i, r, ipar):
     """Run ``r``'s routes (the followers' ``walk [G, M]``) and their lengths ``[G]``."""
     G = ipar[5]
     return cell_i[r, :G], cell_i[r, G, :G]
-
