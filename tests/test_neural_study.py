@@ -51,7 +51,9 @@ def test_the_report_ranks_the_policy_by_its_mean_over_seeds():
     )
     sec = report.neural(fig)
     assert sec.verdict == "neural best in 1 of 2 settings; median rank 1.5 of 3"
-    table = [x for x in sec.findings if x.startswith("| a |")]
+    # the table is one finding (one markdown table, no blank lines between its rows)
+    (block,) = [x for x in sec.findings if x.startswith("| map |")]
+    table = [x for x in block.split("\n") if x.startswith("| a |")]
     assert table[0] == ("| a | 0 | 12 [10 to 14] | 1 | sebs (13) | 13 | 20 | seed 1, run 7: 19 |")
     assert table[1] == ("| a | 2 | 30 [30 to 30] | 2 | cyclic (25) | 40 | 25 | seed 1, run 4: 33 |")
     assert "Where it is best: a with 0 failing." in sec.findings

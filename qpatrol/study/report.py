@@ -701,7 +701,7 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "why). L/K: K robots evenly spaced on the closed walk of length L through every "
             "cell.",
             f"Runs that went wrong: {frozen} frozen (a stretch without progress longer "
-            "than `stall_bound`, K (2D + 1) without battery), "
+            "than `stall_bound`, K (D + 2) without battery), "
             f"{missing} without an idleness value.{uncovered}{_no_episode(res)}"
             f"{_wide_spread(res)}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "
@@ -1287,7 +1287,7 @@ def neural(fig: pd.DataFrame) -> Section:
             "Training curves (average idleness of each batch of 1,000-step runs, measured "
             f"after 200 steps): {lines}; in that setting {b}."
         )
-    findings += [*rows]
+    findings.append("\n".join(rows))  # one table
     n = len(ranks)
     verdict = (
         f"neural best in {len(wins)} of {n} settings; median rank {_fmt(float(np.median(ranks)))} "
@@ -1415,7 +1415,12 @@ def _movement_note(data: Path) -> list[str]:
             continue
         live = res["live"].astype(str).str.lower().isin(("true", "1", "1.0"))
         name = path.name.removesuffix("-results.csv")
-        counts.append(f"{name} {int((~live).sum()):,} of {len(res):,}")
+        text = f"{name} {int((~live).sum()):,} of {len(res):,}"
+        if {"max_stall", "stall_bound"} <= set(res.columns):
+            stalled = pd.to_numeric(res["max_stall"]) > pd.to_numeric(res["stall_bound"])
+            if stalled.any():
+                text += f" ({int(stalled.sum()):,} by a stretch without progress)"
+        counts.append(text)
     if not counts:
         return []
     return [
@@ -1424,9 +1429,13 @@ def _movement_note(data: Path) -> list[str]:
         "`exclusive` every robot has a task (its goal, its next walk cell, the vertex ahead, "
         "its station); the right of way goes to the oldest task, and a robot that cannot "
         "push through hands its task on to the robot in its way (docs/model.md, 'Movement, "
-        "collisions and charging'). A run is *live* when no robot goes longer without "
-        "progress than `stall_bound` and every target is visited in the window. Runs not "
-        "live, by experiment: " + "; ".join(counts) + ".",
+        "collisions and charging'). These rules replaced a right of way by the longest "
+        "wait, under which a holder that could not push stepped aside: with one robot, "
+        "and under `interference` and `none`, every run is the same as under the earlier "
+        "rules; under `exclusive` the runs of two or more robots changed. A run is *live* "
+        "when no robot goes longer without progress than `stall_bound` and every target "
+        "is visited in the window. Runs not live, by experiment (a target unvisited for "
+        "the whole window unless said; the sections name them): " + "; ".join(counts) + ".",
         "",
     ]
 
