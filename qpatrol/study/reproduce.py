@@ -563,6 +563,19 @@ def make_figures(
     return [(name, by_name[name]) for name, _, _ in tasks]
 
 
+def without_point_ids(results_csv: Path) -> str:
+    """A sweep's ``results.csv`` as the committed ``data/<experiment>-results.csv``: every
+    cell as written, but the ``point_id`` column (the point's folder name, which repeats
+    its swept keys: a quarter of the field study's 5 MB)."""
+    rows = list(csv.reader(io.StringIO(results_csv.read_text(encoding="utf-8"), newline="")))
+    drop = rows[0].index("point_id") if rows and "point_id" in rows[0] else -1
+    buf = io.StringIO(newline="")
+    writer = csv.writer(buf, lineterminator="\n")
+    for row in rows:
+        writer.writerow(row[:drop] + row[drop + 1 :] if drop >= 0 else row)
+    return buf.getvalue()
+
+
 def reproduce(
     out: Path | None = None,
     quick: bool = False,
@@ -609,7 +622,7 @@ def reproduce(
     written = []
     for exp in EXPERIMENTS:
         src = experiment_dir(out, exp.name, quick) / "results.csv"
-        atomic.write_bytes(data / f"{exp.name}-results.csv", src.read_bytes())
+        atomic.write_text(data / f"{exp.name}-results.csv", without_point_ids(src))
         written.append(f"data/{exp.name}-results.csv")
     fresh_figs = outputs.is_fresh(figs)
     made_figs: list[str] = []
