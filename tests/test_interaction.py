@@ -191,6 +191,15 @@ ENGINE_ROWS = [
 ]
 
 
+def _engine_map(kind: str, rooms_map, tmp_path) -> str:
+    """The map of an engine-agreement case: the rooms grid, or the graph of long edges."""
+    if kind == "grid":
+        return str(rooms_map)
+    path = tmp_path / "longedges.txt"
+    path.write_text(LONG_GRAPH)
+    return str(path)
+
+
 @pytest.mark.skipif(not HAS_NUMBA, reason="the compiled engine needs numba")
 @pytest.mark.parametrize("policy, kind, battery, radius", ENGINE_ROWS)
 def test_both_engines_alike_under_interference(rooms_map, tmp_path, policy, kind, battery, radius):
@@ -198,12 +207,7 @@ def test_both_engines_alike_under_interference(rooms_map, tmp_path, policy, kind
     off: the same files to the bit, strategy arrays and ``met`` included."""
     from test_engines import both
 
-    if kind == "graph":
-        path = tmp_path / "longedges.txt"
-        path.write_text(LONG_GRAPH)
-        m = str(path)
-    else:
-        m = str(rooms_map)
+    m = _engine_map(kind, rooms_map, tmp_path)
     flat = {
         "map": m, "policy": policy, "agents": 5, "runs": 2, "seed": 7, "steps": 260,
         "record.trajectory": 260, "team.interaction": "interference",
@@ -223,12 +227,7 @@ def test_both_engines_alike_when_robots_ignore_each_other(
     battery on and off (the other of each pair than under interference): alike."""
     from test_engines import both
 
-    if kind == "graph":
-        path = tmp_path / "longedges.txt"
-        path.write_text(LONG_GRAPH)
-        m = str(path)
-    else:
-        m = str(rooms_map)
+    m = _engine_map(kind, rooms_map, tmp_path)
     flat = {
         "map": m, "policy": policy, "agents": 5, "runs": 2, "seed": 8, "steps": 200,
         "record.trajectory": 200, "team.interaction": "none", "battery.enabled": not battery,
@@ -333,19 +332,7 @@ def test_eleven_exclusive_robots_on_dock_rooms_are_accepted_and_live(tmp_path, p
     refused: the room ahead of a room's door), and 11 run live with the battery on:
     every target visited in the window, no stretch without progress past the bound,
     no charge below 0."""
-    from qpatrol.run import simulate
-
-    path = tmp_path / "dock.txt"
-    path.write_text(DOCK_ROOMS)
-    flat = {
-        "map": str(path), "agents": 11, "policy": policy, "runs": 2, "steps": 3000,
-        "record.warmup": 1000, "battery.capacity": 100, "battery.charge_steps": 10,
-        "seed": 5, "engine": "numba",
-    }  # fmt: skip
-    for r in simulate(from_flat(flat)).summary:
-        assert r["live"] and r["max_stall"] <= r["stall_bound"]
-        assert r["coverage"] == 1.0
-        assert r["min_charge"] >= 0
+    _dock_rooms_are_live(tmp_path, policy, 11, {"engine": "numba"})
 
 
 @pytest.mark.parametrize("interaction", ["interference", "none"])
@@ -354,14 +341,21 @@ def test_twelve_robots_on_dock_rooms_are_live(tmp_path, interaction, policy):
     """12 robots, battery on (a charge every ~100 moves, four docks), 3,000 steps: every
     robot charges, every target is visited in the window, no wait past the bound, no
     charge below 0."""
+    _dock_rooms_are_live(tmp_path, policy, 12, {"team.interaction": interaction})
+
+
+def _dock_rooms_are_live(tmp_path, policy: str, agents: int, extra: dict) -> None:
+    """``agents`` robots of ``policy`` on the dock rooms, battery on (a charge every ~100
+    moves), 2 runs x 3,000 steps, warm-up 1,000: every run live, every target visited in
+    the window, no stretch without progress past the bound, no charge below 0."""
     from qpatrol.run import simulate
 
     path = tmp_path / "dock.txt"
     path.write_text(DOCK_ROOMS)
     flat = {
-        "map": str(path), "agents": 12, "policy": policy, "runs": 2, "steps": 3000,
-        "record.warmup": 1000, "team.interaction": interaction, "battery.capacity": 100,
-        "battery.charge_steps": 10, "seed": 5,
+        "map": str(path), "agents": agents, "policy": policy, "runs": 2, "steps": 3000,
+        "record.warmup": 1000, "battery.capacity": 100, "battery.charge_steps": 10,
+        "seed": 5, **extra,
     }  # fmt: skip
     for r in simulate(from_flat(flat)).summary:
         assert r["live"] and r["max_stall"] <= r["stall_bound"]
