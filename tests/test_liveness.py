@@ -88,9 +88,7 @@ def drive(m, policy: str, k: int, seed: int, steps: int, runs: int = 2, engine="
     for _ in range(steps):
         before = s.pos.copy()
         out = advance(s, p, strat, streams.next())
-        watch.observe(
-            out, s.wait, s.charge, None, np.where(s.mode != world.GONE, out.t - s.since, 0)
-        )
+        watch.observe(out, s.wait, s.charge, None, measures.stalls(s, out.t))
         check_steps(np.stack([before, s.pos], axis=1), p)
         assert (s.charge >= 0).all(), "a charge went below 0"
     return watch.max_stall, measures.stall_bound(p), p

@@ -14,10 +14,10 @@ from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
-from qpatrol.measures import Measures
+from qpatrol.measures import Measures, stalls
 from qpatrol.measures.records import Recorder, Tail
 from qpatrol.measures.timeline import Timeline
-from qpatrol.world import GONE, Outcome, Params, State, begin_step, failures
+from qpatrol.world import Outcome, Params, State, begin_step, failures
 from qpatrol.world import step as world_step
 from qpatrol.world.rng import Streams
 
@@ -67,7 +67,7 @@ def measure(
     failing = None
     if out.t == p.failures_at:
         failing = failures.apply(state, p, np.flatnonzero(out.active))
-    stall = np.where(state.mode != GONE, out.t - state.since, 0)
+    stall = stalls(state, out.t)
     watch.observe(out, state.wait, state.charge if p.battery else None, failing, stall)
     tail.observe(state)
     timeline.observe(out)

@@ -180,7 +180,7 @@ class Sim:
         self.recorder.episodes(out.t, out.episodes)
         p = self.params
         s = self.state
-        stall = np.where(s.mode != world.GONE, out.t - s.since, 0)
+        stall = measures.stalls(s, out.t)
         self.measures.observe(out, s.wait, s.charge if p.battery else None, None, stall)
         self.outcome = out
         if not self.done:

@@ -42,7 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
-from qpatrol.world import Outcome, Params, interference
+from qpatrol.world import GONE, Outcome, Params, State, interference
 
 
 def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray, target: np.ndarray | None = None):
@@ -336,6 +336,12 @@ def division_of_labour(visits: np.ndarray) -> np.ndarray:
     counts = visited.sum(axis=1)
     sums = np.where(visited, share, 0.0).sum(axis=1)
     return np.where(counts > 0, sums / np.maximum(counts, 1), np.nan)
+
+
+def stalls(s: State, t: int) -> np.ndarray:
+    """int ``[R, K]``: each robot's stall after step ``t``, the age of its task (``t -
+    State.since``; 0 for a failed robot): what :meth:`Measures.observe` takes."""
+    return np.where(s.mode != GONE, t - s.since, 0)
 
 
 def stall_bound(p: Params) -> int:
