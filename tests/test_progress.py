@@ -118,3 +118,25 @@ def test_without_the_age_insisting_robots_starve(monkeypatch):
     w = starved[0].livelocks[0]
     stalls = mc.replay(starved[0].checker, w, loops=3)
     assert (np.diff(stalls) > 0).all()
+
+
+def _ps_example_cyclic(engine: str) -> list[dict]:
+    """12 ``cyclic`` robots on ps_example (a patrol graph with dead-end spurs), battery
+    off, ``exclusive``: 1 run x 1,500 steps, warm-up 500."""
+    flat = {
+        "map": "ps_example", "policy": "cyclic", "agents": 12, "runs": 1, "steps": 1500,
+        "record.warmup": 500, "battery.enabled": False, "team.interaction": "exclusive",
+        "engine": engine,
+    }  # fmt: skip
+    return simulate(from_flat(flat)).summary
+
+
+@pytest.mark.parametrize("engine", ["numpy", "numba"])
+def test_a_team_waiting_on_its_aims_is_not_live(engine):
+    """12 ``cyclic`` robots on ps_example: robots travelling into a dead-end spur and
+    robots waiting on its end exchange plans back and forth, and the rest of the team
+    waits on its walk vertices for them: no task ends for over a thousand steps, and
+    the stall says so. (When a robot standing on its aim counted as making progress,
+    every waiting robot ``progressed`` every step: a ``max_stall`` of 13.)"""
+    (r,) = _ps_example_cyclic(engine)
+    assert r["max_stall"] > 2 * r["stall_bound"] and not r["live"]

@@ -229,3 +229,23 @@ def test_robots_behind_a_late_robot_wait_for_it_one_after_the_other():
         out = numpy_loop.advance(s, p, strat, u)
         assert ((strat.target[0] - before) % 12).tolist() == [1, 1, 1]
         assert out.as_asked[0].all()
+
+
+def test_on_a_tie_the_robot_standing_on_the_slot_is_ahead():
+    """Two robots with targets on one index (a robot on a graph's waypoint advances
+    without the spacing rule, and may catch up): the one standing on the target cell is
+    ahead, whatever the indices, so it never waits for a robot that must pass it to
+    reach the slot (with the lower index ahead, three ``learned-tour`` robots on a comb
+    froze: one on a dead end's last cell waiting for the one above it, which asked for
+    that cell); between two that both stand or both do not, the lower index."""
+    m = get_map("map_a")
+    cfg = from_flat({"map": "map_a", "policy": "cyclic", "agents": 3, "battery.enabled": False})
+    p = world.make_params(cfg, m)
+    strat = strategies.make("cyclic", cfg, m, p, np.flatnonzero(p.target)[None, :3])
+    L = int(strat.length[0, 0])
+    strat.target[0] = [4, 4, 10]
+    counted = np.ones((1, 3), dtype=bool)
+    on = np.array([[False, True, False]])  # robot 1 stands on the slot, robot 0 does not
+    assert strat.gap_ahead(counted, on)[0].tolist() == [0, 6, L - 6]
+    # neither stands: the lower index is ahead
+    assert strat.gap_ahead(counted, np.zeros((1, 3), dtype=bool))[0].tolist() == [6, 0, L - 6]

@@ -862,3 +862,20 @@ def test_outcome_active_covers_the_step_that_meets_the_episode_quota():
     assert out.moved[0, 0] and out.episodes.runs.tolist() == [0]
     assert w.s.steps_done.tolist() == [4] and w.s.active.tolist() == [False]
     assert out.active.tolist() == [True]  # "the runs that took this step"
+
+
+def test_a_task_ends_when_its_aim_is_entered_not_while_its_robot_stands_on_it():
+    """A task ends when its robot enters its aim (or is handed a task whose aim is its
+    cell); a robot that waits on its aim (a walk follower held for its spacing) makes
+    no progress, so its stall grows. Standing counted as progress would let a team
+    that stands still look live (every robot on its aim, ``max_stall`` 0)."""
+    w = build(CORRIDOR, [2, 5])
+    obs = world.begin_step(w.s, w.p)
+    aim = np.array([[3, 5]], dtype=np.int64)  # robot 0 enters 3; robot 1 waits on 5
+    out = world.step(w.s, w.p, obs, np.array([[EAST, -1]]), aim)
+    assert out.progressed[0].tolist() == [True, False]
+    assert w.s.since[0].tolist() == [1, 0]
+    obs = world.begin_step(w.s, w.p)
+    out = world.step(w.s, w.p, obs, np.array([[-1, -1]]), np.array([[3, 5]]))
+    assert out.progressed[0].tolist() == [False, False]
+    assert w.s.since[0].tolist() == [1, 0]

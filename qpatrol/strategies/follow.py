@@ -33,7 +33,8 @@ there. So a robot that lost steps (a yield, a push, a head-on meeting, a battery
 is not run into by the robots behind: each of them waits the steps it lost, one after
 the other, and the team regains its spacing within K steps, every robot the same number
 of steps late. Targets compared are those before this step's advances; on a tie (two
-targets on one index) the robot of lower index counts as ahead.
+targets on one index) the robot standing on its target cell counts as ahead, then the
+robot of lower index.
 """
 
 from __future__ import annotations
@@ -102,14 +103,21 @@ class WalkFollower(base.Strategy):
         on its walk (its walk's length when it is alone on it), as the targets are now."""
         self.spacing = self.gap_ahead(np.ones((self.n_runs, self.n_agents), dtype=bool))
 
-    def gap_ahead(self, counted: np.ndarray) -> np.ndarray:
+    def gap_ahead(self, counted: np.ndarray, on: np.ndarray | None = None) -> np.ndarray:
         """int ``[R, K]``: walk steps from each robot's target forward to the nearest
-        target of another ``counted`` robot (bool ``[R, K]``) on the same walk; on a tie
-        the robot of lower index is ahead (0 steps); the walk's length if none."""
+        target of another ``counted`` robot (bool ``[R, K]``) on the same walk; the
+        walk's length if none. On a tie (two targets on one index) the robot standing on
+        its target cell is ahead (0 steps; ``on``: bool ``[R, K]``, None: none stands on
+        it), and between two that both stand or both do not, the one of lower index."""
         L = self.lap()  # [R, K]
         ahead = (self.target[:, None, :] - self.target[:, :, None]) % L[:, :, None]  # [R, k, j]
         k = np.arange(self.n_agents)
-        ahead = np.where((ahead == 0) & (k[None, :] > k[:, None])[None], L[:, :, None], ahead)
+        if on is None:
+            on = np.zeros_like(counted)
+        first = (on[:, None, :] & ~on[:, :, None]) | (
+            (on[:, None, :] == on[:, :, None]) & (k[None, :] < k[:, None])[None]
+        )  # [R, k, j]: j is ahead of k on a tie
+        ahead = np.where((ahead == 0) & ~first, L[:, :, None], ahead)
         other = (
             (self.wid[:, None, :] == self.wid[:, :, None])
             & counted[:, None, :]
@@ -154,7 +162,8 @@ class WalkFollower(base.Strategy):
         it asks, so it advances there: it waits at the next vertex)."""
         stay = self.hold.copy()
         if self.keep_spacing:
-            stay |= self.gap_ahead(obs.choosing) < self.spacing
+            on = obs.state.pos == self.goal_cells()
+            stay |= self.gap_ahead(obs.choosing, on) < self.spacing
         stay &= self.params.target[obs.state.pos]
         advance = mask & obs.choosing & (obs.state.pos == self.goal_cells()) & ~stay
         self.target = np.where(advance, (self.target + 1) % self.lap(), self.target)

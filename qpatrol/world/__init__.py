@@ -768,9 +768,11 @@ def step(
         battery.credit_detour(s, p, yielded, prev_pos)
     asked = ask >= 0
     battery.end(s, p, moved, asked)
-    # a task ends when its robot stands on its aim or, with none, enters a target
+    # a task ends when its robot enters its aim, or is handed a task whose aim is its
+    # cell, or, with no aim, enters a target (waiting on its aim is not progress)
+    got = moved | (res.swapped >= 0)
     progressed = active[:, None] & (
-        ((s.aim >= 0) & (s.pos == s.aim) & ((mode0 == PATROL) | (mode0 == HOMING)))
+        (got & (s.aim >= 0) & (s.pos == s.aim) & ((mode0 == PATROL) | (mode0 == HOMING)))
         | ((s.aim < 0) & (mode0 == PATROL) & moved & p.target[s.pos])
     )
     s.since = np.where(progressed, t, s.since)

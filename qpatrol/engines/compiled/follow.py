@@ -105,20 +105,31 @@ def _advance(ri, k, length):
     ri[k, TARGET] = (ri[k, TARGET] + 1) % length[ri[k, WID]]
 
 
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def _on_target(r, k, pos, ri, walk):
+    """Robot k of run r stands on its target cell."""
+    return pos[r, k] == walk[ri[k, WID], ri[k, TARGET]]
+
+
 @njit(cache=True, nogil=True, _nrt=False)
-def _gap_ahead(ri, k, choosing, length):
+def _gap_ahead(r, k, pos, choosing, ri, walk, length):
     """Walk steps from robot k's target forward to the nearest target of another
-    choosing robot on its walk (lower index ahead on a tie); the walk's length if none."""
+    choosing robot on its walk; the walk's length if none. On a tie the robot standing
+    on its target cell is ahead, and between two that both stand or both do not, the
+    one of lower index."""
     L = length[ri[k, WID]]
     gap = L
+    on_k = _on_target(r, k, pos, ri, walk)
     for j in range(choosing.shape[0]):
         if j == k or not choosing[j] or ri[j, WID] != ri[k, WID]:
             continue
         d = ri[j, TARGET] - ri[k, TARGET]
         if d < 0:
             d += L
-        if d == 0 and j > k:
-            d = L
+        if d == 0:
+            on_j = _on_target(r, j, pos, ri, walk)
+            if not ((on_j and not on_k) or (on_j == on_k and j < k)):
+                d = L
         if d < gap:
             gap = d
     return gap
@@ -136,7 +147,7 @@ def _advance_on_target(r, pos, target, choosing, mask, ipar, ri, walk, length):
         if go and target[pos[r, k]]:
             go = ri[k, HOLD] == 0
             if go and ipar[4] != 0:
-                go = _gap_ahead(ri, k, choosing, length) >= ri[k, SPACING]
+                go = _gap_ahead(r, k, pos, choosing, ri, walk, length) >= ri[k, SPACING]
         mask[k] = 1 if go else 0
     for k in range(n_agents):
         if mask[k] != 0:

@@ -407,14 +407,15 @@ def turn_back(r, p, s, w):
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def progress(r, t, p, s, w):
     """The tasks of run ``r`` that ended at step ``t`` (``w.progressed``; ``s.since = t``):
-    a robot that stands on its aim (patrolling or homing when it asked) or, with none
-    and patrolling, entered a target."""
+    a robot on its aim that entered it or was handed it (patrolling or homing when it
+    asked) or, with none and patrolling, entered a target."""
     for k in range(s.pos.shape[1]):
         m0 = w.mode0[k]
         a = s.aim[r, k]
         done = False
         if a >= 0:
-            done = s.pos[r, k] == a and (m0 == PATROL or m0 == HOMING)
+            got = w.moved[k] or w.swapped[k] >= 0
+            done = got and s.pos[r, k] == a and (m0 == PATROL or m0 == HOMING)
         else:
             done = m0 == PATROL and w.moved[k] and p.target[s.pos[r, k]]
         w.progressed[k] = done
