@@ -140,3 +140,47 @@ def test_a_team_waiting_on_its_aims_is_not_live(engine):
     every waiting robot ``progressed`` every step: a ``max_stall`` of 13.)"""
     (r,) = _ps_example_cyclic(engine)
     assert r["max_stall"] > 2 * r["stall_bound"] and not r["live"]
+
+
+def _own_records(policy: str, engine: str) -> list[dict]:
+    """Two ``cc`` or ``hpcc`` robots on ps_example, battery off, ``exclusive``: 2 runs x
+    2,000 steps, warm-up 500."""
+    flat = {
+        "map": "ps_example", "policy": policy, "agents": 2, "runs": 2, "steps": 2000,
+        "record.warmup": 500, "battery.enabled": False, "team.interaction": "exclusive",
+        "engine": engine,
+    }  # fmt: skip
+    return simulate(from_flat(flat)).summary
+
+
+@pytest.mark.parametrize("policy", ["cc", "hpcc"])
+def test_a_goal_handed_on_counts_as_served_in_the_own_record(policy):
+    """Robots that keep their own records (``cc``, ``hpcc``) count a goal they handed on
+    to the robot in their way as served. Then two robots on ps_example (dead-end spurs)
+    cover every vertex, and the engines agree on every measure."""
+    by_engine = [_own_records(policy, e) for e in ("numpy", "numba")]
+    assert by_engine[0] == by_engine[1]
+    for r in by_engine[0]:
+        assert r["live"] and r["coverage"] == 1.0, r
+
+
+@pytest.mark.parametrize("policy", ["cc", "hpcc"])
+def test_a_goal_handed_on_and_forgotten_is_chased_by_both(policy, monkeypatch):
+    """Deliberate break: the record forgets the goal handed on. The robot that took it
+    and the robot that handed it on choose the same next goals, one behind the other:
+    a run leaves most of the graph unvisited, and the average idleness at least
+    triples."""
+    import importlib
+
+    mod = importlib.import_module(f"qpatrol.strategies.{policy}")
+
+    def forgetful(self, out, rec=None):
+        rr, kk = np.nonzero(out.moved)
+        self.memory[rr, kk, out.pos[rr, kk]] = out.t
+
+    kept = _own_records(policy, "numpy")
+    monkeypatch.setattr(mod.Strategy, "learn", forgetful)
+    forgot = _own_records(policy, "numpy")
+    assert min(r["coverage"] for r in forgot) < 0.5
+    idle = [np.mean([r["avg_idleness"] for r in rs]) for rs in (kept, forgot)]
+    assert idle[1] > 3 * idle[0], idle

@@ -2,9 +2,11 @@
 target this robot visited longest ago, reached by a shortest path.
 
 Each robot keeps its own record of when it last entered each cell (never: step 0), as
-``conscientious`` does, and on its goal (or without one) chooses the target of oldest
-record other than its own cell, ties by the run's stream (the j-th tied target in cell
-order); see :mod:`qpatrol.strategies.goals` for travel and held pockets.
+``conscientious`` does, a goal it handed on to the robot in its way counting as entered
+then (:func:`qpatrol.world.traffic.hand_on`: the other robot serves it), and on its
+goal (or without one) chooses the target of oldest record other than its own cell, ties
+by the run's stream (the j-th tied target in cell order); see
+:mod:`qpatrol.strategies.goals` for travel and held pockets.
 """
 
 from __future__ import annotations
@@ -51,3 +53,9 @@ class Strategy(goals.GoalFollower):
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         rr, kk = np.nonzero(out.moved)
         self.memory[rr, kk, out.pos[rr, kk]] = out.t
+        if out.swapped is not None:
+            # a robot that handed its goal on (its partner's goal now) counts it as served
+            rr, kk = np.nonzero(out.swapped >= 0)
+            handed = self.goal[rr, out.swapped[rr, kk]]
+            ok = handed >= 0
+            self.memory[rr[ok], kk[ok], handed[ok]] = out.t

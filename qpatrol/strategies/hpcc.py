@@ -10,7 +10,8 @@ scores every target x but c (outside another robot's held pocket) by
          + hpcc.idleness_weight x I(x) / I_max
 
 (the idleness term 0 when ``I_max`` is 0), ``L`` moves on shortest paths, ``I`` the
-idleness by the robot's own record of the cells it entered (as ``cc``: patrolling_sim's
+idleness by the robot's own record of the cells it entered and the goals it handed on
+(as ``cc``: patrolling_sim's
 cognitive agents exchange nothing, so communication changes nothing), the maxima over
 every target of the map; the greatest wins, ties to the j-th
 tied target in cell order, ``j = floor(u x ties)``. Its route to the goal is the
@@ -59,7 +60,8 @@ class Strategy(goals.GoalFollower):
     hop: int ``[R, K]``, the target of its route each robot makes for (-1: none).
     route: int ``[R, K, C]``, the port by which each robot leaves each target of its
         route (-1 off the route, and on the goal).
-    memory: int ``[R, K, C]``, the step at which robot k last entered cell c (0: never).
+    memory: int ``[R, K, C]``, the step at which robot k last entered cell c (0: never),
+        or handed it on as its goal.
     """
 
     name = "hpcc"
@@ -99,6 +101,12 @@ class Strategy(goals.GoalFollower):
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
         rr, kk = np.nonzero(out.moved)
         self.memory[rr, kk, out.pos[rr, kk]] = out.t
+        if out.swapped is not None:
+            # a robot that handed its goal on (its partner's goal now) counts it as served
+            rr, kk = np.nonzero(out.swapped >= 0)
+            handed = self.goal[rr, out.swapped[rr, kk]]
+            ok = handed >= 0
+            self.memory[rr[ok], kk[ok], handed[ok]] = out.t
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         s, p = obs.state, obs.params

@@ -261,9 +261,9 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
     elif code == EVAP:
         evap.learn(r, t, p.communication, s.pos, w.moved, p.target, sp.cell_f, sp.cell_i, sp.fpar)
     elif code >= HCR and code <= SEBS:
-        goals.learn(r, t, sp.ipar, s.pos, w.moved, sp.cell_i)
+        goals.learn(r, t, sp.ipar, s.pos, w.moved, w.swapped, sp.robot_i, sp.cell_i)
     elif code == HPCC:
-        hpcc.learn(r, t, s.pos, w.moved, sp.cell_i)
+        hpcc.learn(r, t, s.pos, w.moved, w.swapped, sp.robot_i, sp.cell_i)
     elif code == CBLS:
         cbls.learn(r, t, p.communication, s.pos, w.moved, sp.row_i, sp.cell_i, sp.cell_f)
     return n_up

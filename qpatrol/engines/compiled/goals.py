@@ -255,10 +255,15 @@ def act(r, t, ur, battery, p, s, w, ipar, fpar, goal, table, is_target, dist, me
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, t, ipar, pos, moved, memory):
-    """``cc``: each robot that entered a cell at step ``t`` remembers it."""
+def learn(r, t, ipar, pos, moved, swapped, goal, memory):
+    """``cc``: each robot that entered a cell at step ``t`` remembers it, and one that
+    handed its goal on (``swapped`` ``[K]``, the partner; its goal ``goal[r, j, 0]``
+    now) counts that goal as served."""
     if ipar[0] != CC:
         return
     for k in range(moved.shape[0]):
         if moved[k]:
             memory[r, k, pos[r, k]] = t
+    for k in range(moved.shape[0]):
+        if swapped[k] >= 0 and goal[r, swapped[k], 0] >= 0:
+            memory[r, k, goal[r, swapped[k], 0]] = t

@@ -72,11 +72,17 @@ def _last(r, k, x, route):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, t, pos, moved, route):
-    """Each robot of run r that entered a cell at step t remembers it."""
-    for k in range(moved.shape[0]):
+def learn(r, t, pos, moved, swapped, robot_i, route):
+    """Each robot of run r that entered a cell at step t remembers it, and one that
+    handed its goal on (``swapped`` ``[K]``, the partner; its goal ``robot_i[r, j, 0]``
+    now) counts that goal as served."""
+    n_agents = moved.shape[0]
+    for k in range(n_agents):
         if moved[k]:
             route[r, (route.shape[1] - 1) // 2 + 1 + k, pos[r, k]] = t
+    for k in range(n_agents):
+        if swapped[k] >= 0 and robot_i[r, swapped[k], 0] >= 0:
+            route[r, (route.shape[1] - 1) // 2 + 1 + k, robot_i[r, swapped[k], 0]] = t
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
