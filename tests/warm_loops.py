@@ -59,8 +59,14 @@ def config(name: str):
 
 
 def warm(names: list[str]) -> None:
+    from qpatrol.engines import coldstart
     from qpatrol.run import simulate
 
+    # the processes of the warm-up never compile one loop twice (each claims its own);
+    # the engine's lock between processes is one per loop name, not per kind of map, so
+    # it would make a grid's compile of a loop wait for the graph's (``any@grid`` for
+    # ``any@graph``: the two longest, one after the other instead of side by side)
+    coldstart._wait_for_others = lambda loop, poll=0.25: 0.0
     for name in names:
         if name.startswith("vector@"):
             warm_vector(MAPS[name.split("@")[1]])
