@@ -32,18 +32,57 @@ settings.load_profile("qpatrol")
 
 def pytest_configure(config: pytest.Config) -> None:
     """Before the workers of a parallel run start (in the controller only): compile the
-    compiled engine's eight loops into numba's cache in two processes at once
-    (``tests/warm_loops.py``), so that no worker sits idle waiting for another's
-    compile. On a warm cache each process only loads them (a few seconds)."""
+    compiled engine's loops into numba's cache in two processes at once, each taking the
+    next loop the other has not taken, the longest first (``tests/warm_loops.py``), so
+    that no worker sits idle waiting for another's compile. On a warm cache each
+    process only loads them (a few seconds)."""
     parallel = getattr(config.option, "numprocesses", None)
     if hasattr(config, "workerinput") or not parallel or not importlib.util.find_spec("numba"):
         return
     import warm_loops
 
     script = Path(__file__).with_name("warm_loops.py")
-    procs = [subprocess.Popen([sys.executable, str(script), *half]) for half in warm_loops.HALVES]
-    for proc in procs:
-        proc.wait()
+    with tempfile.TemporaryDirectory(prefix="qpatrol-warm-") as claims:
+        procs = [
+            subprocess.Popen([sys.executable, str(script), "--claim", claims])
+            for _ in range(warm_loops.PROCESSES)
+        ]
+        for proc in procs:
+            proc.wait()
+
+
+#: The longest tests and groups of tests (``xdist_group``), the longest first: a parallel
+#: run hands tests out in collection order as the workers ask, so these go first and the
+#: short ones fill in around them (no worker left alone with a long test at the end).
+#: ``file::name`` prefixes of test ids; the others keep their order.
+LONGEST_FIRST = (
+    "test_modelcheck.py::test_no_task_starves_with_battery_and_goals",
+    "test_modelcheck.py::test_no_task_starves_with_battery",
+    "test_experiments.py::test_quick_reproduction_matches_the_committed_references",
+    "test_figures.py::",
+    "test_checkpoint.py::",
+    "test_modelcheck.py::test_no_task_starves_with_three_robots_and_two_stations",
+    "test_install.py::",
+    "test_sweep.py::test_killed_sweep_resumes_to_identical_results",
+    "test_modelcheck.py::test_no_task_starves_without_battery",
+    "test_strategies.py::test_every_strategy_runs_on_every_shipped_map",
+    "test_progress.py::test_without_the_age_insisting_robots_starve",
+    "test_failures.py::test_every_strategy_survives_two_failures_on_every_map",
+    "test_spacing.py::test_the_bound_fails_without_the_rules",
+)
+
+
+def pytest_collection_modifyitems(config: pytest.Config, items: list[pytest.Item]) -> None:
+    """The tests of :data:`LONGEST_FIRST` first, in its order (a stable sort)."""
+
+    def rank(item: pytest.Item) -> int:
+        name = item.nodeid.rpartition("/")[2]
+        return next(
+            (i for i, prefix in enumerate(LONGEST_FIRST) if name.startswith(prefix)),
+            len(LONGEST_FIRST),
+        )
+
+    items.sort(key=rank)
 
 
 RING = """\

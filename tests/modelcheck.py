@@ -213,6 +213,7 @@ class Checker:
         self.width = 1 + sum(int(np.prod(s)) for s in self.shapes.values())
         # every choice vector of K robots, directions 0..3
         self.table = np.array(list(itertools.product(range(4), repeat=case.k)), dtype=np.int64)
+        self._toward_ports: list | None = None
 
     # --- abstract states <-> world states -------------------------------------------
     def encode(self, s: world.State, tmod: int) -> np.ndarray:
@@ -324,46 +325,62 @@ class Checker:
         kept = ((s2.since == oldest) & (s2.mode != world.GONE) & ~out.progressed).any(axis=1)
         return src, succ, fail, out.moved, choice, aim, kept
 
-    def _held_by_other(self, s: world.State, r: int, k: int) -> np.ndarray:
-        """bool ``[C]``: cells in the pocket of a station another robot than k holds (no
-        goal follower takes them as goals)."""
+    def _held_by_other(self, s: world.State) -> list[list[int]]:
+        """Per row of ``s`` and cell, the robot holding the station of the cell's pocket
+        (-1: no pocket, or its station held by nobody): a goal follower other than that
+        robot takes none of these cells as a goal."""
         h = self.p.pocket_of
+        R = s.pos.shape[0]
         if not self.p.homes.size:
-            return np.zeros(h.size, dtype=bool)
-        holder = s.reserved[r, np.maximum(h, 0)]
-        return (h >= 0) & (holder >= 0) & (holder != k)
+            return [[-1] * h.size] * R
+        return np.where(h >= 0, s.reserved[:, np.maximum(h, 0)], -1).tolist()
+
+    def _toward(self) -> list[list[list[int]]]:
+        """``[c][g]``: the ports of cell c on a shortest path to g, lowest first."""
+        if self._toward_ports is None:
+            dist = self.dist.tolist()
+            nbrs = self.p.neighbors.tolist()
+            self._toward_ports = [
+                [
+                    [d for d, x in enumerate(nb) if x >= 0 and dist[x][g] == dist[c][g] - 1]
+                    for g in range(len(nbrs))
+                ]
+                for c, nb in enumerate(nbrs)
+            ]
+        return self._toward_ports
 
     def _goal_options(self, s: world.State, obs: world.Observation):
         """The goal adversary's options: ``(src [M], choice [M, K], aim [M, K])``. A
         choosing robot keeps its aim (``State.aim``) until it reaches it; then, or
-        without one, the adversary gives it any target but its cell. It asks for the
-        lowest open port on a shortest path to its aim, else the lowest such port
-        (it insists, as the goal followers do)."""
-        dist = self.dist
+        without one, the adversary gives it any target but its cell outside a pocket
+        whose station another robot holds. It asks for the lowest open port on a
+        shortest path to its aim, else the lowest such port (it insists, as the goal
+        followers do)."""
         n_cells = self.p.n_cells
         targets = np.flatnonzero(self.p.target).tolist()
+        toward = self._toward()
+        held = self._held_by_other(s)
+        pos, aim_all = s.pos.tolist(), s.aim.tolist()
+        choosing, open_all = obs.choosing.tolist(), obs.open.tolist()
         src, choices, aims = [], [], []
         for r in range(s.pos.shape[0]):
             options = []
+            held_r = held[r]
             for k in range(self.case.k):
-                c = int(s.pos[r, k])
-                if not obs.choosing[r, k]:
+                c = pos[r][k]
+                if not choosing[r][k]:
                     options.append([(-1, -1)])
                     continue
-                a = int(s.aim[r, k])
-                closed = self._held_by_other(s, r, k)
-                goals = (
-                    [a]
-                    if 0 <= a < n_cells and a != c
-                    else [x for x in targets if x != c and not closed[x]]
-                )
+                a = aim_all[r][k]
+                if 0 <= a < n_cells and a != c:
+                    goals = [a]
+                else:
+                    goals = [x for x in targets if x != c and (held_r[x] < 0 or held_r[x] == k)]
                 row = [] if goals else [(-1, -1)]
+                is_open = open_all[r][k]
                 for g in goals:
-                    nb = self.p.neighbors[c]
-                    on_path = [
-                        d for d in range(nb.size) if nb[d] >= 0 and dist[nb[d], g] == dist[c, g] - 1
-                    ]
-                    open_ = [d for d in on_path if obs.open[r, k, d]]
+                    on_path = toward[c][g]
+                    open_ = [d for d in on_path if is_open[d]]
                     row.append(((open_ or on_path)[0], g))
                 options.append(row)
             for combo in itertools.product(*options):

@@ -92,7 +92,10 @@ def test_recorders_and_episode_quota_in_batches(tmp_path):
 
 @pytest.mark.parametrize("policy", [n for n in NAMES if n != "qlearning"])
 def test_every_strategy_in_batches(tmp_path, policy):
-    same_files({**RECORD, "map": "map_b", "agents": 2, "policy": policy}, tmp_path)
+    # 200 steps: two episodes of each run end (max_episode_steps 90), four timeline
+    # windows close, the measures count after the warmup
+    flat = {**RECORD, "steps": 200, "map": "map_b", "agents": 2, "policy": policy}
+    same_files(flat, tmp_path)
 
 
 def test_limit_is_an_execution_key():

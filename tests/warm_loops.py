@@ -5,11 +5,14 @@ Each loop (:func:`qpatrol.engines.compiled_loop`: ``any``, ``qlearning``,
 graph), compiled on first use in tens of seconds on an empty cache. When the workers of
 a parallel run meet a loop at once, one compiles it and the others wait for it
 (:mod:`qpatrol.engines.coldstart`), idle. ``tests/conftest.py`` runs this module in two
-processes before the workers start, each compiling half of the eight, so that both
-cores compile and the workers then load every loop from the cache. Results do not
-depend on it: a warm cache only saves time.
+processes before the workers start, which share the loops out between them (each
+claims the next one not yet claimed, the longest to compile first), so that both cores
+compile and the workers then load every loop from the cache. Results do not depend on
+it: a warm cache only saves time.
 
-``python tests/warm_loops.py LOOP@KIND ...`` (KIND: ``grid`` or ``graph``).
+``python tests/warm_loops.py LOOP@KIND ...`` (KIND: ``grid`` or ``graph``) compiles
+those loops; ``python tests/warm_loops.py --claim FOLDER`` the loops of :data:`ORDER`
+that no other process has claimed in ``FOLDER``.
 """
 
 from __future__ import annotations
@@ -25,14 +28,24 @@ LOOPS = {
 }
 MAPS = {"grid": "map_b", "graph": "ps_grid"}
 
-#: Two halves of about equal compile time (``any`` costs about as much as the others);
-#: ``vector@graph`` is the batched env's kernel and features
-#: (:mod:`qpatrol.engines.vector`, :mod:`qpatrol.strategies.features`; its tests run on
-#: patrol graphs only).
-HALVES = (
-    ["any@grid", "qlearning@graph", "qlearning-solo@graph", "qlearning-team@grid"],
-    ["any@graph", "qlearning@grid", "qlearning-solo@grid", "qlearning-team@graph", "vector@graph"],
-)
+#: Every loop, the longest to compile first (on an empty cache, one process each:
+#: ``any@grid`` about as long as all the others together, then ``any@graph``, the
+#: Q-learning loops on a grid and on a graph, ``vector@graph``); ``vector@graph`` is the
+#: batched env's kernel and features (:mod:`qpatrol.engines.vector`,
+#: :mod:`qpatrol.strategies.features`; its tests run on patrol graphs only).
+ORDER = [
+    "any@grid",
+    "any@graph",
+    "qlearning@grid",
+    "qlearning-team@graph",
+    "vector@graph",
+    "qlearning-solo@grid",
+    "qlearning-team@grid",
+    "qlearning@graph",
+    "qlearning-solo@graph",
+]
+#: How many processes compile at once (one per core of the machine the suite is sized for).
+PROCESSES = 2
 
 
 def config(name: str):
@@ -46,8 +59,14 @@ def config(name: str):
 
 
 def warm(names: list[str]) -> None:
+    from qpatrol.engines import coldstart
     from qpatrol.run import simulate
 
+    # the processes of the warm-up never compile one loop twice (each claims its own);
+    # the engine's lock between processes is one per loop name, not per kind of map, so
+    # it would make a grid's compile of a loop wait for the graph's (``any@grid`` for
+    # ``any@graph``: the two longest, one after the other instead of side by side)
+    coldstart._wait_for_others = lambda loop, poll=0.25: 0.0
     for name in names:
         if name.startswith("vector@"):
             warm_vector(MAPS[name.split("@")[1]])
@@ -69,5 +88,21 @@ def warm_vector(map_name: str) -> None:
     env.graph()
 
 
+def claim(folder: str, name: str) -> bool:
+    """Whether this process is the first to claim loop ``name`` in ``folder``."""
+    import os
+
+    try:
+        os.close(os.open(os.path.join(folder, name), os.O_CREAT | os.O_EXCL | os.O_WRONLY))
+    except FileExistsError:
+        return False
+    return True
+
+
 if __name__ == "__main__":
-    warm(sys.argv[1:])
+    if sys.argv[1:2] == ["--claim"]:
+        for name in ORDER:
+            if claim(sys.argv[2], name):
+                warm([name])
+    else:
+        warm(sys.argv[1:])
