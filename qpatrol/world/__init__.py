@@ -409,8 +409,9 @@ class State:
             whose task is to enter any target (it chooses among its moves) or that has
             none (queued, charging); set each step from the strategy and the world.
         since: int ``[R, K]``, the team step at which each robot's current task began (it
-            began needing a station, or its last task ended: it reached its aim, or, with
-            none, entered a target). The right of way goes by its age, ``t - since``.
+            began needing a station, or its last task ended: it entered its aim or was
+            handed one it stands on, or, with none, entered a target). The right of way
+            goes by its age, ``t - since``.
         met: int ``[R, K]``, under ``team.interaction: interference`` the team step at
             whose end the robot last met another and stopped (:mod:`qpatrol.world.interference`;
             a large negative number if never): it stops in the ``stop_steps`` steps after.
@@ -487,8 +488,8 @@ class Outcome:
         episodes: the episodes that ended this step.
         travelling: bool, the robot was patrolling on a graph's waypoint and asked for
             the port that continues its edge (:attr:`Observation.travel`; not choosing).
-        progressed: bool, the robot's task ended (it reached its aim, or with none entered
-            a target); its next task begins.
+        progressed: bool, the robot's task ended (it entered its aim, or was handed a task
+            whose aim is its cell, or with none entered a target); its next task begins.
         swapped: int, the robot it exchanged its task with (the strategies exchange their
             plans too: a goal, a place on a walk), -1 if none.
     """
