@@ -120,11 +120,11 @@ def test_without_the_age_insisting_robots_starve(monkeypatch):
     assert (np.diff(stalls) > 0).all()
 
 
-def _ps_example_cyclic(engine: str) -> list[dict]:
-    """12 ``cyclic`` robots on ps_example (a patrol graph with dead-end spurs), battery
-    off, ``exclusive``: 1 run x 1,500 steps, warm-up 500."""
+def _on_ps_example(policy: str, agents: int, runs: int, steps: int, engine: str) -> list[dict]:
+    """``agents`` robots of ``policy`` on ps_example (a patrol graph with dead-end spurs),
+    battery off, ``exclusive``: ``runs`` x ``steps``, warm-up 500."""
     flat = {
-        "map": "ps_example", "policy": "cyclic", "agents": 12, "runs": 1, "steps": 1500,
+        "map": "ps_example", "policy": policy, "agents": agents, "runs": runs, "steps": steps,
         "record.warmup": 500, "battery.enabled": False, "team.interaction": "exclusive",
         "engine": engine,
     }  # fmt: skip
@@ -138,19 +138,13 @@ def test_a_team_waiting_on_its_aims_is_not_live(engine):
     waits on its walk vertices for them: no task ends for over a thousand steps, and
     the stall says so. (When a robot standing on its aim counted as making progress,
     every waiting robot ``progressed`` every step: a ``max_stall`` of 13.)"""
-    (r,) = _ps_example_cyclic(engine)
+    (r,) = _on_ps_example("cyclic", 12, 1, 1500, engine)
     assert r["max_stall"] > 2 * r["stall_bound"] and not r["live"]
 
 
 def _own_records(policy: str, engine: str) -> list[dict]:
-    """Two ``cc`` or ``hpcc`` robots on ps_example, battery off, ``exclusive``: 2 runs x
-    2,000 steps, warm-up 500."""
-    flat = {
-        "map": "ps_example", "policy": policy, "agents": 2, "runs": 2, "steps": 2000,
-        "record.warmup": 500, "battery.enabled": False, "team.interaction": "exclusive",
-        "engine": engine,
-    }  # fmt: skip
-    return simulate(from_flat(flat)).summary
+    """Two ``cc`` or ``hpcc`` robots on ps_example: 2 runs x 2,000 steps."""
+    return _on_ps_example(policy, 2, 2, 2000, engine)
 
 
 @pytest.mark.parametrize("policy", ["cc", "hpcc"])
