@@ -51,11 +51,4 @@ class Strategy(goals.GoalFollower):
         return np.where(has, goals.pick_nth(best, u), -1)
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
-        rr, kk = np.nonzero(out.moved)
-        self.memory[rr, kk, out.pos[rr, kk]] = out.t
-        if out.swapped is not None:
-            # a robot that handed its goal on (its partner's goal now) counts it as served
-            rr, kk = np.nonzero(out.swapped >= 0)
-            handed = self.goal[rr, out.swapped[rr, kk]]
-            ok = handed >= 0
-            self.memory[rr[ok], kk[ok], handed[ok]] = out.t
+        goals.remember(self.memory, self.goal, out)

@@ -42,7 +42,20 @@ from qpatrol.world import battery
 if TYPE_CHECKING:
     from qpatrol.config import Config
     from qpatrol.maps import Map
-    from qpatrol.world import Observation, Params
+    from qpatrol.world import Observation, Outcome, Params
+
+
+def remember(memory: np.ndarray, goal: np.ndarray, out: Outcome) -> None:
+    """An own record of visits (``cc``, ``hpcc``; ``memory`` int ``[R, K, C]``, in place):
+    each robot that entered a cell at step ``out.t`` remembers it, and one that handed its
+    goal on (its partner's goal in ``goal`` ``[R, K]`` now) counts that goal as served."""
+    rr, kk = np.nonzero(out.moved)
+    memory[rr, kk, out.pos[rr, kk]] = out.t
+    if out.swapped is not None:
+        rr, kk = np.nonzero(out.swapped >= 0)
+        handed = goal[rr, out.swapped[rr, kk]]
+        ok = handed >= 0
+        memory[rr[ok], kk[ok], handed[ok]] = out.t
 
 
 def target_neighbours(m: Map) -> tuple[np.ndarray, np.ndarray]:

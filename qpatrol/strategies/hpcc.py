@@ -99,14 +99,7 @@ class Strategy(goals.GoalFollower):
         self.route = base.partners(self.route, swapped)
 
     def learn(self, out: Outcome, rec: Recorder | None = None) -> None:
-        rr, kk = np.nonzero(out.moved)
-        self.memory[rr, kk, out.pos[rr, kk]] = out.t
-        if out.swapped is not None:
-            # a robot that handed its goal on (its partner's goal now) counts it as served
-            rr, kk = np.nonzero(out.swapped >= 0)
-            handed = self.goal[rr, out.swapped[rr, kk]]
-            ok = handed >= 0
-            self.memory[rr[ok], kk[ok], handed[ok]] = out.t
+        goals.remember(self.memory, self.goal, out)
 
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         s, p = obs.state, obs.params
