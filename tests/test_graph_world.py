@@ -408,3 +408,37 @@ def test_robots_beyond_the_starts_are_placed_on_vertices(tmp_path):
     for seed in range(5):
         cells = place_agents(p, m, np.random.default_rng(seed))
         assert sorted(cells.tolist()) == [0, 1, 2], cells
+
+
+@pytest.mark.parametrize(
+    ("turns", "interaction", "turned"),
+    [(True, "exclusive", True), (False, "exclusive", False), (True, "none", False)],
+)
+def test_a_walk_follower_travelling_an_edge_turns_round_when_it_asks_for_the_port_behind(
+    turns, interaction, turned
+):
+    """A robot on the waypoint of the star's edge 1-2 next to leaf 1, travelling towards
+    leaf 1, whose strategy asks for the port behind it: a strategy that plans on edges
+    (``turns``, the walk followers) turns it round under ``exclusive``, and it steps back
+    towards vertex 2 with its heading reversed; any other strategy, or robots that pass
+    each other, travel on to leaf 1 whatever they ask."""
+    m = parse_map(STAR)
+    cfg = from_flat(
+        {"policy": "cyclic", "agents": 1, "runs": 1, "steps": 1, "team.interaction": interaction}
+    )
+    p = world.make_params(cfg, m)
+    wp = int(m.neighbors[1, 1])  # the waypoint of edge 1-2 next to leaf 1
+    s = world.init_state(p, np.array([[wp]]))
+    port_to_1 = int(np.flatnonzero(m.neighbors[wp] == 1)[0])
+    behind = 1 - port_to_1
+    s.head[0, 0] = behind  # it came from vertex 2's side
+    obs = world.begin_step(s, p)
+    assert obs.travel[0, 0] == port_to_1
+    out = world.step(s, p, obs, np.array([[behind]]), None, turns)
+    if turned:
+        assert out.ask[0, 0] == behind and s.pos[0, 0] == m.neighbors[wp, behind]
+        assert s.aim[0, 0] == 2  # the vertex ahead is now vertex 2
+    else:
+        assert out.ask[0, 0] == port_to_1 and s.pos[0, 0] == 1
+        assert s.aim[0, 0] == 1
+    assert out.prev_head[0, 0] == behind  # the heading before the step

@@ -86,7 +86,7 @@ def advance(
     """
     obs = begin_step(state, p)
     ask = strategy.act(obs, u)
-    out = world_step(state, p, obs, ask, strategy.aims(obs))
+    out = world_step(state, p, obs, ask, strategy.aims(obs), strategy.plans_on_edges)
     if out.swapped is not None and (out.swapped >= 0).any():
         strategy.exchange(out.swapped)
     strategy.learn(out, rec)

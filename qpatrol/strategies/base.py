@@ -48,6 +48,11 @@ class Strategy:
     #: Config keys it reads that may differ between the rows of one batch
     #: (:meth:`use_run_values`); it ignores the other per-run keys.
     RUN_KEYS: ClassVar[tuple[str, ...]] = ()
+    #: True for a strategy that keeps its plan on a graph's waypoints too (walk
+    #: followers, :func:`walking`): the world reads its choice for a robot travelling an
+    #: edge, and turns the robot round where it asks for the port behind it
+    #: (:func:`qpatrol.world.turn_round`).
+    plans_on_edges: ClassVar[bool] = False
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         self.cfg = cfg

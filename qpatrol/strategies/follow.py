@@ -73,6 +73,7 @@ class WalkFollower(base.Strategy):
     #: Robots about to meet head-on exchange plans before they move (a test switches
     #: it off: they then meet, and only exchange once they blocked each other).
     exchange_early: bool = True
+    plans_on_edges = True
 
     def __init__(
         self,

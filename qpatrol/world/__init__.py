@@ -670,6 +670,7 @@ def step(
     obs: Observation,
     choice: np.ndarray,
     aim: np.ndarray | None = None,
+    turns: bool = False,
 ) -> Outcome:
     """Apply one team step, in place, given the strategy's ``choice``.
 
@@ -682,6 +683,10 @@ def step(
         aim: int ``[R, K]``, the cell each choosing robot heads for (its strategy's goal,
             :meth:`qpatrol.strategies.base.Strategy.aims`), -1 for a robot that just
             chooses a move; None: -1 for every robot.
+        turns: the strategy plans on a graph's waypoints too (walk followers,
+            :attr:`qpatrol.strategies.base.Strategy.plans_on_edges`): its ``choice`` for a
+            robot travelling an edge is read, and turns it round where it asks for the
+            port behind it (:func:`turn_round`; collisions avoided).
     """
     s = state
     s.t += 1
@@ -689,14 +694,19 @@ def step(
     R, K = s.pos.shape
     active = s.active.copy()  # the runs taking this step (an episode quota may end some)
     ar = np.arange(R)[:, None]
+    prev_pos = s.pos.copy()
+    prev_head = s.head.copy()
+    travel = obs.travel
+    if travel is not None and turns and p.avoid_collisions:
+        travel = turn_round(s, travel, choice)
     choice = np.where(obs.choosing, choice, -1)
     legal_choice = (choice >= 0) & np.take_along_axis(
         obs.legal, np.maximum(choice, 0)[..., None], axis=2
     )[..., 0]
     ask = np.where(legal_choice, choice, -1)
-    on_edge = np.zeros((R, K), dtype=bool) if obs.travel is None else obs.travel >= 0
-    if obs.travel is not None:  # travelling on an edge: its onward port (begin_step)
-        ask = np.where(on_edge, obs.travel, ask)
+    on_edge = np.zeros((R, K), dtype=bool) if travel is None else travel >= 0
+    if travel is not None:  # travelling on an edge: its onward port (begin_step)
+        ask = np.where(on_edge, travel, ask)
     if p.battery:
         # a held pocket is closed: no robot but its holder moves deeper into it
         cell = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
@@ -720,8 +730,6 @@ def step(
     s.aim = task_aims(s, p, obs, aim, on_edge, active)
     mode0 = s.mode.copy()
 
-    prev_pos = s.pos.copy()
-    prev_head = s.head.copy()
     res = traffic.resolve(s, p, want)
     if p.interaction == INTERFERENCE:
         interference.meet(s, p, prev_pos, res.moved)
@@ -826,6 +834,17 @@ def task_aims(
     homing = active[:, None] & (s.mode == HOMING)
     if homing.any():
         out = np.where(homing, p.homes[np.maximum(s.goal, 0)], out)
+    return out
+
+
+def turn_round(s: State, travel: np.ndarray, choice: np.ndarray) -> np.ndarray:
+    """Robots travelling an edge (``travel`` int ``[R, K]``, their onward port, -1 for
+    the others) whose strategy's ``choice`` is the port behind them (their heading) turn
+    round: their heading becomes the onward port, and they ask for the one behind.
+    Returns the ports the travellers ask for; ``s.head`` is modified."""
+    back = (travel >= 0) & (choice == s.head)
+    out = np.where(back, s.head, travel)
+    s.head = np.where(back, travel, s.head)
     return out
 
 

@@ -204,6 +204,13 @@ def act(code, r, t, ur, battery, p, s, w, sp):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def plans_on_edges(code):
+    """The strategy keeps its plan on a graph's waypoints too (the walk followers;
+    :attr:`qpatrol.strategies.base.Strategy.plans_on_edges`)."""
+    return code == CYCLIC or code == PARTITION or code == LEARNED_TOUR
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _goal_aims(r, robot_i, aim):
     """A goal follower's aims (``aim`` int ``[K]``): each robot's goal (``robot_i[r, k,
     0]``; :meth:`qpatrol.strategies.goals.GoalFollower.aims`)."""

@@ -245,6 +245,16 @@ def travellers(r, p, s, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
+def turn_round(r, s, w):
+    """:func:`qpatrol.world.turn_round` of run ``r``: a robot travelling an edge whose
+    strategy asks for the port behind it (its heading) turns round: its heading becomes
+    its onward port (``w.travel``), and it asks for the one behind."""
+    for k in range(w.travel.shape[0]):
+        if w.travel[k] >= 0 and w.ask[k] == s.head[r, k]:
+            w.travel[k], s.head[r, k] = s.head[r, k], w.travel[k]
+
+
+@njit(cache=True, nogil=True, _nrt=False)
 def travel_asks(w):
     """After the strategy's choice: each travelling robot asks for its onward port."""
     for k in range(w.travel.shape[0]):
