@@ -442,3 +442,22 @@ def test_a_walk_follower_travelling_an_edge_turns_round_when_it_asks_for_the_por
         assert out.ask[0, 0] == port_to_1 and s.pos[0, 0] == 1
         assert s.aim[0, 0] == 1
     assert out.prev_head[0, 0] == behind  # the heading before the step
+
+
+def test_a_walk_follower_does_not_turn_round_into_a_taken_cell():
+    """The same traveller, with another robot standing in the cell behind it: turning
+    round would push that robot back along the edge, and two travellers pushed into
+    each other's way turn and push for ever (4 ``cyclic`` robots with the battery on
+    ps_example did, at a station); it travels on to leaf 1."""
+    m = parse_map(STAR)
+    flat = {"policy": "cyclic", "agents": 2, "runs": 1, "steps": 1, "team.interaction": "exclusive"}
+    cfg = from_flat(flat)
+    p = world.make_params(cfg, m)
+    wp = int(m.neighbors[1, 1])
+    port_to_1 = int(np.flatnonzero(m.neighbors[wp] == 1)[0])
+    behind = 1 - port_to_1
+    s = world.init_state(p, np.array([[wp, int(m.neighbors[wp, behind])]]))
+    s.head[0, 0] = behind
+    obs = world.begin_step(s, p)
+    out = world.step(s, p, obs, np.array([[behind, -1]]), None, True)
+    assert out.ask[0, 0] == port_to_1 and s.pos[0, 0] == 1

@@ -145,13 +145,14 @@ def test_walk_followers_crowding_dead_end_spurs_turn_round_and_stay_live():
 def test_a_team_waiting_on_its_aims_is_not_live(monkeypatch):
     """Deliberate break: travellers never turn round. Robots travelling into a spur and
     robots waiting on its end then exchange plans back and forth, and the rest of the
-    team waits on its walk vertices for them: no task ends for over a thousand steps,
-    and the stall says so. (When a robot standing on its aim counted as making
-    progress, every waiting robot ``progressed`` every step: a ``max_stall`` of 13.)"""
+    team waits on its walk vertices for them: no task ends for two thousand steps, and
+    the stall says so (its bound counts the walk followers' spacing waits). (When a robot
+    standing on its aim counted as making progress, every waiting robot ``progressed``
+    every step: a ``max_stall`` of 13.)"""
     from qpatrol.strategies import follow
 
     monkeypatch.setattr(follow.WalkFollower, "plans_on_edges", False)
-    (r,) = _on_ps_example("cyclic", 12, 1, 1500, "numpy")
+    (r,) = _on_ps_example("cyclic", 12, 1, 2500, "numpy")
     assert r["max_stall"] > 2 * r["stall_bound"] and not r["live"]
 
 

@@ -494,7 +494,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
                 if p.travels:
                     if avoid and compiled.plans_on_edges(code):
-                        moves.turn_round(r, s, w)
+                        moves.turn_round(r, p, s, w)
                     moves.travel_asks(w)
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(

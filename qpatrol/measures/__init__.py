@@ -344,7 +344,7 @@ def stalls(s: State, t: int) -> np.ndarray:
     return np.where(s.mode != GONE, t - s.since, 0)
 
 
-def stall_bound(p: Params) -> int:
+def stall_bound(p: Params, planned: int | np.ndarray = 0) -> int | np.ndarray:
     """The longest stretch without progress a live team may show (``max_stall``).
 
     ``trip`` is the most steps a task takes once it is the oldest: under ``exclusive``
@@ -361,15 +361,18 @@ def stall_bound(p: Params) -> int:
     (``2 x depart_len``): ``K x
     (charge_steps + 2 x max depart_len + 2 x trip + 1) + trip``, a yardstick under
     ``exclusive`` and a theorem when robots pass each other (docs/model.md).
+    ``planned``: the strategy's own waits, added (per run, int ``[R]``, or one for all:
+    :meth:`qpatrol.strategies.base.Strategy.planned_wait`; walk followers wait for
+    their spacing).
     """
     if p.avoid_collisions:
         trip = p.task_moves + 2
     else:
         trip = interference.travel_steps(p.task_moves, p)
     if not p.battery:
-        return p.n_agents * trip
+        return p.n_agents * trip + planned
     turnaround = p.charge_steps + 2 * int(p.depart_len.max()) + 2 * trip + 1
-    return p.n_agents * turnaround + trip
+    return p.n_agents * turnaround + trip + planned
 
 
 def summarize(
@@ -377,9 +380,10 @@ def summarize(
     episodes: pd.DataFrame,
     run_ids: np.ndarray,
     steps_done: np.ndarray,
-    bound: int,
+    bound: int | np.ndarray,
 ) -> list[dict[str, Any]]:
-    """Per-run measures as plain dicts (JSON-ready), in batch order."""
+    """Per-run measures as plain dicts (JSON-ready), in batch order; ``bound``: the
+    ``stall_bound``, one for every run or int ``[R]``."""
     dol = division_of_labour(m.window_visits)
     per_target = m.of_targets(m.window_visits).sum(axis=1)  # [R, T] window visits
     coverage = (per_target > 0).mean(axis=1)
@@ -429,6 +433,7 @@ def summarize(
         m.min_charge.tolist(),
     ]
     never = int(np.iinfo(np.int64).max)
+    bounds = np.broadcast_to(np.asarray(bound, dtype=np.int64), (n,)).tolist()
     out = []
     for i, row in enumerate(zip(*cols, strict=True)):
         run, steps, done, cut, n_ep, cov, wst, gmax, lab, waits, mwait, stall, charge = row
@@ -449,9 +454,9 @@ def summarize(
                 "waits": waits,
                 "max_wait": mwait,
                 "max_stall": stall,
-                "stall_bound": int(bound),
+                "stall_bound": bounds[i],
                 # no robot without progress longer than the bound, every target visited
-                "live": bool(stall <= bound and (not seen or cov == 1.0)),
+                "live": bool(stall <= bounds[i] and (not seen or cov == 1.0)),
                 "min_charge": None if charge == never else charge,
                 **{key: values[i] for key, values in field.items()},
                 **{key: values[i] for key, values in intruder.items()},

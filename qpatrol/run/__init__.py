@@ -280,7 +280,7 @@ def result_of(
     outside by :class:`qpatrol.envs.PatrolVectorEnv`): the tables, the summaries (with
     the failures' and the strategy's facts) and the objects."""
     episodes = rec.episode_table()
-    bound = measures.stall_bound(p)
+    bound = measures.stall_bound(p, strategy.planned_wait())
     summary = measures.summarize(watch, episodes, rec.run_ids, state.steps_done, bound)
     if p.failures_at:
         for row, facts in zip(summary, failures.describe(state, p), strict=True):

@@ -73,6 +73,13 @@ class Strategy:
         every robot just chooses (the world's task of each robot, ``State.aim``)."""
         return None
 
+    def planned_wait(self) -> int | np.ndarray:
+        """The most steps a robot may wait by the strategy's own rule (not the world's),
+        per run (int ``[R]``) or one for all, added to ``stall_bound``
+        (:func:`qpatrol.measures.stall_bound`). Default 0: its robots ask for a move at
+        every step (docs/model.md, hypothesis (S))."""
+        return 0
+
     def exchange(self, swapped: np.ndarray) -> None:
         """The world made robots exchange their tasks (``swapped`` int ``[R, K]``: the
         partner of each robot, -1 for none; ``qpatrol.world.traffic.hand_on``): exchange

@@ -126,6 +126,28 @@ class WalkFollower(base.Strategy):
         )
         return np.where(other, ahead, L[:, :, None]).min(axis=-1)
 
+    def planned_wait(self) -> np.ndarray:
+        """int ``[R]``: per run, the longest walk that two robots or more share at the
+        start (0: none does), with the spacing rule on. Robots bunched on a walk wait for
+        the ones ahead to spread out, each leaving ``spacing`` walk steps after the one
+        ahead: the last leaves within the walk's length of steps when the robots ahead
+        move freely (docs/model.md, "What the theorem does not give")."""
+        out = np.zeros(self.n_runs, dtype=np.int64)
+        if not self.keep_spacing:
+            return out
+        lengths = self.start_lengths()
+        for r in range(self.n_runs):
+            walks, count = np.unique(self.wid[r], return_counts=True)
+            shared = walks[count >= 2]
+            if shared.size:
+                out[r] = lengths[r, shared].max()
+        return out
+
+    def start_lengths(self) -> np.ndarray:
+        """int ``[R, W]``: each walk's length at the start (walks that do not change:
+        their length)."""
+        return self.length
+
     def lap(self) -> np.ndarray:
         """int ``[R, K]``: the length of each robot's walk."""
         return self.length[self.rows, self.wid]

@@ -181,6 +181,10 @@ class Strategy(follow.WalkFollower):
         self.spacing[r, on] = w.size // on.sum()
         self.history[r][g].append((int(t), int(w.size)))
 
+    def start_lengths(self) -> np.ndarray:
+        """int ``[R, G]``: each route's length at the start (it only gets shorter)."""
+        return np.array([[h[0][1] for h in run] for run in self.history], dtype=np.int64)
+
     def tables(self) -> dict[str, np.ndarray]:
         """``route``: int8 ``[R, G, C, D]``, the routing table (the exit port per cell and
         arrival port, -1 off the route)."""

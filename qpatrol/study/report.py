@@ -701,7 +701,8 @@ def policies(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             "why). L/K: K robots evenly spaced on the closed walk of length L through every "
             "cell.",
             f"Runs that went wrong: {frozen} frozen (a stretch without progress longer "
-            "than `stall_bound`, K (D + 2) without battery), "
+            "than `stall_bound`, K (D + 2) without battery, plus a walk follower's "
+            "longest shared walk), "
             f"{missing} without an idleness value.{uncovered}{_no_episode(res)}"
             f"{_wide_spread(res)}",
             "Cells give the mean over runs; 'x best' divides by the best classic strategy "

@@ -686,7 +686,7 @@ def step(
         turns: the strategy plans on a graph's waypoints too (walk followers,
             :attr:`qpatrol.strategies.base.Strategy.plans_on_edges`): its ``choice`` for a
             robot travelling an edge is read, and turns it round where it asks for the
-            port behind it (:func:`turn_round`; collisions avoided).
+            port behind it and that cell is free (:func:`turn_round`; collisions avoided).
     """
     s = state
     s.t += 1
@@ -698,7 +698,7 @@ def step(
     prev_head = s.head.copy()
     travel = obs.travel
     if travel is not None and turns and p.avoid_collisions:
-        travel = turn_round(s, travel, choice)
+        travel = turn_round(s, p, travel, choice)
     choice = np.where(obs.choosing, choice, -1)
     legal_choice = (choice >= 0) & np.take_along_axis(
         obs.legal, np.maximum(choice, 0)[..., None], axis=2
@@ -837,12 +837,15 @@ def task_aims(
     return out
 
 
-def turn_round(s: State, travel: np.ndarray, choice: np.ndarray) -> np.ndarray:
+def turn_round(s: State, p: Params, travel: np.ndarray, choice: np.ndarray) -> np.ndarray:
     """Robots travelling an edge (``travel`` int ``[R, K]``, their onward port, -1 for
-    the others) whose strategy's ``choice`` is the port behind them (their heading) turn
-    round: their heading becomes the onward port, and they ask for the one behind.
-    Returns the ports the travellers ask for; ``s.head`` is modified."""
-    back = (travel >= 0) & (choice == s.head)
+    the others) whose strategy's ``choice`` is the port behind them (their heading),
+    and whose cell behind is free, turn round: their heading becomes the onward port,
+    and they ask for the one behind. Returns the ports the travellers ask for;
+    ``s.head`` is modified."""
+    behind = p.neighbors[s.pos, s.head]  # (a waypoint's two ports both lead somewhere)
+    free = s.occ[np.arange(s.n_runs)[:, None], np.maximum(behind, 0)] < 0
+    back = (travel >= 0) & (choice == s.head) & free
     out = np.where(back, s.head, travel)
     s.head = np.where(back, travel, s.head)
     return out

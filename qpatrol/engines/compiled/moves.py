@@ -245,12 +245,14 @@ def travellers(r, p, s, w):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def turn_round(r, s, w):
+def turn_round(r, p, s, w):
     """:func:`qpatrol.world.turn_round` of run ``r``: a robot travelling an edge whose
-    strategy asks for the port behind it (its heading) turns round: its heading becomes
-    its onward port (``w.travel``), and it asks for the one behind."""
+    strategy asks for the port behind it (its heading), a free cell, turns round: its
+    heading becomes its onward port (``w.travel``), and it asks for the one behind."""
     for k in range(w.travel.shape[0]):
         if w.travel[k] >= 0 and w.ask[k] == s.head[r, k]:
+            if s.occ[r, p.nbrs[s.pos[r, k], s.head[r, k]]] >= 0:
+                continue
             w.travel[k], s.head[r, k] = s.head[r, k], w.travel[k]
 
 
