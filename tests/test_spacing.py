@@ -249,3 +249,37 @@ def test_on_a_tie_the_robot_standing_on_the_slot_is_ahead():
     assert strat.gap_ahead(counted, on)[0].tolist() == [0, 6, L - 6]
     # neither stands: the lower index is ahead
     assert strat.gap_ahead(counted, np.zeros((1, 3), dtype=bool))[0].tolist() == [6, 0, L - 6]
+
+
+def test_the_planned_wait_is_the_longest_walk_two_robots_share(tmp_path, monkeypatch):
+    """``stall_bound`` adds a walk follower's planned wait: the length of the longest walk
+    two robots or more share at the start. Three ``cyclic`` robots on the 12-ring share
+    its walk of 12 moves: the summary's bound is K (D + 2) + 12 = 3 x 8 + 12; with the
+    spacing rule off no robot waits for its spacing, and the bound is K (D + 2) alone;
+    ``partition`` gives two robots a walk each (nothing shared: 0); ``learned-tour``
+    counts its first route, however short the routes it learns later."""
+    m = parse_map(RING12)
+    path = tmp_path / "ring12.txt"
+    path.write_text(RING12)
+    flat = {"map": str(path), "agents": 3, "policy": "cyclic", "battery.enabled": False}
+    flat |= {"runs": 1, "steps": 50, "engine": "numpy"}
+    walk = walks.closed_walk(m)
+    assert walk.size == 12
+    (row,) = simulate(from_flat(flat)).summary
+    assert row["stall_bound"] == 3 * (6 + 2) + 12
+    monkeypatch.setattr(follow.WalkFollower, "keep_spacing", False)
+    (row,) = simulate(from_flat(flat)).summary
+    assert row["stall_bound"] == 3 * (6 + 2)
+    monkeypatch.undo()
+    cfg = from_flat({**flat, "agents": 2, "policy": "partition"})
+    p = world.make_params(cfg, m)
+    starts = np.array([walk[[0, 6]]])
+    strat = strategies.make("partition", cfg, m, p, starts)
+    assert len(set(strat.wid[0].tolist())) == 2 and strat.planned_wait().tolist() == [0]
+    cfg = from_flat({**flat, "policy": "learned-tour"})
+    p = world.make_params(cfg, m)
+    starts = np.array([walk[[0, 4, 8]]])
+    strat = strategies.make("learned-tour", cfg, m, p, starts)
+    first = int(strat.length[0, 0])
+    strat.length[0, 0] = first - 2  # as if a shorter route had been learned
+    assert strat.planned_wait().tolist() == [first]
