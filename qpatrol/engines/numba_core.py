@@ -493,7 +493,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             if spec == SPEC_ANY:
                 compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
                 if p.travels:
-                    if avoid and compiled.plans_on_edges(code):
+                    if avoid and compiled.walk_follower(code):
                         moves.turn_round(r, p, s, w)
                     moves.travel_asks(w)
             else:  # (compiled.act of qlearning, the others' code not compiled)

@@ -154,7 +154,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             r, t, ur, p.far, p.communication, pos, open_mask, choosing, ask, sp.cell_f,
             sp.cell_i, sp.fpar, w.score,
         )  # fmt: skip
-    elif code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
+    elif walk_follower(code):
         walk, length = sp.table_i, sp.row_i
         if p.travels:  # a walk follower keeps its plan on a graph's waypoints too
             for k in range(choosing.shape[0]):
@@ -204,9 +204,10 @@ def act(code, r, t, ur, battery, p, s, w, sp):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def plans_on_edges(code):
-    """The strategy keeps its plan on a graph's waypoints too (the walk followers;
-    :attr:`qpatrol.strategies.base.Strategy.plans_on_edges`)."""
+def walk_follower(code):
+    """The strategy follows closed walks (``cyclic``, ``partition``, ``learned-tour``:
+    :mod:`~qpatrol.engines.compiled.follow`); it keeps its plan on a graph's waypoints
+    too (:attr:`qpatrol.strategies.base.Strategy.plans_on_edges`)."""
     return code == CYCLIC or code == PARTITION or code == LEARNED_TOUR
 
 
@@ -224,7 +225,7 @@ def exchange(code, r, w, sp):
     plans (the strategies' :meth:`~qpatrol.strategies.base.Strategy.exchange`): a walk
     follower's walk, target and spacing; a goal follower's goal (``hpcc``: its hop and
     route too; ``gravitational``: the goal it announced)."""
-    if code == CYCLIC or code == PARTITION or code == LEARNED_TOUR:
+    if walk_follower(code):
         follow.exchange(r, w.swapped, sp.robot_i)
     elif (code >= HCR and code <= CBLS) or code == HPCC or code == GRAVITATIONAL:
         n_cells = sp.cell_i.shape[2]

@@ -250,10 +250,9 @@ def turn_round(r, p, s, w):
     strategy asks for the port behind it (its heading), a free cell, turns round: its
     heading becomes its onward port (``w.travel``), and it asks for the one behind."""
     for k in range(w.travel.shape[0]):
-        if w.travel[k] >= 0 and w.ask[k] == s.head[r, k]:
-            if s.occ[r, p.nbrs[s.pos[r, k], s.head[r, k]]] >= 0:
-                continue
-            w.travel[k], s.head[r, k] = s.head[r, k], w.travel[k]
+        back = s.head[r, k]
+        if w.travel[k] >= 0 and w.ask[k] == back and s.occ[r, p.nbrs[s.pos[r, k], back]] < 0:
+            w.travel[k], s.head[r, k] = back, w.travel[k]
 
 
 @njit(cache=True, nogil=True, _nrt=False)
