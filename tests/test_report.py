@@ -141,3 +141,21 @@ def test_runs_without_an_ended_episode_are_named():
             res,
         ).findings
     )
+
+
+def test_wide_spread_is_found_within_each_interaction():
+    """Runs whose average idleness spreads wider than its mean are named per way robots
+    meet: pooled with the calm runs of another interaction (mean 11.7, deviation 9.5)
+    the spread of the exclusive point (mean 3.4, deviation 5.7) would go unseen."""
+    res = pd.DataFrame(
+        {
+            "map": ["m"] * 6,
+            "policy": ["p"] * 6,
+            "agents": [2] * 6,
+            "team.interaction": ["exclusive"] * 3 + ["none"] * 3,
+            "avg_idleness": [0.1, 0.1, 10.0, 20.0, 20.0, 20.0],
+        }
+    )
+    text = report._wide_spread(res)
+    assert "1: p at m K = 2 (exclusive) (mean 3.4, worst run 10)" in text, text
+    assert report._wide_spread(res.drop(columns="team.interaction")) == ""

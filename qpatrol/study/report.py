@@ -364,7 +364,7 @@ def _wide_spread(res: pd.DataFrame | None) -> str:
     the mean), with the mean and the worst run; "" when there are none."""
     if res is None or not len(res) or "avg_idleness" not in res:
         return ""
-    keys = [c for c in ("map", "policy", "agents") if c in res]
+    keys = [c for c in ("map", "policy", "agents", "team.interaction") if c in res]
     idle = pd.to_numeric(res["avg_idleness"])
     stats = idle.groupby([res[c] for c in keys], sort=False).agg(["mean", "std", "max"])
     wide = stats[stats["std"] > stats["mean"]]
@@ -375,7 +375,9 @@ def _wide_spread(res: pd.DataFrame | None) -> str:
         key = key if isinstance(key, tuple) else (key,)
         named = dict(zip(keys, key, strict=True))
         where = " ".join(
-            f"K = {int(v)}" if c == "agents" else str(v) for c, v in named.items() if c != "policy"
+            f"K = {int(v)}" if c == "agents" else f"({v})" if c == "team.interaction" else str(v)
+            for c, v in named.items()
+            if c != "policy"
         )
         parts.append(
             f"{named.get('policy', '')} at {where} (mean {_fmt(row['mean'])}, worst run "
@@ -948,7 +950,6 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             f"{how}: {top.policy} on {top['map']} with K = {int(top.agents)} "
             f"({_fmt(top.interferences_mean)} per run)"
         )
-    main_res = res[res["team.interaction"] == main] if res is not None else None
     episodes = _episodes_note(res)
     return Section(
         "Beyond the paper: the field's benchmark on patrolling_sim's graphs",
@@ -974,7 +975,7 @@ def field(fig: pd.DataFrame, res: pd.DataFrame | None = None) -> Section:
             f"{frozen}; {missing} without an idleness value.{uncovered} "
             + " ".join(wrong)
             + passing
-            + f"{episodes}{_wide_spread(main_res)} Most interferences: "
+            + f"{episodes}{_wide_spread(res)} Most interferences: "
             + "; ".join(interf)
             + ".",
             f"Cells give {main}'s mean over runs and the strategy that reaches it. Every "
