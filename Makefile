@@ -17,9 +17,9 @@ TORCH  ?= 2.13.0
 $(STAMP): pyproject.toml | $(BIN)/python
 	$(BIN)/python -m pip install --quiet --upgrade pip
 	if $(BIN)/python -m pip install --quiet --no-index --no-deps "torch==$(TORCH)" 2>/dev/null; \
-	then extras="dev,envs,fast,rl"; \
+	then extras="dev,envs,rl"; \
 	else echo "no CPU build of torch $(TORCH) on disk: installing without the rl extra"; \
-	extras="dev,envs,fast"; fi; \
+	extras="dev,envs"; fi; \
 	$(BIN)/python -m pip install --quiet -e ".[$$extras]"
 	touch $(STAMP)
 

@@ -622,7 +622,7 @@ SCHEMA: tuple[Field, ...] = (
         "engine",
         "choice",
         "auto",
-        "how runs are computed: numpy (the reference), numba (compiled, `qpatrol[fast]`), or "
+        "how runs are computed: numpy (the reference), numba (compiled), or "
         "auto (numba when installed, for batches of at least 20,000 runs x agents x steps); "
         "every engine gives the same files to the bit",
         choices=("auto", "numpy", "numba"),

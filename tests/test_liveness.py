@@ -28,7 +28,7 @@ from qpatrol.maps import get_map, parse_map
 from qpatrol.run import simulate
 from qpatrol.world.rng import Streams, run_seeds
 
-#: the compiled engine where numba is installed (``qpatrol[fast]``)
+#: the compiled engine where numba is installed
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 DATA = Path(__file__).parent / "data"
 

@@ -67,7 +67,7 @@ def test_the_shipped_weights_are_small_and_name_how_they_were_made():
 
 
 @pytest.mark.skipif(importlib.util.find_spec("torch") is None, reason="needs qpatrol[rl]")
-@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="needs qpatrol[fast]")
+@pytest.mark.skipif(importlib.util.find_spec("numba") is None, reason="needs numba")
 def test_a_short_training_lowers_the_idleness_on_a_small_graph(tmp_path):
     """PPO on ps_grid with 2 robots (a few seconds): the last batches of episodes
     patrol with a lower average idleness than the first (a nearly uniform policy)."""

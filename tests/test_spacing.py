@@ -26,7 +26,7 @@ from qpatrol.maps import Map, get_map, parse_map, walks
 from qpatrol.run import simulate
 from qpatrol.strategies import follow
 
-#: the compiled engine where numba is installed (``qpatrol[fast]``)
+#: the compiled engine where numba is installed
 FAST = "numba" if importlib.util.find_spec("numba") else "numpy"
 STEPS, WARMUP = 2500, 1000
 

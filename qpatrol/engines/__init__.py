@@ -2,8 +2,8 @@
 
 * ``numpy``: the reference, :func:`qpatrol.engines.numpy_loop.advance` step by step (every strategy,
   every setting, every recorder, checkpoints at any step).
-* ``numba``: the compiled loop of :mod:`qpatrol.engines.numba_core` (optional extra
-  ``qpatrol[fast]``), for the configs :func:`compiled_gap` accepts; any other config
+* ``numba``: the compiled loop of :mod:`qpatrol.engines.numba_core` (numba, a core
+  dependency), for the configs :func:`compiled_gap` accepts; any other config
   runs on the numpy engine and says so (:func:`choose` returns the reason).
 
 Config key ``engine``: ``auto`` (numba when installed, for batches of at least
@@ -109,7 +109,7 @@ def choose_by_config(cfg: Config) -> tuple[str, str]:
         if asked == "numba":
             raise ConfigError(
                 "engine: numba is not installed; allowed: engine=numpy or auto, or install "
-                "the extra: pip install 'qpatrol[fast]'"
+                "numba (pip install numba)"
             )
         return "numpy", "numba not installed"
     gap = compiled_gap(cfg)

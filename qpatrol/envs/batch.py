@@ -36,7 +36,7 @@ class Batch:
         cfg: the config (its ``runs`` is replaced by ``n_envs``, its ``steps`` by
             ``max_steps`` when given).
         n_envs: runs in the batch (B).
-        engine: ``numba`` (the compiled world; needs ``qpatrol[fast]``), ``numpy``, or
+        engine: ``numba`` (the compiled world; needs numba), ``numpy``, or
             ``auto`` (numba when installed).
         threads: lanes of runs stepped by threads of their own on the compiled engine
             (0: the config's ``threads`` rule; 1: one thread).
@@ -60,7 +60,7 @@ class Batch:
         if engine == "numba" and not engines.numba_installed():
             raise ConfigError(
                 "engine: numba is not installed; allowed: engine='numpy' or 'auto', or "
-                "install the extra: pip install 'qpatrol[fast]'"
+                "install numba (pip install numba)"
             )
         self.cfg = cfg.with_overrides([f"runs={int(n_envs)}", f"engine={engine}"])
         self.engine = engine

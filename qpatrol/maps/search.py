@@ -12,7 +12,7 @@ needs the ``[C, C]`` table of :func:`qpatrol.maps.core.all_pairs_distances`:
   2013, "On computing the diameter of real-world undirected graphs"), a few searches
   on most maps instead of one per cell.
 
-With numba installed (``qpatrol[fast]``) the searches on maps of at least
+With numba installed the searches on maps of at least
 :data:`COMPILED_CELLS` cells run compiled; the numbers are the same either way.
 """
 

@@ -155,7 +155,7 @@ def _ahead(m: Map, p: Params) -> np.ndarray:
 
 
 def _scalar(f):
-    """``f`` compiled by numba when it is installed (``qpatrol[fast]``), else run as
+    """``f`` compiled by numba when it imports, else run as
     the plain Python it is: the same numbers, slower."""
     try:
         from numba import njit
