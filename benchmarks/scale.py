@@ -3,6 +3,7 @@
     .venv/bin/python benchmarks/scale.py [--cells 1000 10000 100000] [--agents 8 64 512]
         [--policies cyclic qlearning conscientious] [--steps 10000] [--battery]
         [--out docs/scale.md]
+    .venv/bin/python benchmarks/scale.py --walks [--cells 1000 3000 10000 100000]
 
 Each floor is ``random_maze(n, n, 7, 0.25, 4, False)`` of ``tests/mazes.py`` (the n whose
 floor has about the cells asked). Each row is two ``qpatrol train paper`` commands in
@@ -15,6 +16,12 @@ second (below, two processes' noise hides it).
 A config the command refuses (too many robots for the floor, the battery's room rule)
 is listed with the first words of its refusal. Prints a markdown table, and writes it to
 ``--out`` if given.
+
+With ``--walks``, only the closed walk through every cell of each floor (``cyclic``'s,
+``walks.closed_walk``) and its lower bound (``walks.closed_walk_lower_bound``), in this
+process: their lengths, the ratio, which way the walk was made (``search``: at most
+``walks.SEARCH_TARGETS`` targets, the tour search; ``large``: the table-free walk) and
+the wall seconds of each.
 """
 
 from __future__ import annotations
@@ -24,6 +31,7 @@ import os
 import subprocess
 import sys
 import tempfile
+import time
 from pathlib import Path
 
 REPO = Path(__file__).resolve().parent.parent
@@ -63,6 +71,31 @@ def train(path: Path, agents: int, policy: str, steps: int, battery: bool, out: 
     return float(line[1]), int(line[2]) / 1024, error
 
 
+def walk_rows(cells: list[int], folder: Path) -> list[str]:
+    """Markdown rows: each floor's closed walk against its bound (``--walks``)."""
+    from qpatrol.maps import load_map, walks
+
+    rows = [
+        "| cells | walk | bound | walk / bound | way | walk s | bound s |",
+        "|---|---|---|---|---|---|---|",
+    ]
+    for n in cells:
+        path, c = floor(n, folder)
+        m = load_map(path)
+        t0 = time.perf_counter()
+        walk = walks.closed_walk(m)
+        t1 = time.perf_counter()
+        bound = walks.closed_walk_lower_bound(m)
+        t2 = time.perf_counter()
+        way = "search" if m.n_targets <= walks.SEARCH_TARGETS else "large"
+        rows.append(
+            f"| {c:,} | {walk.size:,} | {bound:,} | {walk.size / bound:.3f} | {way} | "
+            f"{t1 - t0:.1f} | {t2 - t1:.1f} |"
+        )
+        print(rows[-1], flush=True)
+    return rows
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--cells", type=int, nargs="+", default=[1000, 10000, 100000])
@@ -71,7 +104,15 @@ def main() -> None:
     ap.add_argument("--steps", type=int, default=10000)
     ap.add_argument("--battery", action="store_true", help="battery on (default off)")
     ap.add_argument("--out", type=Path)
+    ap.add_argument("--walks", action="store_true", help="closed walks and bounds only")
     a = ap.parse_args()
+    if a.walks:
+        with tempfile.TemporaryDirectory() as tmp:
+            table = "\n".join(walk_rows(a.cells, Path(tmp))) + "\n"
+        print(table)
+        if a.out:
+            a.out.write_text(table)
+        return
     rows = [
         "| cells | robots | policy | setup s | total s | team steps/s | peak MiB |",
         "|---|---|---|---|---|---|---|",

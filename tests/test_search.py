@@ -137,8 +137,9 @@ def test_placement_on_a_graph():
 )
 def test_large_region_walks_cover_and_respect_the_bound(rows, cols, seed, loops):
     """The walk of a region above SEARCH_TARGETS (the limit lowered to 0 here) is a closed
-    walk through every cell, no shorter than the exact bound's table-free form, no longer
-    than twice the cells (a spanning tree walked around), and the methods say so."""
+    walk through every cell, no shorter than the table-free bound, no longer than twice
+    the cells (a spanning tree walked around), and the methods say so. That bound is at
+    least its counting part and at most the searched walk's length."""
     from qpatrol.maps import walks
 
     m = parse_map(random_maze(rows, cols, seed, loops, 1, False))
@@ -156,6 +157,10 @@ def test_large_region_walks_cover_and_respect_the_bound(rows, cols, seed, loops)
         walks._bound_cached.cache_clear()
     assert walks.walk_is_closed_cover(m, w)
     assert bound <= w.size <= 2 * (m.n_cells - 1)
-    assert bound <= walks.closed_walk_lower_bound(m)  # the same bound, without Held-Karp
+    cells = np.arange(m.n_cells)
+    assert walks._parity_bound(m, cells, walks._local_neighbors(m, cells)) <= bound
+    assert bound <= walks.closed_walk(m).size
     assert "above 0 targets" in methods["walk_method"]
+    assert "corridor walk" in methods["walk_method"]
+    assert "corridor parities" in methods["walk_lower_bound_method"]
     assert "Held-Karp skipped" in methods["walk_lower_bound_method"]

@@ -62,10 +62,12 @@ _KICK_WINDOW = 40  # kicks swap two segments within this many tour positions
 _HK_ITERATIONS = 120  # subgradient steps of the Held-Karp bound
 _DELAY_ROUNDS = 40  # rounds of delay tuning in partition_regions
 _DELAY_STEP = 4.0  # delay added per unit of relative cost excess
+_PACKING_ROUNDS = 6  # growth rounds of the corridor bound's balls (radii in 1/64 moves)
 #: Most targets of a region whose walk is searched over the metric closure of its targets
-#: (a [t, t] table; 695 on the largest shipped map): larger regions take the depth-first
-#: walk of :func:`_large_walk`. Also the most cells of a piece whose lower bound adds the
-#: Held-Karp bound (:func:`closed_walk_lower_bound`); larger pieces keep the counting
+#: (a [t, t] table; 695 on the largest shipped map): larger regions take the table-free
+#: walk of :func:`_large_walk`, and if all their cells are targets the corridor bound
+#: (:func:`_large_bound`). Also the most cells of a piece whose lower bound adds the
+#: Held-Karp bound (:func:`closed_walk_lower_bound`); larger pieces keep the other
 #: bounds and say so (:func:`closed_walk_methods`).
 SEARCH_TARGETS = 2000
 
@@ -128,7 +130,8 @@ def _local_neighbors(m: Map, cells: np.ndarray) -> np.ndarray:
 def _components(nb: np.ndarray, cut: set[tuple[int, int]] = frozenset()) -> np.ndarray:
     """int ``[n]``: connected component of each node (numbered from 0), edges in ``cut`` removed."""
     n = nb.shape[0]
-    label = np.full(n, -1, dtype=np.int64)
+    adj = nb.tolist()
+    label = [-1] * n
     count = 0
     for s in range(n):
         if label[s] >= 0:
@@ -137,12 +140,12 @@ def _components(nb: np.ndarray, cut: set[tuple[int, int]] = frozenset()) -> np.n
         stack = [s]
         while stack:
             v = stack.pop()
-            for w in nb[v]:
+            for w in adj[v]:
                 if w >= 0 and label[w] < 0 and (v, w) not in cut:
                     label[w] = count
-                    stack.append(int(w))
+                    stack.append(w)
         count += 1
-    return label
+    return np.array(label, dtype=np.int64)
 
 
 def _where(m: Map, c: int) -> str:
@@ -233,6 +236,7 @@ def _prune_dead_ends(m: Map, cells: np.ndarray) -> np.ndarray:
 def _bridges(nb: np.ndarray) -> list[tuple[int, int]]:
     """The bridges ``(u, v)`` of the graph ``nb`` (iterative Tarjan low-link search)."""
     n = nb.shape[0]
+    adj = nb.tolist()
     disc = [-1] * n
     low = [0] * n
     out: list[tuple[int, int]] = []
@@ -242,7 +246,7 @@ def _bridges(nb: np.ndarray) -> list[tuple[int, int]]:
             continue
         disc[root] = low[root] = clock
         clock += 1
-        stack = [(root, -1, iter(nb[root].tolist()))]
+        stack = [(root, -1, iter(adj[root]))]
         while stack:
             v, parent, it = stack[-1]
             for w in it:
@@ -251,7 +255,7 @@ def _bridges(nb: np.ndarray) -> list[tuple[int, int]]:
                 if disc[w] < 0:
                     disc[w] = low[w] = clock
                     clock += 1
-                    stack.append((w, v, iter(nb[w].tolist())))
+                    stack.append((w, v, iter(adj[w])))
                     break
                 low[v] = min(low[v], disc[w])
             else:
@@ -494,7 +498,8 @@ def _walk_cached(key: _MapKey, cells: tuple[int, ...], seed: int, effort: str) -
         return arr
     if tgt.size > SEARCH_TARGETS:
         local_back = np.where(nb >= 0, m.back[arr], -1)
-        return arr[_large_walk(nb, local_back, m.target[arr])]
+        corridors = _corridors_cached(key, cells) if tgt.size == arr.size else None
+        return arr[_large_walk(nb, local_back, m.target[arr], corridors)]
     D = all_pairs_distances(nb)
     if (nb >= 0).sum() // 2 == arr.size - 1:  # a tree: depth-first order is optimal
         order = _depth_first_order(nb, int(tgt[0]))
@@ -572,41 +577,12 @@ def _nearest_walk(adj: list, is_target: list, first: int) -> list:
     return walk[:-1]
 
 
-def _postman_walk(adj: list, back: list, first: int) -> list:
-    """A closed walk along every move of a connected region (every cell a target): the
-    moves once, plus the shortest paths that pair its cells of odd degree (each, in cell
-    order, with the nearest unpaired one, breadth-first), so that every degree is even,
-    then an Euler circuit from ``first`` (Hierholzer, ports in order). Chinese
-    postman's walk with a greedy matching: short on corridors, long on open floors."""
+def _euler_circuit(adj: list, back: list, mult: list, first: int) -> list:
+    """An Euler circuit from ``first`` of the multigraph that uses the move by port p out
+    of cell v ``mult[v][p]`` times (even at every cell, the moves used connected):
+    Hierholzer, ports in order; ``mult`` is used up. The cells, the last step back to
+    ``first`` left out."""
     n, ports = len(adj), len(adj[0])
-    mult = [[1 if x >= 0 else 0 for x in row] for row in adj]
-    odd = [sum(row) % 2 == 1 for row in mult]
-    dist, parent, via = [-1] * n, [-1] * n, [-1] * n
-    for s in range(n):
-        if not odd[s]:
-            continue
-        odd[s] = False
-        dist[s] = 0
-        queue, head, found = [s], 0, -1
-        while found < 0:
-            v = queue[head]
-            head += 1
-            for p, w in enumerate(adj[v]):
-                if w >= 0 and dist[w] < 0:
-                    dist[w], parent[w], via[w] = dist[v] + 1, v, p
-                    queue.append(w)
-                    if odd[w]:
-                        found = w
-                        break
-        odd[found] = False
-        x = found
-        while x != s:
-            v, p = parent[x], via[x]
-            mult[v][p] += 1
-            mult[x][back[v][p]] += 1
-            x = v
-        for v in queue:
-            dist[v] = -1
     circuit, stack, nxt = [], [first], [0] * n
     while stack:
         v = stack[-1]
@@ -625,18 +601,471 @@ def _postman_walk(adj: list, back: list, first: int) -> list:
     return circuit[:-1]
 
 
-def _large_walk(nb: np.ndarray, back: np.ndarray, is_target: np.ndarray) -> np.ndarray:
+# --- corridors: the walk and bound of a large region whose cells are all targets ----
+
+
+class _Corridors:
+    """A region whose cells are all targets (nodes ``0..n-1``), cut where a closed walk
+    through all of them has little choice.
+
+    ``label[v]`` is the 2-edge-connected piece of node v (the region without its
+    bridges), ``degree[v]`` its moves inside that piece. ``bridges`` holds one step
+    ``(v, port)`` along each bridge; ``rings`` the steps once round each piece of at least
+    two nodes that has no *junction* (a node of degree 3 or more in its piece): such a
+    piece is a cycle. The moves of every other piece split into *chains*: chain i runs
+    from junction ``a[i]`` through ``k[i]`` nodes of degree 2 (a corridor) to junction
+    ``b[i]`` (``a[i] == b[i]`` for a loop); ``steps[i]`` are its ``k[i] + 1`` moves
+    ``(v, port)`` from ``a[i]``'s end.
+    """
+
+    __slots__ = ("label", "degree", "bridges", "rings", "a", "b", "k", "steps")
+
+    def __init__(self, nb: np.ndarray, back: np.ndarray):
+        n, ports = nb.shape
+        adj, bk = nb.tolist(), back.tolist()
+        cut = [[False] * ports for _ in range(n)]
+        self.bridges = []
+        for u, v in _bridges(nb):
+            self.bridges.append((u, adj[u].index(v)))
+            for x, y in ((u, v), (v, u)):
+                for p in range(ports):
+                    if adj[x][p] == y:
+                        cut[x][p] = True
+        label = [-1] * n
+        pieces = 0
+        for s in range(n):
+            if label[s] >= 0:
+                continue
+            label[s] = pieces
+            stack = [s]
+            while stack:
+                v = stack.pop()
+                for p, w in enumerate(adj[v]):
+                    if w >= 0 and label[w] < 0 and not cut[v][p]:
+                        label[w] = pieces
+                        stack.append(w)
+            pieces += 1
+        lab = np.array(label, dtype=np.int64)
+        inside = (nb >= 0) & (lab[np.maximum(nb, 0)] == lab[:, None])
+        degree = inside.sum(axis=1).tolist()
+        self.label, self.degree = label, degree
+        self.a, self.b, self.k, self.steps = [], [], [], []
+        done: set[tuple[int, int]] = set()  # the last steps of chains traced, reversed
+        junction_pieces = set()
+        for a in range(n):
+            if degree[a] < 3:
+                continue
+            piece = label[a]
+            junction_pieces.add(piece)
+            for p in range(ports):
+                x = adj[a][p]
+                if x < 0 or label[x] != piece or (a, p) in done:
+                    continue
+                steps, cur, q = [(a, p)], x, bk[a][p]
+                while degree[cur] == 2:
+                    r = next(
+                        r
+                        for r in range(ports)
+                        if r != q and adj[cur][r] >= 0 and label[adj[cur][r]] == piece
+                    )
+                    steps.append((cur, r))
+                    cur, q = adj[cur][r], bk[cur][r]
+                done.add((cur, q))
+                self.a.append(a)
+                self.b.append(cur)
+                self.k.append(len(steps) - 1)
+                self.steps.append(steps)
+        self.rings = []
+        seen = set(junction_pieces)
+        for s in range(n):
+            if degree[s] != 2 or label[s] in seen:
+                continue
+            seen.add(label[s])
+            steps, cur, q = [], s, -1
+            while True:
+                r = next(
+                    r
+                    for r in range(ports)
+                    if r != q and adj[cur][r] >= 0 and label[adj[cur][r]] == label[s]
+                )
+                steps.append((cur, r))
+                cur, q = adj[cur][r], bk[cur][r]
+                if cur == s:
+                    break
+            self.rings.append(steps)
+
+    def junction_graph(self) -> tuple[list[int], list[int], list[int], list[bool]]:
+        """``(junctions, ea, eb, odd)``: the junction nodes in order, the ends of each
+        chain as indices into them, and which junctions have odd degree."""
+        junctions = sorted(set(self.a) | set(self.b))
+        index = {v: i for i, v in enumerate(junctions)}
+        ea = [index[v] for v in self.a]
+        eb = [index[v] for v in self.b]
+        return junctions, ea, eb, [self.degree[v] % 2 == 1 for v in junctions]
+
+    def base_parities(self, ea: list[int], eb: list[int], odd: list[bool]):
+        """``(weights, odd)``: the T-join problem of the cheapest chain parities (see
+        :func:`_corridor_parities`): each chain starts at its cheaper parity, 0 for a move
+        between two junctions (``k = 0``), else 1; changing it costs ``|k - 1|``; the odd
+        nodes are those whose chains at their starting parities leave them odd."""
+        odd = list(odd)
+        for i, k in enumerate(self.k):
+            if k == 0 and ea[i] != eb[i]:
+                odd[ea[i]] = not odd[ea[i]]
+                odd[eb[i]] = not odd[eb[i]]
+        return [abs(k - 1) for k in self.k], odd
+
+    def cost(self, parity: list[int]) -> int:
+        """Moves of the chains at ``parity`` (0: each end walked in and back, ``2 k``; 1:
+        once through, ``k + 1``; 2: twice through, ``2 k + 2``)."""
+        return sum((2 * k, k + 1, 2 * k + 2)[p] for k, p in zip(self.k, parity, strict=True))
+
+
+@lru_cache(maxsize=2)
+def _corridors_cached(key: _MapKey, cells: tuple[int, ...]) -> _Corridors:
+    m, arr = key.m, np.array(cells, dtype=np.int64)
+    nb = _local_neighbors(m, arr)
+    return _Corridors(nb, np.where(nb >= 0, m.back[arr], -1))
+
+
+def _root(parent: list[int], x: int) -> int:
+    """The root of x in the union-find forest ``parent`` (paths halved on the way)."""
+    while parent[x] != x:
+        parent[x] = parent[parent[x]]
+        x = parent[x]
+    return x
+
+
+def _contract_free(n: int, ea: list[int], eb: list[int], w: list[int]):
+    """``(group, forest)``: ``group[v]`` is one node standing for all the nodes that
+    edges of weight 0 join to v, and ``forest`` lists weight-0 edges spanning each group."""
+    parent = list(range(n))
+    forest = []
+    for i in range(len(ea)):
+        if w[i] == 0 and ea[i] != eb[i]:
+            ra, rb = _root(parent, ea[i]), _root(parent, eb[i])
+            if ra != rb:
+                parent[ra] = rb
+                forest.append(i)
+    return [_root(parent, v) for v in range(n)], forest
+
+
+def _voronoi(n, ea, eb, w, group, inc, start: dict[int, int]):
+    """Multi-source Dijkstra over the groups: ``(label, owner, pred)`` where
+    ``label[g] = min_s start[s] + d(s, g)`` over the sources s (keys of ``start``),
+    ``owner[g]`` the source that attains it and ``pred[g]`` the edge into g on the way
+    (-1 at a source and where unreached)."""
+    inf = math.inf
+    label, owner, pred = [inf] * n, [-1] * n, [-1] * n
+    heap = []
+    for s, d in start.items():
+        label[s], owner[s] = d, s
+        heap.append((d, s))
+    heapq.heapify(heap)
+    while heap:
+        d, v = heapq.heappop(heap)
+        if d > label[v]:
+            continue
+        for i in inc[v]:
+            u = group[eb[i]] if group[ea[i]] == v else group[ea[i]]
+            nd = d + w[i]
+            if nd < label[u]:
+                label[u], owner[u], pred[u] = nd, owner[v], i
+                heapq.heappush(heap, (nd, u))
+    return label, owner, pred
+
+
+def _group_incidence(n, ea, eb, group) -> list[list[int]]:
+    """For each group, the edges between it and another group."""
+    inc: list[list[int]] = [[] for _ in range(n)]
+    for i in range(len(ea)):
+        a, b = group[ea[i]], group[eb[i]]
+        if a != b:
+            inc[a].append(i)
+            inc[b].append(i)
+    return inc
+
+
+def _t_join(n: int, ea: list[int], eb: list[int], w: list[int], odd: list[bool]) -> list[bool]:
+    """A short T-join: edges (``ea[i]``, ``eb[i]``, weight ``w[i] >= 0``) such that every
+    node of ``odd`` meets an odd number of them and every other node an even number
+    (each connected piece must hold an even number of odd nodes).
+
+    Nodes joined by weight-0 edges are merged into groups; a group is odd if it holds an
+    odd number of odd nodes. In rounds, a Dijkstra from all odd groups not yet paired
+    (its Voronoi regions) proposes, for each edge between two regions, their two sources
+    at the length of the path through it; the proposals are taken cheapest first,
+    each group once, and the edges of the path are flipped in the join. Then a T-join
+    on a spanning forest of the weight-0 edges (from the leaves up) evens out the nodes
+    inside each group at no cost. Greedy, not minimum; time about ``m log m`` a round.
+    """
+    m = len(ea)
+    group, forest = _contract_free(n, ea, eb, w)
+    inc = _group_incidence(n, ea, eb, group)
+    group_odd = [False] * n
+    for v in range(n):
+        if odd[v]:
+            group_odd[group[v]] = not group_odd[group[v]]
+    join = [False] * m
+    left = [g for g in range(n) if group_odd[g]]
+    while left:
+        label, owner, pred = _voronoi(n, ea, eb, w, group, inc, dict.fromkeys(left, 0))
+        offers: dict[tuple[int, int], tuple[int, int]] = {}
+        for i in range(m):
+            a, b = group[ea[i]], group[eb[i]]
+            oa, ob = owner[a], owner[b]
+            if oa < 0 or ob < 0 or oa == ob:
+                continue
+            pair = (oa, ob) if oa < ob else (ob, oa)
+            offer = (label[a] + w[i] + label[b], i)
+            if pair not in offers or offer < offers[pair]:
+                offers[pair] = offer
+        paired: set[int] = set()
+        for (_, i), pair in sorted((o, p) for p, o in offers.items()):
+            if pair[0] in paired or pair[1] in paired:
+                continue
+            paired.update(pair)
+            join[i] = not join[i]
+            for x in (group[ea[i]], group[eb[i]]):
+                while pred[x] >= 0:
+                    j = pred[x]
+                    join[j] = not join[j]
+                    x = group[eb[j]] if group[ea[j]] == x else group[ea[j]]
+        left = [g for g in left if g not in paired]
+    rest = list(odd)
+    for i in range(m):
+        if join[i]:
+            rest[ea[i]] = not rest[ea[i]]
+            rest[eb[i]] = not rest[eb[i]]
+    near: list[list[int]] = [[] for _ in range(n)]
+    for i in forest:
+        near[ea[i]].append(i)
+        near[eb[i]].append(i)
+    seen = [False] * n
+    for root in range(n):
+        if seen[root] or not near[root]:
+            continue
+        seen[root] = True
+        order, up = [root], {}
+        for v in order:
+            for i in near[v]:
+                u = eb[i] if ea[i] == v else ea[i]
+                if not seen[u]:
+                    seen[u], up[u] = True, i
+                    order.append(u)
+        for v in reversed(order[1:]):
+            if rest[v]:
+                i = up[v]
+                u = eb[i] if ea[i] == v else ea[i]
+                join[i] = not join[i]
+                rest[v], rest[u] = False, not rest[u]
+    return join
+
+
+def _ball_packing(
+    n: int, ea: list[int], eb: list[int], w: list[int], odd: list[bool], piece: list[int]
+) -> dict[int, int]:
+    """A lower bound on the weight of every T-join (``odd`` as in :func:`_t_join`), for
+    each connected piece (``piece[v]`` of node v): ``{piece: bound * 2**rounds}``, with
+    ``rounds = _PACKING_ROUNDS``.
+
+    Merge the nodes joined by weight-0 edges into groups (a T-join's weight-0 edges cost
+    nothing, so it is a T-join of the odd groups at the same weight). Read the graph as
+    a metric space, each edge a segment of its length, and give each odd group t a
+    radius ``r_t >= 0`` such that ``r_t + r_u <= d(t, u)`` for any two: the open balls
+    ``B(t, r_t)`` are disjoint and none holds another odd group. A T-join splits into
+    paths that pair the odd groups (and cycles); the path from t leaves ``B(t, r_t)``,
+    so the join has length ``>= r_t`` inside that ball, and the balls being disjoint,
+    its weight is ``>= sum r_t``.
+
+    The radii grow from 0 in rounds. A Dijkstra from every odd group t, started at
+    ``-r_t``, labels each node x with ``min_t (d(t, x) - r_t)`` and the group that
+    attains it, its owner. Each odd group owns itself: a source keeps its start label
+    unless strictly beaten, and ``d(u, t) - r_u >= -r_t`` as ``r_u - r_t <= d(t, u)``.
+    For an edge (x, y) from t's region to u's, ``label(x) + w + label(y) >= d(t, u) -
+    r_t - r_u``; and on a shortest path from t to the odd group u that minimises
+    ``d(t, u) - r_u``, the first edge (x, y) leaving t's region (u is outside it) gives
+    at most that value, as ``label(x) = d(t, x) - r_t`` and ``label(y) <= d(u, y) -
+    r_u``. So the least value over the edges leaving t's region is exactly t's slack
+    ``s_t = min_u (d(t, u) - r_t - r_u)``. Every radius then grows by ``s_t / 2``
+    (rounded down): ``s_t / 2 + s_u / 2 <= d(t, u) - r_t - r_u`` for any two, so the
+    balls stay disjoint. Radii are counted in ``2**-rounds`` moves: integers.
+    """
+    group, _ = _contract_free(n, ea, eb, w)
+    group_odd = [False] * n
+    for v in range(n):
+        if odd[v]:
+            group_odd[group[v]] = not group_odd[group[v]]
+    odds = [g for g in range(n) if group_odd[g]]
+    out: dict[int, int] = {}
+    if len(odds) < 2:
+        return out
+    scale = 1 << _PACKING_ROUNDS
+    ws = [x * scale for x in w]
+    inc = _group_incidence(n, ea, eb, group)
+    radius = dict.fromkeys(odds, 0)
+    for _ in range(_PACKING_ROUNDS):
+        label, owner, _ = _voronoi(n, ea, eb, ws, group, inc, {t: -r for t, r in radius.items()})
+        slack = dict.fromkeys(odds, math.inf)
+        for i in range(len(ea)):
+            a, b = group[ea[i]], group[eb[i]]
+            oa, ob = owner[a], owner[b]
+            if oa < 0 or ob < 0 or oa == ob:
+                continue
+            length = label[a] + ws[i] + label[b]
+            slack[oa] = min(slack[oa], length)
+            slack[ob] = min(slack[ob], length)
+        for t in odds:
+            if slack[t] != math.inf:
+                radius[t] += slack[t] // 2
+    for t, r in radius.items():
+        out[piece[t]] = out.get(piece[t], 0) + r
+    return out
+
+
+def _corridor_parities(c: _Corridors) -> list[int]:
+    """How often the corridor walk (:func:`_corridor_walk`) runs through each chain of
+    ``c``: 0 (each end walked in and back, ``2 k`` moves: no move for ``k = 0``), 1
+    (``k + 1``) or 2 (``2 k + 2``).
+
+    At every junction the chains run through an odd number of times must be even in
+    number, and the chains run through must join all junctions of a piece. First the
+    cheapest parities ignoring the joining: chain i starts at its cheaper parity (0 if
+    ``k = 0``, else 1), and a T-join (:func:`_t_join`) of weights ``|k - 1|`` changes
+    some, to even out the junctions. Then a spanning tree of each piece's junctions
+    that takes as few of the chains left at 0 as it can (Prim with weights 0 and 1, the
+    latest edge first, so long paths: few odd junctions). Two ways to a walk: the tree's
+    chains at 0 go to 2 (same parity); or the parities again from the start with the
+    tree's chains kept at 1 or 2 (changing costs ``k + 1``) and the other chains free.
+    The cheaper of the two, after dropping from 2 to 0 the chains that the others join
+    anyway.
+    """
+    junctions, ea, eb, odd = c.junction_graph()
+    n, m = len(junctions), len(c.k)
+    loop = [ea[i] == eb[i] for i in range(m)]
+    weight, base_odd = c.base_parities(ea, eb, odd)
+    flip = _t_join(n, ea, eb, weight, base_odd)
+    free = [(1 if c.k[i] else 0) if loop[i] else int(flip[i] == (c.k[i] == 0)) for i in range(m)]
+    inc: list[list[int]] = [[] for _ in range(n)]
+    for i in range(m):
+        if not loop[i]:
+            inc[ea[i]].append(i)
+            inc[eb[i]].append(i)
+    tree, seen = [False] * m, [False] * n
+    for root in range(n):
+        if seen[root]:
+            continue
+        seen[root] = True
+        cheap = [(i, root) for i in inc[root] if free[i]]
+        dear = [(i, root) for i in inc[root] if not free[i]]
+        while cheap or dear:
+            i, v = cheap.pop() if cheap else dear.pop()
+            u = eb[i] if ea[i] == v else ea[i]
+            if seen[u]:
+                continue
+            seen[u] = tree[i] = True
+            for j in inc[u]:
+                if not seen[eb[j] if ea[j] == u else ea[j]]:
+                    (cheap if free[j] else dear).append((j, u))
+    repaired = [2 if tree[i] and not free[i] else free[i] for i in range(m)]
+    tree_odd = list(odd)
+    tree_weight = [0] * m
+    for i in range(m):
+        if tree[i]:
+            tree_weight[i] = c.k[i] + 1
+        else:
+            tree_weight[i] = abs(c.k[i] - 1)
+            if c.k[i] == 0 and not loop[i]:
+                tree_odd[ea[i]] = not tree_odd[ea[i]]
+                tree_odd[eb[i]] = not tree_odd[eb[i]]
+    flip = _t_join(n, ea, eb, tree_weight, tree_odd)
+    rebuilt = [
+        (1 if c.k[i] else 0)
+        if loop[i]
+        else (1 + flip[i] if tree[i] else int(flip[i] == (c.k[i] == 0)))
+        for i in range(m)
+    ]
+    best = None
+    for parity in (repaired, rebuilt):
+        parent = list(range(n))
+        for i in range(m):
+            if parity[i] == 1 and not loop[i]:
+                parent[_root(parent, ea[i])] = _root(parent, eb[i])
+        for i in range(m):
+            if parity[i] == 2:
+                ra, rb = _root(parent, ea[i]), _root(parent, eb[i])
+                if ra == rb:
+                    parity[i] = 0
+                else:
+                    parent[ra] = rb
+        if best is None or c.cost(parity) < c.cost(best):
+            best = parity
+    return best
+
+
+def _corridor_walk(adj: list, back: list, c: _Corridors, first: int) -> list:
+    """The closed walk of a region whose cells are all targets (moves ``adj``, ports
+    back ``back``, corridors ``c``), from node ``first``: each bridge twice, each ring
+    once, each chain as :func:`_corridor_parities` says (at 0, its first ``ceil(k / 2)``
+    corridor cells from ``a``'s end and the rest from ``b``'s), joined into one Euler
+    circuit (:func:`_euler_circuit`). Time about linear in the cells."""
+    ports = len(adj[0])
+    mult = [[0] * ports for _ in range(len(adj))]
+
+    def add(v: int, p: int, times: int) -> None:
+        mult[v][p] += times
+        mult[adj[v][p]][back[v][p]] += times
+
+    for v, p in c.bridges:
+        add(v, p, 2)
+    for steps in c.rings:
+        for v, p in steps:
+            add(v, p, 1)
+    for steps, k, parity in zip(c.steps, c.k, _corridor_parities(c), strict=True):
+        if parity:
+            for v, p in steps:
+                add(v, p, parity)
+        else:
+            half = (k + 1) // 2  # the move between the two halves is left out
+            for j, (v, p) in enumerate(steps):
+                if j != half:
+                    add(v, p, 2)
+    return _euler_circuit(adj, back, mult, first)
+
+
+def _corridor_bounds(c: _Corridors) -> dict[int, int]:
+    """``{piece: bound}`` for every piece of ``c`` with a junction: the corridor bound
+    of :func:`closed_walk_lower_bound` on a closed walk inside the piece through all its
+    nodes."""
+    junctions, ea, eb, odd = c.junction_graph()
+    weight, base_odd = c.base_parities(ea, eb, odd)
+    piece = [c.label[v] for v in junctions]
+    packed = _ball_packing(len(junctions), ea, eb, weight, base_odd, piece)
+    out: dict[int, int] = {}
+    for i, k in enumerate(c.k):
+        p = c.label[c.a[i]]
+        out[p] = out.get(p, 0) + min(k + 1, 2 * k)
+    scale = 1 << _PACKING_ROUNDS
+    for p, r in packed.items():
+        out[p] += -(-r // scale)
+    return out
+
+
+def _large_walk(
+    nb: np.ndarray, back: np.ndarray, is_target: np.ndarray, c: _Corridors | None = None
+) -> np.ndarray:
     """int ``[L]``: the closed walk of a region of more than :data:`SEARCH_TARGETS`
     targets (nodes ``0..n-1``, moves ``nb``, ports back ``back``, bool ``is_target``),
-    from its first target: the shorter of the nearest-neighbour walk
-    (:func:`_nearest_walk`) and, when every cell is a target, the postman's walk
-    (:func:`_postman_walk`; the first on a tie). Time about linear in the cells."""
+    from its first target: the shorter of the corridor walk (:func:`_corridor_walk`,
+    given the region's corridors ``c`` when every cell is a target; the first on a tie)
+    and the nearest-neighbour walk (:func:`_nearest_walk`). Time about linear in the
+    cells."""
     adj = nb.tolist()
     first = int(np.flatnonzero(is_target)[0])
     best = _nearest_walk(adj, is_target.tolist(), first)
-    if is_target.all():
-        other = _postman_walk(adj, back.tolist(), first)
-        if len(other) < len(best):
+    if c is not None:
+        other = _corridor_walk(adj, back.tolist(), c, first)
+        if len(other) <= len(best):
             best = other
     return np.array(best, dtype=np.int64)
 
@@ -681,9 +1110,12 @@ def closed_walk(
     metric (the metric closure of the targets; :func:`_shortest_tour`: nearest
     neighbour, 2-opt and or-opt, iterated with double-bridge kicks), each leg expanded
     into a shortest path inside the region (on a graph, along the edges' waypoints). A
-    region whose cells form a tree takes the depth-first order instead (optimal).
-    Deterministic for a given ``seed``. ``effort`` ("fast", "normal", "thorough") sets
-    the kicks per target (:data:`EFFORTS`); "normal" takes about 2 s on a 700-cell map.
+    region whose cells form a tree takes the depth-first order instead (optimal). A
+    region of more than :data:`SEARCH_TARGETS` targets has no table and no tour search:
+    :func:`_large_walk` (the corridor walk, or the nearest-neighbour walk if shorter; the
+    seed and effort do not matter there). Deterministic for a given ``seed``. ``effort``
+    ("fast", "normal", "thorough") sets the kicks per target (:data:`EFFORTS`); "normal"
+    takes about 2 s on a 700-cell map.
 
     Args:
         m: the map.
@@ -775,6 +1207,8 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
         return arr.size
     if tgt.size < arr.size:
         return _steiner_bound(m, arr)
+    if arr.size > SEARCH_TARGETS:
+        return _large_bound(nb, _corridors_cached(key, cells))
     n_bridges, label = _two_edge_components(nb)
     total = 2 * n_bridges
     order = np.argsort(label, kind="stable")
@@ -792,6 +1226,41 @@ def _bound_cached(key: _MapKey, cells: tuple[int, ...]) -> int:
         held_karp = math.ceil(_held_karp_closed(D, upper) - 1e-6) if upper > cheap else cheap
         best = max(cheap, held_karp)
         total += best + best % 2 if _colours(sub)[1].all() else best
+    return total
+
+
+def _large_bound(nb: np.ndarray, c: _Corridors) -> int:
+    """The bound of :func:`closed_walk_lower_bound` for a connected region of more than
+    :data:`SEARCH_TARGETS` cells, all targets (moves ``nb``, corridors ``c``): the
+    bound of the smaller regions (bridges, counts, colours, Held-Karp on the pieces of at
+    most :data:`SEARCH_TARGETS` cells that are not rings, on a ring never above the
+    counts), raised on each piece with a junction to its corridor bound
+    (:func:`_corridor_bounds`), without a table of the region."""
+    label = np.array(c.label, dtype=np.int64)
+    colour, bipartite = _colours(nb, label)
+    size = np.bincount(label)
+    black = np.bincount(label, weights=colour, minlength=size.size).astype(np.int64)
+    counts = np.where(bipartite, np.maximum(size, 2 * np.maximum(black, size - black)), size)
+    corridor = _corridor_bounds(c)
+    order = np.argsort(label, kind="stable")
+    index = np.full(nb.shape[0], -1, dtype=np.int64)
+    total = 2 * len(c.bridges)
+    for part in np.split(order, np.flatnonzero(np.diff(label[order])) + 1):
+        piece = int(label[part[0]])
+        if part.size < 2:
+            continue
+        cheap = int(counts[piece])
+        best = max(cheap, corridor.get(piece, 0))
+        if piece in corridor and part.size <= SEARCH_TARGETS:
+            index[part] = np.arange(part.size)
+            sub = np.where(nb[part] >= 0, index[np.maximum(nb[part], 0)], -1)
+            index[part] = -1
+            D = all_pairs_distances(sub)
+            tour = _nearest_neighbour(D)
+            upper = int(D[tour, np.roll(tour, -1)].sum())
+            if upper > cheap:
+                best = max(best, math.ceil(_held_karp_closed(D, upper) - 1e-6))
+        total += best + best % 2 if bipartite[piece] else best
     return total
 
 
@@ -890,6 +1359,24 @@ def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
        ``C_i`` in the shortest-path metric of ``C_i`` (``W_i``, listed by first visits,
        is such a tour of length <= ``L_i``). ``L_i`` being even (bipartite ``C_i``), the
        largest of the three is rounded up to even.
+    3. *Corridors* (regions of more than :data:`SEARCH_TARGETS` cells, which take the
+       Held-Karp bound only on pieces of at most that many cells: :func:`_large_bound`).
+       Let ``C_i`` have a junction, a cell with at least 3 moves inside ``C_i``; its
+       moves split into chains, paths from a junction through ``k >= 0`` cells of
+       degree 2 to a junction (:class:`_Corridors`). ``W_i`` makes the ``k + 1`` moves
+       of a chain ``m_0..m_k`` times; at a cell of degree 2 the two add up to an even
+       number (a closed walk leaves a cell as often as it enters it), so all have one
+       parity, the chain's. Odd: every move is made, ``>= k + 1`` moves on the chain.
+       Even, ``k >= 1``: ``W_i`` is connected and visits the chain's cells and a
+       junction, so at most one of the chain's moves is not made (two would cut off
+       the cells between them) and the others are made twice or more, ``>= 2 k``. At
+       a junction the odd chains meet an even number of times (a loop twice). So with
+       each chain at its cheaper parity (even for ``k = 0``, else odd), costing
+       ``min(k + 1, 2 k)``, and ``|k - 1|`` more at the other, the loops aside, the
+       chains of ``W_i`` at their dearer parity form a T-join of the junctions that the
+       cheaper parities leave odd: ``L_i >= sum min(k + 1, 2 k)`` plus the least weight
+       of such a T-join, bounded below by disjoint balls round those junctions
+       (:func:`_ball_packing`); rounded up, and to even if ``C_i`` is bipartite.
 
     For a tree (every edge a bridge) this is the exact ``2 (n - 1)``; for a ring,
     exactly n. The Held-Karp linear relaxation also splits over bridges (a bridge
@@ -922,27 +1409,35 @@ def closed_walk_lower_bound(m: Map, cells: np.ndarray | None = None) -> int:
 def closed_walk_methods(m: Map, cells: np.ndarray | None = None) -> dict[str, str]:
     """How :func:`closed_walk` and :func:`closed_walk_lower_bound` compute a region's walk
     and bound (``walk_method``, ``walk_lower_bound_method``), for ``summary.json``."""
-    arr = np.array(_cell_set(m, cells), dtype=np.int64)
+    region = _cell_set(m, cells)
+    arr = np.array(region, dtype=np.int64)
     t = int(m.target[arr].sum())
     nb = _local_neighbors(m, arr)
     if t <= 2 or (t == arr.size and arr.size <= 2):
         return {"walk_method": "exact (at most two targets)", "walk_lower_bound_method": "exact"}
-    if t > SEARCH_TARGETS:
+    if t > SEARCH_TARGETS and t < arr.size:
+        walk = f"above {SEARCH_TARGETS} targets: the nearest-neighbour walk"
+    elif t > SEARCH_TARGETS:
         walk = (
-            f"above {SEARCH_TARGETS} targets: the shorter of the nearest-neighbour walk and "
-            "the postman walk (every move, odd cells paired greedily)"
+            f"above {SEARCH_TARGETS} targets: the shorter of the corridor walk (each corridor "
+            "once, twice or in and back from both ends, parities by a greedy T-join, joined "
+            "by a spanning tree; an Euler circuit) and the nearest-neighbour walk"
         )
     elif (nb >= 0).sum() // 2 == arr.size - 1:
         walk = "tree: depth-first order (optimal)"
     else:
         walk = "tour search over the targets' distances: nearest neighbour, 2-opt, or-opt, kicks"
-    if t < arr.size:
-        # the Held-Karp part runs on every piece of at most SEARCH_TARGETS cells
-        large = arr.size > SEARCH_TARGETS
-    else:
-        _, label = _two_edge_components(nb)
+    # the Held-Karp part runs on every piece of at most SEARCH_TARGETS cells
+    large = arr.size > SEARCH_TARGETS
+    if large and t == arr.size:  # the pieces: 2-edge-connected components
+        label = _corridors_cached(_MapKey(m), region).label
         large = bool((np.bincount(label) > SEARCH_TARGETS).any())
     bound = "bridges, counts, colours and Held-Karp per 2-edge-connected piece"
+    if t == arr.size > SEARCH_TARGETS:
+        bound = (
+            "bridges, counts, colours, corridor parities (disjoint balls round the odd "
+            "junctions) and Held-Karp per 2-edge-connected piece"
+        )
     if large:
         bound += f" (Held-Karp skipped on pieces of more than {SEARCH_TARGETS} cells)"
     return {"walk_method": walk, "walk_lower_bound_method": bound}
