@@ -142,6 +142,43 @@ def test_walk_followers_crowding_dead_end_spurs_turn_round_and_stay_live():
     assert r["live"] and r["coverage"] == 1.0 and r["max_stall"] <= r["stall_bound"], r
 
 
+def _far_goals(engine: str) -> dict:
+    """16 ``dta-ssi-part`` robots on ps_cumberland, battery off, ``exclusive``: one run
+    of 1,200 steps, warm-up 200."""
+    flat = {
+        "map": "ps_cumberland", "policy": "dta-ssi-part", "agents": 16, "runs": 1,
+        "steps": 1200, "record.warmup": 200, "battery.enabled": False,
+        "team.interaction": "exclusive", "engine": engine,
+    }  # fmt: skip
+    (r,) = simulate(from_flat(flat)).summary
+    return r
+
+
+def test_far_goal_followers_head_on_exchange_tasks():
+    """A holder of the right of way head on with a robot whose goal is an allocated task
+    (both ask for the other's cell) exchanges tasks with it rather than pushing it back: 16
+    ``dta-ssi-part`` robots on ps_cumberland visit every vertex, no robot stalls past the
+    bound, and the engines agree on every measure."""
+    by_engine = [_far_goals(e) for e in ("numpy", "numba")]
+    assert by_engine[0] == by_engine[1]
+    r = by_engine[0]
+    assert r["live"] and r["coverage"] == 1.0 and r["avg_idleness"] < 8.0, r
+
+
+def test_far_goal_followers_pushed_back_head_on_starve_a_vertex(monkeypatch):
+    """Deliberate break: the holder pushes a ``dta`` robot head on with it back, as it
+    does any robot. A robot heading for vertex 36 through the edge where another
+    shuttles between its two vertices is pushed back every time they meet, and each
+    push ends its task at the vertex behind it (its age starts again): the vertices
+    beyond wait, and the average idleness is at least twice the one with the rule."""
+    from qpatrol.strategies import dta
+
+    kept = _far_goals("numpy")
+    monkeypatch.setattr(dta.DTA, "keeps_plans", False)
+    pushed = _far_goals("numpy")
+    assert pushed["avg_idleness"] > 2 * kept["avg_idleness"], (pushed, kept)
+
+
 def test_a_team_waiting_on_its_aims_is_not_live(monkeypatch):
     """Deliberate break: travellers never turn round. Robots travelling into a spur and
     robots waiting on its end then exchange plans back and forth, and the rest of the

@@ -86,7 +86,9 @@ def advance(
     """
     obs = begin_step(state, p)
     ask = strategy.act(obs, u)
-    out = world_step(state, p, obs, ask, strategy.aims(obs), strategy.plans_on_edges)
+    out = world_step(
+        state, p, obs, ask, strategy.aims(obs), strategy.plans_on_edges, strategy.keeps_plans
+    )
     if out.swapped is not None and (out.swapped >= 0).any():
         strategy.exchange(out.swapped)
     strategy.learn(out, rec)

@@ -50,6 +50,7 @@ class DTA(goals.GoalFollower):
     ``origin``: int ``[R, K]``, each robot's start cell."""
 
     neighbour_goals = False
+    keeps_plans = True
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)

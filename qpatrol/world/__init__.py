@@ -671,6 +671,7 @@ def step(
     choice: np.ndarray,
     aim: np.ndarray | None = None,
     turns: bool = False,
+    plans: bool = False,
 ) -> Outcome:
     """Apply one team step, in place, given the strategy's ``choice``.
 
@@ -687,6 +688,10 @@ def step(
             :attr:`qpatrol.strategies.base.Strategy.plans_on_edges`): its ``choice`` for a
             robot travelling an edge is read, and turns it round where it asks for the
             port behind it and that cell is free (:func:`turn_round`; collisions avoided).
+        plans: the strategy's robots' goals are tasks allocated to them
+            (:attr:`qpatrol.strategies.base.Strategy.keeps_plans`; ``dta-*``): the
+            holder of the right of way head on with one hands its task on
+            (:func:`qpatrol.world.traffic.head_on`).
     """
     s = state
     s.t += 1
@@ -730,7 +735,7 @@ def step(
     s.aim = task_aims(s, p, obs, aim, on_edge, active)
     mode0 = s.mode.copy()
 
-    res = traffic.resolve(s, p, want)
+    res = traffic.resolve(s, p, want, plans)
     if p.interaction == INTERFERENCE:
         interference.meet(s, p, prev_pos, res.moved)
     if p.ahead is not None and (res.swapped >= 0).any():

@@ -108,11 +108,14 @@ def _keep_out(s: State, p: Params, r: int) -> tuple[list[bool], list[int], list[
     )
 
 
-def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
+def resolve(s: State, p: Params, want: np.ndarray, plans: bool = False) -> Resolution:
     """Move the robots of every active run (in place: ``s.pos``, ``s.occ``).
 
     Args:
         want: int ``[R, K]``, the cell each robot asks to enter, -1 for no move.
+        plans: the strategy's robots keep their aims until reached or exchanged
+            (:attr:`qpatrol.strategies.base.Strategy.keeps_plans`): a holder head on
+            with one of them hands its task on rather than pushing (:func:`head_on`).
     """
     R, K = s.pos.shape
     moved = np.zeros((R, K), dtype=bool)
@@ -134,7 +137,7 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
         for r in holders.tolist():
             k = int(s.token[r])
             if want[r, k] >= 0:
-                holder_step(s, p, r, k, want, movable[r], res)
+                holder_step(s, p, r, k, want, movable[r], res, plans)
 
     # 2. everyone else, in priority order, into cells empty at that moment (not two
     # robots that exchanged tasks: their plans changed)
@@ -160,17 +163,30 @@ def resolve(s: State, p: Params, want: np.ndarray) -> Resolution:
 
 
 def holder_step(
-    s: State, p: Params, r: int, k: int, want: np.ndarray, movable: np.ndarray, res: Resolution
+    s: State,
+    p: Params,
+    r: int,
+    k: int,
+    want: np.ndarray,
+    movable: np.ndarray,
+    res: Resolution,
+    plans: bool = False,
 ) -> None:
     """Run ``r``'s token holder ``k`` takes its way (in place: ``s.pos``, ``s.occ`` and
     the rows r of ``res``): into the cell it asks for, pushing the robots in the way
-    aside (:func:`_holder_move`); if it cannot, its task goes on through the robot in
-    its way (:func:`hand_on`).
+    aside (:func:`_holder_move`); if it cannot, or (``plans``) if the robot in its way
+    is a patrolling robot that asks for the holder's cell (:func:`head_on`), its task
+    goes on through the robot in its way (:func:`hand_on`).
 
     Args:
         want: int ``[R, K]``, the cell each robot asks to enter (``want[r, k] >= 0``).
         movable: bool ``[K]``, the robots of run r that may be pushed.
     """
+    b = int(s.occ[r, want[r, k]])
+    if plans and b >= 0 and head_on(s, r, k, b, want):
+        res.push_failed[r] = True
+        hand_on(s, r, k, b, res)
+        return
     keep_out = _keep_out(s, p, r) if p.battery else None
     cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
     if cell < 0:
@@ -208,6 +224,21 @@ def _holder_move(
         return asked, []
     path = _push_path(nbrs, occ, own, asked, movable.tolist(), keep_out)
     return (asked, path) if path is not None else (-1, [])
+
+
+def head_on(s: State, r: int, k: int, b: int, want: np.ndarray) -> bool:
+    """The holder k and robot b of run r, both patrolling, each ask for the other's
+    cell: a push would only send b back the way it came, so robots whose goals are
+    allocated tasks (``plans``) exchange tasks instead (:func:`hand_on`), as two
+    insisting robots in a corridor must (token passing with swaps, Ma et al. 2017). The
+    others are pushed: robots without a plan, or that choose a neighbouring target
+    again after an exchange, would meet head on again, and robots that choose goals
+    from their own records would carry goals their records did not choose."""
+    return (
+        int(want[r, b]) == int(s.pos[r, k])
+        and s.mode[r, k] == battery.PATROL
+        and s.mode[r, b] == battery.PATROL
+    )
 
 
 def hand_on(s: State, r: int, k: int, b: int, res: Resolution) -> None:

@@ -212,6 +212,13 @@ def walk_follower(code):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
+def keeps_plans(code):
+    """The strategy's robots' goals are tasks allocated to them (``dta-*``;
+    :attr:`qpatrol.strategies.base.Strategy.keeps_plans`)."""
+    return code >= DTA_GREEDY and code <= DTA_SSI_PART
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
 def _goal_aims(r, robot_i, aim):
     """A goal follower's aims (``aim`` int ``[K]``): each robot's goal (``robot_i[r, k,
     0]``; :meth:`qpatrol.strategies.goals.GoalFollower.aims`)."""

@@ -264,13 +264,15 @@ def travel_asks(w):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def resolve(r, t, tok, t_mod, battery, avoid, p, s, w):
+def resolve(r, t, tok, t_mod, battery, avoid, p, s, w, plans=False):
     """:func:`qpatrol.world.traffic.resolve` of run ``r`` at step ``t`` (each robot's
     ``w.want``, -1 for none): without collision avoidance every robot moves as asked
     but a stopped one (:func:`stopped`); with it the holder ``tok`` of the right of way
-    moves first (:func:`holder_moves`; if it cannot, :func:`hand_on`), then the others in
+    moves first (:func:`holder_moves`; if it cannot, or head on with a patrolling robot,
+    :func:`hand_on`), then the others in
     priority order (:func:`priority`), each into a cell empty at that moment, but two
-    robots that exchanged tasks. Sets ``w.moved``, ``w.as_asked``, ``w.swapped``;
+    robots that exchanged tasks (``plans``: the strategy keeps its robots' aims, and
+    a holder head on with one hands on). Sets ``w.moved``, ``w.as_asked``, ``w.swapped``;
     returns the robot that received the failed holder's task or age (-1: none)."""
     n_agents = s.pos.shape[1]
     pos_r, occ_r, mode_r = s.pos[r], s.occ[r], s.mode[r]
@@ -286,12 +288,18 @@ def resolve(r, t, tok, t_mod, battery, avoid, p, s, w):
                 as_asked[k] = True
         return handoff
     if tok >= 0 and want[tok] >= 0:
-        failed = holder_moves(
-            tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of, p.pocket_depth,
-            s.reserved[r],
-        )  # fmt: skip
-        if failed and occ_r[want[tok]] >= 0:
-            handoff = hand_on(r, tok, occ_r[want[tok]], s, w)
+        b = occ_r[want[tok]]
+        both = mode_r[tok] == PATROL and b >= 0 and mode_r[b] == PATROL
+        if plans and both and want[b] == pos_r[tok]:
+            # head on (traffic.head_on): the two exchange tasks rather than push
+            handoff = hand_on(r, tok, b, s, w)
+        else:
+            failed = holder_moves(
+                tok, p.nbrs, p.entry, occ_r, pos_r, w, battery, mode_r, p.pocket_of,
+                p.pocket_depth, s.reserved[r],
+            )  # fmt: skip
+            if failed and occ_r[want[tok]] >= 0:
+                handoff = hand_on(r, tok, occ_r[want[tok]], s, w)
     if n_agents == 1:  # alone: the priority order is trivial
         wk = want[0]
         if wk >= 0 and not moved[0] and occ_r[wk] < 0:
