@@ -77,9 +77,9 @@ def test_a_shuttle_is_seen_by_its_stall_not_by_its_waits(tmp_path, monkeypatch):
     seen = {}
     resolve = traffic.resolve
 
-    def remember(s, p, want):
+    def remember(s, p, want, plans=False):
         seen["p"] = p
-        return resolve(s, p, want)
+        return resolve(s, p, want, plans)
 
     def step_aside(s, r, k, b, res):
         for c in traffic._neighbour_lists(seen["p"])[int(s.pos[r, k])]:
