@@ -122,6 +122,8 @@ class Case:
     charge_steps: int = 1
     initial_charge: str = "staggered"
     adversary: str = "open"  # 'open', 'legal' or 'goal'
+    # the holder head on with a goal robot exchanges tasks (rule 2 for dta robots)
+    head_on: bool = False
 
     def label(self) -> str:
         rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
@@ -132,7 +134,8 @@ class Case:
             if self.battery
             else "battery off"
         )
-        return f"K={self.k} {bat} adversary={self.adversary} map " + "/".join(rows)
+        how = " head-on exchange" if self.head_on else ""
+        return f"K={self.k} {bat} adversary={self.adversary}{how} map " + "/".join(rows)
 
 
 @dataclass
@@ -302,7 +305,7 @@ class Checker:
         s2 = _rows_of(s, src)
         obs2 = _rows_of(obs, src)
         obs2.state = s2
-        out = world.step(s2, self.p, obs2, choice, aim)
+        out = world.step(s2, self.p, obs2, choice, aim, plans=self.case.head_on)
         # safety on every transition: one robot per cell, no swaps, moves between
         # neighbours only, no charge below 0
         before, after = s.pos[src], s2.pos
@@ -610,7 +613,7 @@ def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
         assert ck.encode(s, s.t % K).tobytes() == key, f"state {n} differs from the graph"
         obs = world.begin_step(s, ck.p)
         aims = np.array([aim], dtype=np.int64) if ck.case.adversary == "goal" else None
-        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64), aims)
+        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64), aims, plans=ck.case.head_on)
         if n >= len(w.prefix) and (n - len(w.prefix)) % len(w.cycle) == len(w.cycle) - 1:
             if w.robot < K:
                 waits.append(int(s.t - s.since[0, w.robot]))

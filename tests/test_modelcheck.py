@@ -15,6 +15,7 @@ The tests print how many maps, cases, states and transitions they explored (``py
 
 from __future__ import annotations
 
+import dataclasses
 import functools
 import os
 import time
@@ -74,6 +75,14 @@ def _cases(part: str, full: bool) -> list[mc.Case]:
     if part == "goal":
         sizes = range(4, 7) if full else range(4, 6)
         return mc.family(sizes, ks=range(2, 3), battery=True, adversary="goal", corridor=True)
+    if part == "head-on":
+        # the goal adversary with rule 2's exchange head on (dta robots), battery off
+        # and on
+        sizes = range(4, 7) if full else range(4, 6)
+        cases = mc.family(sizes, adversary="goal") + mc.family(
+            sizes, ks=range(2, 3), battery=True, adversary="goal", corridor=True
+        )
+        return [dataclasses.replace(c, head_on=True) for c in cases]
     # three robots and two stations: rule (b) refuses every such case up to 6 cells, so
     # a sample of the accepted ones on 7 and 8 cells (stations at dead ends, junctions,
     # cut corridor cells and loops, and two at once), drawn with seed 1
@@ -173,6 +182,17 @@ def test_no_task_starves_with_battery_and_goals():
     print(f"\nmodel check, battery on, goals: {_summary(goal, seconds)}")
     assert len(goal) > 80
     _no_livelock(goal)
+
+
+def test_no_task_starves_with_goals_exchanged_head_on():
+    """Zero livelocks, battery off and on, when the holder head on with a robot heading
+    for a goal exchanges tasks with it rather than pushing (rule 2 for the ``dta``
+    strategies)."""
+    cases, seconds = _explored("head-on")
+    print(f"\nmodel check, goals exchanged head on: {_summary(cases, seconds)}")
+    assert all(r.case.head_on and r.case.adversary == "goal" for r in cases)
+    assert len(cases) > 100
+    _no_livelock(cases)
 
 
 def test_no_task_starves_with_three_robots_and_two_stations():
