@@ -506,7 +506,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             for k in range(n_agents):
                 w.want[k] = p.nbrs[s.pos[r, k], w.ask[k]] if w.ask[k] >= 0 else -1
             moves.tasks(r, battery, p, s, w)
-            plans = spec == SPEC_ANY and compiled.keeps_plans(code)
+            plans = spec == SPEC_ANY and p.travels and compiled.keeps_plans(code)
             handoff = moves.resolve(r, t, tok, t_mod, battery, avoid, p, s, w, plans)
             if p.interaction == bundles.INTERFERENCE:
                 moves.meet(r, t, p, s, w)

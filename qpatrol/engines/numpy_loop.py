@@ -87,7 +87,13 @@ def advance(
     obs = begin_step(state, p)
     ask = strategy.act(obs, u)
     out = world_step(
-        state, p, obs, ask, strategy.aims(obs), strategy.plans_on_edges, strategy.keeps_plans
+        state,
+        p,
+        obs,
+        ask,
+        strategy.aims(obs),
+        strategy.plans_on_edges,
+        strategy.keeps_plans and p.ahead is not None,
     )
     if out.swapped is not None and (out.swapped >= 0).any():
         strategy.exchange(out.swapped)

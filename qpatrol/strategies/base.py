@@ -54,10 +54,11 @@ class Strategy:
     #: (:func:`qpatrol.world.turn_round`).
     plans_on_edges: ClassVar[bool] = False
     #: True for a strategy whose robots' goals are tasks allocated to them, kept until
-    #: reached or exchanged (``dta-*``: vertices won at auction): the holder of the right
-    #: of way, head on with one of them, exchanges tasks with it rather than pushing it
-    #: back (:func:`qpatrol.world.traffic.head_on`). Robots that choose their goals from
-    #: their own records (``cc``, ``hpcc``) or a neighbouring target are pushed.
+    #: reached or exchanged (``dta-*``: vertices won at auction): on a patrol graph with
+    #: waypoints the holder of the right of way, head on with one of them, exchanges tasks
+    #: with it rather than pushing it back (:func:`qpatrol.world.traffic.head_on`).
+    #: Robots that choose their goals from their own records (``cc``, ``hpcc``) or a
+    #: neighbouring target are pushed.
     keeps_plans: ClassVar[bool] = False
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
