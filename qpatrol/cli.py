@@ -691,7 +691,7 @@ def bench(
             "-T",
             metavar="T",
             help="Team steps per run (default: about a second of work on the compiled "
-            "engine, 1 to 9 s on numpy, see qpatrol.run.bench.default_steps).",
+            "engine, 0.6 to 9 s on numpy, see qpatrol.run.bench.default_steps).",
         ),
     ] = None,
     engine: Annotated[

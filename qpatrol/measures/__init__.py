@@ -42,6 +42,7 @@ from typing import Any
 import numpy as np
 import pandas as pd
 
+from qpatrol.util.arrays import at, flat
 from qpatrol.world import GONE, Outcome, Params, State, interference
 
 
@@ -62,9 +63,10 @@ def entries(out: Outcome, last: np.ndarray, last_sum: np.ndarray, target: np.nda
         rows = np.flatnonzero(entered)
         if rows.size == 0:
             continue
-        c = out.pos[rows, k]
-        prev = last[rows, c]
-        last[rows, c] = t
+        c = flat(out.pos)[at(out.pos.shape, rows, k)]
+        cell = at(last.shape, rows, c)  # int [B], the cells entered, flat in [R, C]
+        prev = flat(last)[cell]
+        flat(last)[cell] = t
         last_sum[rows] += t - prev
         yield k, rows, c, prev
 
@@ -210,20 +212,21 @@ class Measures:
         """
         t = out.t
         in_window = t > self.warmup
-        for k in range(out.moved.shape[1]):
-            rows = np.flatnonzero(out.moved[:, k])
-            self.visits[rows, k, out.pos[rows, k]] += 1
+        rows, ks = np.nonzero(out.moved)  # every robot that entered a cell, once
+        cells = flat(out.pos)[at(out.pos.shape, rows, ks)]
+        flat(self.visits)[at(self.visits.shape, rows, ks, cells)] += 1
         for k, rows, c, prev in entries(out, self.last, self.last_sum, self.target):
             if in_window:
-                self.window_visits[rows, k, c] += 1
+                flat(self.window_visits)[at(self.window_visits.shape, rows, k, c)] += 1
                 seen = prev > 0
                 gap = np.where(seen, t - prev, 0)
                 self.gap_sum[rows] += gap
                 self.gap_count[rows] += seen
                 self.gap_max[rows] = np.maximum(self.gap_max[rows], gap)
                 self.gap_sq[rows] += gap * gap
-                self.target_gap_sum[rows, c] += gap
-                self.target_gap_count[rows, c] += seen
+                cell = at(self.target_gap_sum.shape, rows, c)  # int [B], flat in [R, C]
+                flat(self.target_gap_sum)[cell] += gap
+                flat(self.target_gap_count)[cell] += seen
                 if t - 1 > self.warmup:
                     self.worst[rows] = np.maximum(self.worst[rows], t - 1 - prev)
                 # a patrol cycle: every target visited once since the cycle began
@@ -233,18 +236,21 @@ class Measures:
                 self.cycles[rows] += done
                 self.cycle_start[rows] = np.where(done, t + 1, start)
                 self.cycle_seen[rows] = np.where(done, 0, seen_now)
+        # the runs that took the step, act (bool [R]), take it in (in place, where=act)
         act = out.active
         if charge is not None:
-            self.min_charge[act] = np.minimum(self.min_charge[act], charge[act].min(axis=1))
+            np.minimum(self.min_charge, charge.min(axis=1), out=self.min_charge, where=act)
         if in_window:
-            self.idle_total[act] += self.n_targets * t - self.last_sum[act]
-            self.measured[act] += 1
-            self.max_wait[act] = np.maximum(self.max_wait[act], wait[act].max(axis=1))
+            idle = self.n_targets * t - self.last_sum
+            np.add(self.idle_total, idle, out=self.idle_total, where=act)
+            np.add(self.measured, 1, out=self.measured, where=act)
+            np.maximum(self.max_wait, wait.max(axis=1), out=self.max_wait, where=act)
             if stall is not None:
-                self.max_stall[act] = np.maximum(self.max_stall[act], stall[act].max(axis=1))
-            self.wait_total[act] += (wait[act] > 0).sum(axis=1)
-            blocked = (out.ask[act] >= 0) & ~out.as_asked[act]
-            self.interferences[act] += blocked.sum(axis=1)
+                np.maximum(self.max_stall, stall.max(axis=1), out=self.max_stall, where=act)
+            waiting = (wait > 0).sum(axis=1)
+            np.add(self.wait_total, waiting, out=self.wait_total, where=act)
+            blocked = ((out.ask >= 0) & ~out.as_asked).sum(axis=1)
+            np.add(self.interferences, blocked, out=self.interferences, where=act)
         self.intruders(out, failing)
 
     def intruders(self, out: Outcome, failing: np.ndarray | None = None) -> None:
@@ -591,16 +597,17 @@ def field_measures(
     float division or square root; sums of floats are math.fsum's: the same
     accumulators give the same bits, in any batch."""
     n_t = m.n_targets
-    # each run's row alone (a reduction over the axis of a [R, T] array may add in an
-    # order that depends on R, and a run's numbers must not depend on its batch); sums
-    # by math.fsum, exactly rounded
-    worst_avg, mean_avg, median, spread = [], [], [], []
-    for a in m.target_averages(steps_done):  # float [T] per run
-        mean = math.fsum(a.tolist()) / n_t
-        worst_avg.append(float(a.max()))
-        mean_avg.append(mean)
-        median.append(float(np.median(a)))
-        spread.append(math.sqrt(math.fsum(((a - mean) ** 2).tolist()) / n_t))
+    # sums over each run's row alone, by math.fsum, exactly rounded (a float reduction
+    # over the axis of a [R, T] array may add in an order that depends on R, and a
+    # run's numbers must not depend on its batch); the max, the median (the mean of
+    # the two middle values) and elementwise steps take the batch at once
+    # (math.fsum reads a row's doubles through a memoryview, without a list of them)
+    avg = m.target_averages(steps_done)  # float [R, T]
+    mean_avg = [math.fsum(memoryview(a)) / n_t for a in avg]
+    worst_avg = avg.max(axis=1).tolist()
+    median = np.median(avg, axis=1).tolist()
+    deviation = (avg - np.array(mean_avg)[:, None]) ** 2
+    spread = [math.sqrt(math.fsum(memoryview(d)) / n_t) for d in deviation]
     visits = per_target.sum(axis=1).tolist()
     visits_sq = (per_target * per_target).sum(axis=1).tolist()
     out: dict[str, list[Any]] = {key: [] for key in FIELD_MEASURES}

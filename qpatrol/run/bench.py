@@ -37,9 +37,10 @@ def default_steps(runs: int, agents: int, engine: str = "auto") -> int:
     that setting up the runs and writing their summaries weigh little: 20 M agent-steps
     there (1,000 to 20,000,000 steps), 1 M on numpy (400 to 20,000 steps), which
     ``auto`` takes when numba is missing. The numpy engine,
-    :func:`qpatrol.engines.numpy_loop.advance` on every step, takes 1 to 9 s of CPU for
-    that here: 1.1 s at 2,048 lone robots (488 steps), 4 s for one lone robot (20,000
-    steps, about 200 us a team step), 8.5 s for one team of 4 (about 430 us a team step)."""
+    :func:`qpatrol.engines.numpy_loop.advance` on every step, takes 0.6 to 9 s of CPU
+    for that here: 0.7 s at 2,048 lone robots (488 steps), 4 s for one lone robot
+    (20,000 steps, about 200 us a team step), 8.5 s for one team of 4 (about 430 us a
+    team step)."""
     size = max(1, runs * agents)
     if engine == "numpy" or (engine == "auto" and not engines.numba_installed()):
         return min(20_000, max(400, 1_000_000 // size))

@@ -20,6 +20,7 @@ from typing import TYPE_CHECKING, ClassVar
 import numpy as np
 
 from qpatrol.strategies.learner import pick
+from qpatrol.util.arrays import port_any
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -132,7 +133,7 @@ def prefer_open(obs: Observation) -> np.ndarray:
     Robots avoid cells other robots stand in (the paper's "avoiding"), but a robot
     hemmed in still asks for a move, so that the world can make room for it.
     """
-    return np.where(obs.open.any(axis=-1, keepdims=True), obs.open, obs.legal)
+    return np.where(port_any(obs.open)[..., None], obs.open, obs.legal)
 
 
 def choose_min(score: np.ndarray, mask: np.ndarray, u: np.ndarray) -> np.ndarray:

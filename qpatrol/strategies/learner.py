@@ -22,6 +22,8 @@ from __future__ import annotations
 
 import numpy as np
 
+from qpatrol.util.arrays import at, flat, port_max
+
 
 def choose(
     q_row: np.ndarray,
@@ -45,9 +47,9 @@ def choose(
         ``(action [B] int, has_move [B] bool)``; action is 0 where there is no legal move.
     """
     masked = np.where(legal, q_row, -np.inf)
-    best = masked.max(axis=1)
+    best = port_max(masked)
     cand = legal & (masked == best[:, None])
-    if np.any(epsilon > 0.0):
+    if np.ndim(epsilon) or epsilon > 0.0:
         cand = np.where((u_explore < epsilon)[:, None], legal, cand)
     return pick(cand, u_pick)
 
@@ -77,7 +79,7 @@ def pick(cand: np.ndarray, u: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     mask = cand @ _BITS[: cand.shape[-1]]
     count = _COUNT[mask]
     j = np.minimum((u * count).astype(np.int64), np.maximum(count - 1, 0))
-    return _NTH[mask, j], count > 0
+    return flat(_NTH)[at(_NTH.shape, mask, j)], count > 0
 
 
 def td_target(
@@ -91,7 +93,7 @@ def td_target(
         legal_next: bool ``[B, D]``, the non-wall moves out of s'.
         gamma: a float, or float ``[B]``, one per row.
     """
-    bootstrap = gamma * np.where(legal_next, q_next, -np.inf).max(axis=1)
+    bootstrap = gamma * port_max(np.where(legal_next, q_next, -np.inf))
     return reward + bootstrap, bootstrap
 
 

@@ -35,6 +35,7 @@ import numpy as np
 from qpatrol.maps import DIRECTIONS
 from qpatrol.measures.records import update_cols
 from qpatrol.strategies import base, learner
+from qpatrol.util.arrays import at, flat, take_rows
 from qpatrol.world import per_row
 
 if TYPE_CHECKING:
@@ -116,12 +117,17 @@ class Strategy(base.Strategy):
     def _heading(self, head: np.ndarray) -> np.ndarray:
         return head if self.use_heading else np.zeros_like(head)
 
+    def _by_robot(self) -> tuple[int, ...]:
+        """The shape of ``q`` with its runs and robots axes as one, ``[R * K, C, D, D]``:
+        robot k of run r has table ``r * K + k``."""
+        return (-1, *self.q.shape[2:])
+
     def act(self, obs: Observation, u: np.ndarray) -> np.ndarray:
         s = obs.state
-        rows = np.arange(s.n_runs)[:, None]
-        agents = np.arange(self.n_agents)[None, :]
-        q_row = self.q[rows, agents, s.pos, self._heading(s.head)]  # [R, K, D]
         R, K = s.pos.shape
+        robot = np.arange(R * K).reshape(R, K)  # each robot's table in q by robot
+        state = at(self._by_robot(), robot, s.pos, self._heading(s.head))
+        q_row = take_rows(self.q, state)  # Q(s, .) of each robot's state: float [R, K, D]
         d = q_row.shape[-1]
         action, can = learner.choose(
             q_row.reshape(-1, d),
@@ -136,30 +142,37 @@ class Strategy(base.Strategy):
         p = self.params
         if p.onward is None:  # every cell decides: each transition is one move
             rr, kk = np.nonzero(out.choosing & out.as_asked)
-            if rr.size == 0:
-                return
-            ca = out.prev_pos[rr, kk]
-            ha = self._heading(out.prev_head[rr, kk])
-            aa = out.ask[rr, kk]
         else:  # decisions at a graph's vertices, completed at the next vertex
             before = np.stack([out.prev_pos, out.prev_head], axis=-1)
             rr, kk, done = learner.pending_transitions(self.pending, out, p.target, before)
-            if rr.size == 0:
-                return
+        if rr.size == 0:
+            return
+        # the robots learning, int [B]: flat in [R, K], and their tables in q by robot
+        robot = at(out.moved.shape, rr, kk)
+        by_robot = self._by_robot()
+        last_c, last_a = flat(out.prev_pos)[robot], flat(out.ask)[robot]  # the move into s'
+        if p.onward is None:
+            ca, ha, aa = last_c, self._heading(flat(out.prev_head)[robot]), last_a
+        else:
             ca, ha, aa = done[:, 0], self._heading(done[:, 1]), done[:, 2]
-        last_c, last_a = out.prev_pos[rr, kk], out.ask[rr, kk]  # the move into s'
-        cb = p.neighbors[last_c, last_a]
-        hb = self._heading(p.entry[last_c, last_a])  # the heading after the move
-        reward = out.reward[rr, kk]
+        move = at(p.neighbors.shape, last_c, last_a)
+        cb = flat(p.neighbors)[move]
+        hb = self._heading(flat(p.entry)[move])  # the heading after the move
+        reward = flat(out.reward)[robot]
         target, bootstrap = learner.td_target(
-            reward, self.q[rr, kk, cb, hb], p.wall_legal[cb], per_row(self.gamma, rr)
+            reward,
+            take_rows(self.q, at(by_robot, robot, cb, hb)),
+            np.take(p.wall_legal, cb, axis=0),
+            per_row(self.gamma, rr),
         )
-        q_before = self.q[rr, kk, ca, ha, aa]
-        q_after, n_after, alpha = learner.update(q_before, self.n[rr, kk, ca, ha, aa], target)
-        self.q[rr, kk, ca, ha, aa] = q_after
-        self.n[rr, kk, ca, ha, aa] = n_after
+        sa = at(by_robot, robot, ca, ha, aa)  # int [B], Q(s, a) flat in q
+        q_before = flat(self.q)[sa]
+        q_after, n_after, alpha = learner.update(q_before, flat(self.n)[sa], target)
+        flat(self.q)[sa] = q_after
+        flat(self.n)[sa] = n_after
         if rec is not None and rec.wants_updates:
-            dot, q_row = out.eaten[rr, kk], self.q[rr, kk, ca, ha]
+            dot = flat(out.eaten)[robot]
+            q_row = take_rows(self.q, at(by_robot, robot, ca, ha))
             cols = update_cols(
                 ca, ha, aa, reward, cb, hb, alpha, q_before, q_after, bootstrap, dot, q_row
             )

@@ -1,1 +1,2 @@
-"""Small helpers every layer may use: atomic writes, CSV reading, progress bars, provenance."""
+"""Small helpers every layer may use: atomic writes, CSV reading, progress bars, provenance,
+flat indexing of arrays."""

@@ -42,6 +42,7 @@ import numpy as np
 from qpatrol.config import INTERACTIONS, Config, ConfigError
 from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs, search
 from qpatrol.maps.core import balls, far_targets
+from qpatrol.util.arrays import at, flat
 from qpatrol.world import battery, interference, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
@@ -625,14 +626,15 @@ def begin_step(state: State, p: Params) -> Observation:
     battery.begin(s, p, s.t + 1)
     if p.battery:
         battery.close_tasks(s, p, s.t + 1)
-    targets = p.neighbors[s.pos]  # [R, K, D]
+    targets = np.take(p.neighbors, s.pos, axis=0)  # [R, K, D]
     legal = targets >= 0
     if p.battery:
         legal_open = legal & ~battery.closed_cells(s, p, targets)
     else:
         legal_open = legal
     if p.avoid_collisions:
-        occupied = s.occ[np.arange(s.n_runs)[:, None, None], np.maximum(targets, 0)] >= 0
+        rows = np.arange(s.n_runs)[:, None, None]
+        occupied = flat(s.occ)[at(s.occ.shape, rows, np.maximum(targets, 0))] >= 0
         open_ = legal_open & ~occupied
         r_tok = np.flatnonzero(s.token >= 0)
         open_[r_tok, s.token[r_tok]] = legal_open[r_tok, s.token[r_tok]]
@@ -705,9 +707,8 @@ def step(
     if travel is not None and turns and p.avoid_collisions:
         travel = turn_round(s, p, travel, choice)
     choice = np.where(obs.choosing, choice, -1)
-    legal_choice = (choice >= 0) & np.take_along_axis(
-        obs.legal, np.maximum(choice, 0)[..., None], axis=2
-    )[..., 0]
+    port = at(obs.legal.shape, ar, np.arange(K), np.maximum(choice, 0))  # [R, K]
+    legal_choice = (choice >= 0) & flat(obs.legal)[port]
     ask = np.where(legal_choice, choice, -1)
     on_edge = np.zeros((R, K), dtype=bool) if travel is None else travel >= 0
     if travel is not None:  # travelling on an edge: its onward port (begin_step)
@@ -731,7 +732,8 @@ def step(
     if queued.any():
         ask = np.where(queued, battery.queued_ask(s, p), ask)
         yielding = yielding | (queued & (ask >= 0))
-    want = np.where(ask >= 0, p.neighbors[s.pos, np.maximum(ask, 0)], -1)
+    move = at(p.neighbors.shape, s.pos, np.maximum(ask, 0))  # [R, K], flat in [C, D]
+    want = np.where(ask >= 0, flat(p.neighbors)[move], -1)
     s.aim = task_aims(s, p, obs, aim, on_edge, active)
     mode0 = s.mode.copy()
 
@@ -750,31 +752,36 @@ def step(
     # the heading after the move: the direction moved on a grid, the port arrived
     # through on a graph (Map.entry)
     direction = traffic.direction_of(p, prev_pos, s.pos)
-    heading = np.take_along_axis(p.entry[prev_pos], direction[..., None], axis=-1)[..., 0]
+    heading = flat(p.entry)[at(p.entry.shape, prev_pos, direction)]
+    # the dot maps' cells [R, G, C] and episode counts [R, G] a move changes, as flat views
+    dots, last, ep_dots, ep_visits = flat(s.dots), flat(s.last), flat(s.ep_dots), flat(s.ep_visits)
     for k in range(K):
         rows = np.flatnonzero(moved[:, k])
         if rows.size == 0:
             continue
         g = 0 if p.communication else k
-        c1 = s.pos[rows, k]
-        a = heading[rows, k]
-        ate = s.dots[rows, g, c1]
-        s.dots[rows, g, c1] = False
-        s.dots_left[rows, g] -= ate
-        s.ep_dots[rows, g] += ate
-        s.ep_visits[rows, g] += 1
-        idle = t - s.last[rows, g, c1]
-        s.last[rows, g, c1] = t
-        s.ep_seen[rows, g, c1] = True
-        s.ep_seen_state[rows, g, c1, a] = True
-        reward[rows, k] = (
+        rk = at((R, K), rows, k)  # int [B], the moved robots, flat in [R, K]
+        rg = at(s.dots_left.shape, rows, g)  # their dot maps, in [R, G]
+        c1 = flat(s.pos)[rk]
+        a = flat(heading)[rk]
+        cell = at(s.dots.shape, rows, g, c1)  # the cells entered, in [R, G, C]
+        ate = dots[cell]
+        dots[cell] = False
+        flat(s.dots_left)[rg] -= ate
+        eaten_now, entered = ep_dots[rg] + ate, ep_visits[rg] + 1  # this episode's, after
+        ep_dots[rg], ep_visits[rg] = eaten_now, entered
+        idle = t - last[cell]
+        last[cell] = t
+        flat(s.ep_seen)[cell] = True
+        flat(s.ep_seen_state)[at((-1, p.neighbors.shape[1]), cell, a)] = True
+        flat(reward)[rk] = (
             np.where(ate, p.dot_value[c1], 0.0)
             + per_row(p.incremental_value, rows)
             * np.minimum(1.0, idle / per_row(p.idle_horizon, rows))
-            + per_row(p.lambda_weight, rows) * s.ep_dots[rows, g] / s.ep_visits[rows, g]
+            + per_row(p.lambda_weight, rows) * eaten_now / entered
         )
-        eaten[rows, k] = ate
-        s.head[rows, k] = a
+        flat(eaten)[rk] = ate
+        flat(s.head)[rk] = a
     if p.battery:
         # yielding (pushed aside, or stepping out of a station's pocket) costs nothing
         yielded = moved & (~res.as_asked | yielding)
@@ -795,7 +802,7 @@ def step(
     s.wait = np.where(failed, s.wait + 1, 0)
     # the robot standing in the asked cell (with robots passing each other, none)
     blocked = asked & ~res.as_asked & p.avoid_collisions
-    blocked_by = np.where(blocked, s.occ[ar, np.maximum(want, 0)], -1)
+    blocked_by = np.where(blocked, flat(s.occ)[at(s.occ.shape, ar, np.maximum(want, 0))], -1)
     traffic.pass_token(s, p, want, res, progressed)
     s.steps_done[active] = t
     ends = _end_episodes(s, p)

@@ -43,6 +43,7 @@ from typing import TYPE_CHECKING
 
 import numpy as np
 
+from qpatrol.util.arrays import at, flat
 from qpatrol.world import battery, interference
 
 if TYPE_CHECKING:
@@ -142,23 +143,31 @@ def resolve(s: State, p: Params, want: np.ndarray, plans: bool = False) -> Resol
     # 2. everyone else, in priority order, into cells empty at that moment (not two
     # robots that exchanged tasks: their plans changed)
     want = np.where(swapped >= 0, -1, want)
-    order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
+    if K == 1:  # a lone robot goes first
+        order = np.zeros((R, 1), dtype=np.int64)
+    else:
+        order = np.argsort(-priority(s, s.t), axis=1, kind="stable")
     rows_all = np.arange(R)
+    robot0 = at((R, K), rows_all, 0)  # each run's robot 0, flat in [R, K], and cell 0 in occ
+    cell0 = at(s.occ.shape, rows_all, 0)
+    occ, pos, wants, done, asked = flat(s.occ), flat(s.pos), flat(want), flat(moved), flat(as_asked)
     progress = True
     while progress:
         progress = False
         for i in range(K):
             k = order[:, i]
-            w = want[rows_all, k]
-            ok = (w >= 0) & ~moved[rows_all, k]
-            ok &= s.occ[rows_all, np.maximum(w, 0)] < 0
+            rk = robot0 + k  # each run's i-th robot
+            w = wants[rk]
+            ok = (w >= 0) & ~done[rk]
+            ok &= occ[cell0 + np.maximum(w, 0)] < 0
             if ok.any():
-                rr, kk, ww = rows_all[ok], k[ok], w[ok]
-                s.occ[rr, s.pos[rr, kk]] = -1
-                s.occ[rr, ww] = kk
-                s.pos[rr, kk] = ww
-                moved[rr, kk] = as_asked[rr, kk] = True
-                progress = True
+                mover, ww = rk[ok], w[ok]
+                occ[cell0[ok] + pos[mover]] = -1
+                occ[cell0[ok] + ww] = k[ok]
+                pos[mover] = ww
+                done[mover] = asked[mover] = True
+                # a robot that left its cell may have emptied the one another asks for
+                progress = K > 1
     return res
 
 
@@ -361,5 +370,10 @@ def pass_token(
 
 
 def direction_of(p: Params, before: np.ndarray, after: np.ndarray) -> np.ndarray:
-    """int ``[R, K]``: the port (direction) of the move ``before -> after`` (0 if no move)."""
-    return (p.neighbors[before] == after[..., None]).argmax(axis=-1)
+    """int ``[R, K]``: the port (direction) of the move ``before -> after``, the lowest
+    port of ``before`` leading to ``after`` (0 if no move)."""
+    nbrs = np.take(p.neighbors, before, axis=0)  # [R, K, D]
+    out = np.zeros(before.shape, dtype=np.int64)
+    for d in range(nbrs.shape[-1] - 1, -1, -1):  # the lowest port written last
+        np.copyto(out, d, where=nbrs[..., d] == after)
+    return out
