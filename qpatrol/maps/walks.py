@@ -623,29 +623,10 @@ class _Corridors:
     def __init__(self, nb: np.ndarray, back: np.ndarray):
         n, ports = nb.shape
         adj, bk = nb.tolist(), back.tolist()
-        cut = [[False] * ports for _ in range(n)]
-        self.bridges = []
-        for u, v in _bridges(nb):
-            self.bridges.append((u, adj[u].index(v)))
-            for x, y in ((u, v), (v, u)):
-                for p in range(ports):
-                    if adj[x][p] == y:
-                        cut[x][p] = True
-        label = [-1] * n
-        pieces = 0
-        for s in range(n):
-            if label[s] >= 0:
-                continue
-            label[s] = pieces
-            stack = [s]
-            while stack:
-                v = stack.pop()
-                for p, w in enumerate(adj[v]):
-                    if w >= 0 and label[w] < 0 and not cut[v][p]:
-                        label[w] = pieces
-                        stack.append(w)
-            pieces += 1
-        lab = np.array(label, dtype=np.int64)
+        bridges = _bridges(nb)
+        self.bridges = [(u, adj[u].index(v)) for u, v in bridges]
+        lab = _components(nb, {(u, v) for u, v in bridges} | {(v, u) for u, v in bridges})
+        label = lab.tolist()
         inside = (nb >= 0) & (lab[np.maximum(nb, 0)] == lab[:, None])
         degree = inside.sum(axis=1).tolist()
         self.label, self.degree = label, degree
