@@ -160,3 +160,18 @@ def rooms(rows: int, cols: int, size: int, seed: int, stub: int = 2, loops: floa
     r1, c1 = corner(int(rng.integers(rows)), int(rng.integers(cols)))
     grid[r1 + int(rng.integers(size)), c1 + int(rng.integers(size))] = "H"
     return _text(grid, f"rooms-{rows}x{cols}x{size}-{seed}")
+
+
+def reachable(grid: np.ndarray) -> np.ndarray:
+    """bool, grid-shaped: the free squares reachable from the corner (0, 0)."""
+    seen = np.zeros(grid.shape, dtype=bool)
+    seen[0, 0] = True
+    stack = [(0, 0)]
+    while stack:
+        r, c = stack.pop()
+        for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
+            inside = 0 <= rr < grid.shape[0] and 0 <= cc < grid.shape[1]
+            if inside and grid[rr, cc] != "#" and not seen[rr, cc]:
+                seen[rr, cc] = True
+                stack.append((rr, cc))
+    return seen

@@ -6,6 +6,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
+from mazes import reachable
 
 from qpatrol.maps import bfs, get_map, parse_map, walks
 from qpatrol.maps.walks import (
@@ -158,28 +159,13 @@ def test_bound_and_walk_against_brute_force(seed):
     rng = np.random.default_rng(seed)
     grid = np.where(rng.random((4, 5)) < 0.3, "#", ".")
     grid[0, 0] = "."
-    grid[~_reachable(grid)] = "#"
+    grid[~reachable(grid)] = "#"
     m = parse_map("\n".join("".join(r) for r in grid) + "\n")
     cells = np.flatnonzero(bfs(m.neighbors, 0) <= rng.integers(2, 8))
     opt = shortest_closed_cover(m, cells) if cells.size > 1 else 1
     walk, bound = check(m, cells)
     assert bound <= opt <= len(walk)
     assert len(walk) == opt  # tiny regions: the search finds the optimum
-
-
-def _reachable(grid: np.ndarray) -> np.ndarray:
-    """bool, grid-shaped: the free squares reachable from the corner (0, 0)."""
-    seen = np.zeros(grid.shape, dtype=bool)
-    seen[0, 0] = True
-    stack = [(0, 0)]
-    while stack:
-        r, c = stack.pop()
-        for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-            inside = 0 <= rr < grid.shape[0] and 0 <= cc < grid.shape[1]
-            if inside and grid[rr, cc] != "#" and not seen[rr, cc]:
-                seen[rr, cc] = True
-                stack.append((rr, cc))
-    return seen
 
 
 # --- shipped maps ------------------------------------------------------------------

@@ -13,7 +13,7 @@ import numpy as np
 import pytest
 from hypothesis import given, settings
 from hypothesis import strategies as st
-from mazes import random_maze
+from mazes import random_maze, reachable
 
 from qpatrol.maps import parse_map, walks
 
@@ -117,16 +117,7 @@ def blob(rows: int, cols: int, seed: int, walls: float) -> str:
     rng = np.random.default_rng(seed)
     grid = np.where(rng.random((rows, cols)) < walls, "#", ".")
     grid[0, 0] = "."
-    seen = np.zeros(grid.shape, dtype=bool)
-    seen[0, 0] = True
-    stack = [(0, 0)]
-    while stack:
-        r, c = stack.pop()
-        for rr, cc in ((r - 1, c), (r + 1, c), (r, c - 1), (r, c + 1)):
-            if 0 <= rr < rows and 0 <= cc < cols and grid[rr, cc] == "." and not seen[rr, cc]:
-                seen[rr, cc] = True
-                stack.append((rr, cc))
-    grid[~seen] = "#"
+    grid[~reachable(grid)] = "#"
     return "\n".join("".join(r) for r in grid) + "\n"
 
 
