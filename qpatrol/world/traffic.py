@@ -114,9 +114,10 @@ def resolve(s: State, p: Params, want: np.ndarray, plans: bool = False) -> Resol
 
     Args:
         want: int ``[R, K]``, the cell each robot asks to enter, -1 for no move.
-        plans: the strategy's robots keep their aims until reached or exchanged
-            (:attr:`qpatrol.strategies.base.Strategy.keeps_plans`): a holder head on
-            with one of them hands its task on rather than pushing (:func:`head_on`).
+        plans: the strategy's robots' goals are tasks allocated to them
+            (:attr:`qpatrol.strategies.base.Strategy.keeps_plans`; the engines pass it on
+            patrol graphs with waypoints): a holder head on with one of them hands its
+            task on rather than pushing (:func:`head_on`).
     """
     R, K = s.pos.shape
     moved = np.zeros((R, K), dtype=bool)

@@ -271,9 +271,10 @@ def resolve(r, t, tok, t_mod, battery, avoid, p, s, w, plans=False):
     moves first (:func:`holder_moves`; if it cannot, or head on with a patrolling robot,
     :func:`hand_on`), then the others in
     priority order (:func:`priority`), each into a cell empty at that moment, but two
-    robots that exchanged tasks (``plans``: the strategy keeps its robots' aims, and
-    a holder head on with one hands on). Sets ``w.moved``, ``w.as_asked``, ``w.swapped``;
-    returns the robot that received the failed holder's task or age (-1: none)."""
+    robots that exchanged tasks (``plans``: the robots' goals are allocated tasks, on a
+    patrol graph with waypoints; a holder head on with one hands on). Sets ``w.moved``,
+    ``w.as_asked``, ``w.swapped``; returns the robot that received the failed holder's
+    task or age (-1: none)."""
     n_agents = s.pos.shape[1]
     pos_r, occ_r, mode_r = s.pos[r], s.occ[r], s.mode[r]
     want, moved, as_asked, order, key = w.want, w.moved, w.as_asked, w.order, w.key
