@@ -3,7 +3,10 @@
 For each (map, strategy, K, battery) the runs of ``qpatrol train`` with the shipped
 defaults but these keys; counts the runs that are not ``live`` (a stretch without
 progress above ``stall_bound``, or a target unvisited for the whole window) and those
-that leave a target unvisited, and writes every run's summary row to a CSV. Teams the
+that leave a target unvisited, and, for those, whether the same run (config and seed)
+under ``none``, robots ignoring each other, leaves a target unvisited too: then the
+strategy leaves it so, not the rules. Writes every run's summary row to a CSV
+(``coverage_none``: that run's coverage under ``none``, empty where not run). Teams the
 config refuses (the density and room rules) are listed as refused.
 
     python benchmarks/liveness.py --out /tmp/liveness.csv [--runs 2 --steps 6000]
@@ -49,8 +52,17 @@ def main() -> None:
                     except ConfigError as e:
                         refused.append((mp, pol, k, bat, str(e)))
                         continue
-                    for r in res.summary:
-                        rows.append({"map": mp, "policy": pol, "agents": k, "battery": bat, **r})
+                    # a target unvisited: the same runs with robots that ignore each
+                    # other say whether the strategy leaves it so without the rules
+                    alone = [None] * len(res.summary)
+                    if any(r["coverage"] < 1.0 for r in res.summary):
+                        flat["team.interaction"] = "none"
+                        alone = [r["coverage"] for r in simulate(from_flat(flat)).summary]
+                    for r, cov in zip(res.summary, alone, strict=True):
+                        rows.append(
+                            {"map": mp, "policy": pol, "agents": k, "battery": bat, **r,
+                             "coverage_none": cov}
+                        )  # fmt: skip
             done = pd.DataFrame(rows)
             bad = done[~done["live"].astype(bool)] if len(done) else done
             print(
@@ -64,7 +76,17 @@ def main() -> None:
     unvisited = df[df["coverage"] < 1.0]
     print(f"{len(df)} runs, {len(refused)} teams refused; not live: {len(not_live)}")
     print(f"a target unvisited for the whole window: {len(unvisited)}")
-    cols = ["map", "policy", "agents", "battery", "run", "coverage", "max_stall", "stall_bound"]
+    alone = unvisited["coverage_none"] < 1.0
+    print(
+        f"  of which the same run under `none` leaves a target unvisited too: "
+        f"{int(alone.sum())} (" + ", ".join(
+            f"{p} {n}" for p, n in unvisited[alone].groupby("policy").size().items()
+        ) + f"); only under `exclusive`: {int((~alone).sum())}"
+    )  # fmt: skip
+    cols = [
+        "map", "policy", "agents", "battery", "run", "coverage", "coverage_none", "max_stall",
+        "stall_bound",
+    ]  # fmt: skip
     if len(not_live):
         print(not_live[cols].to_string(index=False))
     if len(unvisited):

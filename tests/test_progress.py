@@ -142,6 +142,43 @@ def test_walk_followers_crowding_dead_end_spurs_turn_round_and_stay_live():
     assert r["live"] and r["coverage"] == 1.0 and r["max_stall"] <= r["stall_bound"], r
 
 
+def test_walk_followers_exchanging_plans_exchange_their_tasks_ages():
+    """16 ``learned-tour`` robots on ps_example, 2 runs: two robots that exchange plans
+    before they meet exchange their tasks' ages too, and a task handed to the robot on its
+    aim ends. Every run is live, every vertex visited, and the engines agree on every
+    measure."""
+    by_engine = [_on_ps_example("learned-tour", 16, 2, 1500, e) for e in ("numpy", "numba")]
+    assert by_engine[0] == by_engine[1]
+    for r in by_engine[0]:
+        assert r["live"] and r["coverage"] == 1.0 and r["max_stall"] <= r["stall_bound"], r
+
+
+def test_plans_exchanged_without_their_ages_leave_a_robot_stalled(monkeypatch):
+    """Deliberate break: plans exchanged before meeting leave the ages where they were. In
+    the second run a robot travelling ps_example's spur between vertices 5 and 1 meets a
+    robot at each end, is handed back the plan behind it each time and hands on its own,
+    which the other carries on at once: it shuttles on the spur, its age grows past the
+    bound while the plans it passes on advance, and it keeps the right of way."""
+    from qpatrol.strategies import follow
+
+    monkeypatch.setattr(follow.WalkFollower, "ages_with_plans", False)
+    runs = _on_ps_example("learned-tour", 16, 2, 1500, "numpy")
+    assert runs[1]["max_stall"] > runs[1]["stall_bound"] and not runs[1]["live"], runs[1]
+
+
+def test_tasks_handed_to_robots_on_their_aims_must_end(monkeypatch):
+    """Deliberate break: ages go with the plans, but a task handed to the robot standing
+    on its aim does not end. 16 ``cyclic`` robots on ps_example: the holder of the right
+    of way, on the edge into the dead end 7, cannot push the robot waiting there; each
+    step the two exchange plans (and ages) and the world hands the tasks back (and the
+    ages), so the old age never ends and the team freezes."""
+    from qpatrol.strategies import follow
+
+    monkeypatch.setattr(follow.WalkFollower, "handed_aims_end", False)
+    runs = _on_ps_example("cyclic", 16, 2, 2500, "numpy")
+    assert runs[1]["max_stall"] > runs[1]["stall_bound"] and not runs[1]["live"], runs[1]
+
+
 def _far_goals(engine: str) -> dict:
     """16 ``dta-ssi-part`` robots on ps_cumberland, battery off, ``exclusive``: one run
     of 1,200 steps, warm-up 200."""

@@ -73,6 +73,13 @@ class WalkFollower(base.Strategy):
     #: Robots about to meet head-on exchange plans before they move (a test switches
     #: it off: they then meet, and only exchange once they blocked each other).
     exchange_early: bool = True
+    #: Robots that exchange plans before meeting exchange the ages of their tasks too, and
+    #: a task handed to the robot standing on its aim ends (a test switches it off: a
+    #: robot handed back plan after plan then shows no progress while its plans advance).
+    ages_with_plans: bool = True
+    #: ... and a task handed so to the robot standing on its aim ends (a test switches it
+    #: off: a holder that cannot enter a dead end gets its old age back at each exchange).
+    handed_aims_end: bool = True
     plans_on_edges = True
 
     def __init__(
@@ -197,7 +204,10 @@ class WalkFollower(base.Strategy):
 
     def _exchange_before_meeting(self, obs: Observation, ask: np.ndarray) -> np.ndarray:
         """Two choosing robots each of whose next cell is the other's cell swap walks,
-        targets and spacings before they move; bool ``[R, K]``, the robots that did.
+        targets and spacings before they move, and the ages of their tasks
+        (``State.since``), as the world's exchange of tasks does; a task handed to the
+        robot standing on its aim (``State.aim`` of the step before) ends there, as if the
+        two had passed through each other. Returns bool ``[R, K]``, the robots that swapped.
 
         A robot's next cell is the one it asks for, or for a robot waiting on its target
         the walk's cell after it."""
@@ -220,6 +230,16 @@ class WalkFollower(base.Strategy):
         for arr in (self.wid, self.target, self.spacing):
             arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
         swapped[rr, kk] = swapped[rr, jj] = True
+        if not self.ages_with_plans:
+            return swapped
+        # the tasks' ages go with the plans, as in the world's exchange of tasks (rule 2),
+        # and a task handed to the robot standing on its aim ends there
+        since = obs.state.since
+        since[rr, kk], since[rr, jj] = since[rr, jj].copy(), since[rr, kk].copy()
+        aim = obs.state.aim  # the aims of the tasks, as of the step before
+        ended = np.zeros_like(swapped)
+        ended[rr, kk], ended[rr, jj] = pos[rr, kk] == aim[rr, jj], pos[rr, jj] == aim[rr, kk]
+        since[ended & self.handed_aims_end] = obs.state.t + 1
         return swapped
 
     def _skip_held_pockets(self, obs: Observation) -> None:
