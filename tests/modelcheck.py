@@ -82,6 +82,7 @@ from qpatrol import world
 from qpatrol.config import ConfigError, from_flat
 from qpatrol.maps import Map, parse_map
 from qpatrol.strategies.base import prefer_open
+from qpatrol.world import traffic
 
 #: State fields the rules never read (strategies, rewards, episodes, measures only);
 #: ``occ`` and ``reserved`` are derived from positions and held stations (and checked).
@@ -124,6 +125,9 @@ class Case:
     adversary: str = "open"  # 'open', 'legal' or 'goal'
     # the holder head on with a goal robot exchanges tasks (rule 2 for dta robots)
     head_on: bool = False
+    # two goal robots each of whose next cell is the other's exchange goals and tasks
+    # before the step (the walk followers' exchange before meeting)
+    early: bool = False
 
     def label(self) -> str:
         rows = [r for r in self.text.splitlines() if r and not r.startswith(";")]
@@ -135,6 +139,7 @@ class Case:
             else "battery off"
         )
         how = " head-on exchange" if self.head_on else ""
+        how += " exchange before meeting" if self.early else ""
         return f"K={self.k} {bat} adversary={self.adversary}{how} map " + "/".join(rows)
 
 
@@ -288,8 +293,11 @@ class Checker:
         oldest_all = np.where(on_map, s.since, np.iinfo(np.int64).max).min(axis=1)
         obs = world.begin_step(s, self.p)
         aim = None
+        pre = None
         if self.case.adversary == "goal":
             src, choice, aim = self._goal_options(s, obs)
+            if self.case.early:
+                src, pre, choice, aim = self._exchange_options(s, obs, src, choice, aim)
         else:
             allowed = prefer_open(obs) if self.case.adversary == "open" else obs.legal
             tab = self.table
@@ -305,6 +313,9 @@ class Checker:
         s2 = _rows_of(s, src)
         obs2 = _rows_of(obs, src)
         obs2.state = s2
+        exchanged = np.zeros(choice.shape, dtype=bool)
+        if pre is not None:  # the tasks go with the goals exchanged (the world's rule)
+            exchanged = self.exchange_before_meeting(s2, pre)
         out = world.step(s2, self.p, obs2, choice, aim, plans=self.case.head_on)
         # safety on every transition: one robot per cell, no swaps, moves between
         # neighbours only, no charge below 0
@@ -323,10 +334,87 @@ class Checker:
         # robot i fails: it has a task, its task did not end, and it did not hand it on
         # (as the holder, to the robot in its way: traffic.hand_on); the oldest age is
         # kept: a robot on the map still has the age that was the oldest
-        gave = (out.swapped >= 0) & holder
+        # (or to the robot it exchanged goals with before the step: its task went on,
+        # or ended there)
+        gave = ((out.swapped >= 0) & holder) | exchanged
         fail = task & ~out.progressed & ~gave
         kept = ((s2.since == oldest) & (s2.mode != world.GONE) & ~out.progressed).any(axis=1)
-        return src, succ, fail, out.moved, choice, aim, kept
+        # the witnesses keep the asks before an exchange (the exchange and the asks after
+        # it follow from them and the aims: replay)
+        return src, succ, fail, out.moved, choice if pre is None else pre, aim, kept
+
+    def _pairs(self, pos: np.ndarray, choice: np.ndarray) -> tuple[np.ndarray, ...]:
+        """The robots about to meet (int ``[B]`` each: rows, k, j with k < j): both
+        choosing, each asking for the other's cell (``pos``, ``choice`` int ``[M, K]``)."""
+        nxt = np.where(choice >= 0, self.p.neighbors[pos, np.maximum(choice, 0)], -1)
+        k = np.arange(self.case.k)
+        meets = (nxt[:, :, None] == pos[:, None, :]) & (nxt[:, None, :] == pos[:, :, None])
+        meets &= (k[:, None] < k[None, :])[None]
+        return np.nonzero(meets)
+
+    def exchange_before_meeting(self, s: world.State, pre: np.ndarray) -> np.ndarray:
+        """Two robots of ``s`` (rows: options) each asking for the other's cell (``pre``,
+        their asks before the exchange) exchange their tasks as the walk followers do
+        (:func:`qpatrol.world.traffic.exchange_plans`: the ages and the right of way go
+        with the goals, a task handed to the robot on its aim ends). Returns bool ``[M,
+        K]``, the robots that exchanged."""
+        rr, kk, jj = self._pairs(s.pos, pre)
+        traffic.exchange_plans(s, rr, kk, jj)
+        out = np.zeros(pre.shape, dtype=bool)
+        out[rr, kk] = out[rr, jj] = True
+        return out
+
+    def asks_after(self, pos, is_open, pre, aim, movers=None) -> list[int]:
+        """The asks of one option (``pos``, ``pre``, ``aim`` int ``[K]``; ``is_open`` bool
+        ``[K, D]``): a robot that exchanged goals (``movers``; None: found from ``pre``)
+        asks for the lowest open port on a shortest path to its new aim (else the lowest
+        such port: it insists); the others as before."""
+        if movers is None:
+            _, kk, jj = self._pairs(np.asarray(pos)[None], np.asarray(pre)[None])
+            movers = kk.tolist() + jj.tolist()
+        out = [int(x) for x in pre]
+        toward = self._toward()
+        for k in movers:
+            on_path = toward[int(pos[k])][int(aim[k])]
+            open_ = [d for d in on_path if is_open[k][d]]
+            out[k] = (open_ or on_path)[0]
+        return out
+
+    def _exchange_options(self, s, obs, src, pre, aim):
+        """The goal adversary's options with the exchange before meeting (``Case.early``):
+        ``(src, pre, choice, aim)``. Two choosing robots each asking for the other's cell
+        exchange goals; a robot handed the goal it stands on (its task ends) is given
+        any target but its cell outside a pocket another robot holds, as at the end of
+        a task; the robots that exchanged then ask towards their goals
+        (:meth:`asks_after`). ``pre``: the asks before the exchange."""
+        targets = np.flatnonzero(self.p.target).tolist()
+        held = self._held_by_other(s)
+        mm, kk, jj = self._pairs(s.pos[src], pre)
+        keep = np.ones(src.size, dtype=bool)
+        keep[mm] = False
+        out_src, out_pre, out_choice, out_aim = [src[keep]], [pre[keep]], [pre[keep]], [aim[keep]]
+        pairs: dict[int, list[tuple[int, int]]] = {}
+        for m, k, j in zip(mm.tolist(), kk.tolist(), jj.tolist(), strict=True):
+            pairs.setdefault(m, []).append((k, j))
+        pos_all, open_all = s.pos.tolist(), obs.open.tolist()
+        for m, ms in pairs.items():
+            r = int(src[m])
+            pos, aim_m = pos_all[r], aim[m].tolist()
+            goals = [[a] for a in aim_m]
+            for k, j in ms:
+                goals[k], goals[j] = [aim_m[j]], [aim_m[k]]
+            for k, j in ms:
+                for x in (k, j):
+                    if goals[x][0] == pos[x]:
+                        goals[x] = [y for y in targets if y != pos[x] and held[r][y] in (-1, x)]
+            combos = list(itertools.product(*goals))
+            out_src.append(np.full(len(combos), r, dtype=np.int64))
+            out_pre.append(np.repeat(pre[m][None], len(combos), axis=0))
+            out_aim.append(np.array(combos, dtype=np.int64))
+            movers = [x for pair in ms for x in pair]
+            asks = [self.asks_after(pos, open_all[r], pre[m], a, movers) for a in combos]
+            out_choice.append(np.array(asks, dtype=np.int64))
+        return tuple(np.concatenate(x) for x in (out_src, out_pre, out_choice, out_aim))
 
     def _held_by_other(self, s: world.State) -> list[list[int]]:
         """Per row of ``s`` and cell, the robot holding the station of the cell's pocket
@@ -613,7 +701,12 @@ def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
         assert ck.encode(s, s.t % K).tobytes() == key, f"state {n} differs from the graph"
         obs = world.begin_step(s, ck.p)
         aims = np.array([aim], dtype=np.int64) if ck.case.adversary == "goal" else None
-        world.step(s, ck.p, obs, np.array([ch], dtype=np.int64), aims, plans=ck.case.head_on)
+        asks = np.array([ch], dtype=np.int64)
+        if ck.case.early:  # the witness keeps the asks before the exchange
+            after = ck.asks_after(s.pos[0], obs.open[0], ch, aim)
+            ck.exchange_before_meeting(s, asks)
+            asks = np.array([after], dtype=np.int64)
+        world.step(s, ck.p, obs, asks, aims, plans=ck.case.head_on)
         if n >= len(w.prefix) and (n - len(w.prefix)) % len(w.cycle) == len(w.cycle) - 1:
             if w.robot < K:
                 waits.append(int(s.t - s.since[0, w.robot]))

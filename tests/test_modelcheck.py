@@ -83,6 +83,16 @@ def _cases(part: str, full: bool) -> list[mc.Case]:
             sizes, ks=range(2, 3), battery=True, adversary="goal", corridor=True
         )
         return [dataclasses.replace(c, head_on=True) for c in cases]
+    if part == "early":
+        # the goal adversary with the walk followers' exchange before meeting (goals, task
+        # ages and the right of way), battery off and on; the battery cases a sample of 24
+        # drawn with seed 1 (all 92 take 64 s of one core), every one in the full family
+        sizes = range(4, 7) if full else range(4, 6)
+        cases = mc.family(sizes, adversary="goal") + mc.family(
+            sizes, ks=range(2, 3), battery=True, adversary="goal", corridor=True,
+            sample=None if full else 24, seed=1,
+        )  # fmt: skip
+        return [dataclasses.replace(c, early=True) for c in cases]
     # three robots and two stations: rule (b) refuses every such case up to 6 cells, so
     # a sample of the accepted ones on 7 and 8 cells (stations at dead ends, junctions,
     # cut corridor cells and loops, and two at once), drawn with seed 1
@@ -193,6 +203,52 @@ def test_no_task_starves_with_goals_exchanged_head_on():
     assert all(r.case.head_on and r.case.adversary == "goal" for r in cases)
     assert len(cases) > 100
     _no_livelock(cases)
+
+
+def test_no_task_starves_with_goals_exchanged_before_meeting():
+    """Zero livelocks, battery off and on, when two robots each asking for the other's
+    cell exchange goals and the ages of their tasks before the step, and a task handed to
+    the robot on its aim ends (the walk followers' exchange before meeting)."""
+    cases, seconds = _explored("early")
+    print(f"\nmodel check, goals exchanged before meeting: {_summary(cases, seconds)}")
+    assert all(r.case.early and r.case.adversary == "goal" for r in cases)
+    assert len(cases) > 100 and sum(r.case.battery for r in cases) >= 24
+    _no_livelock(cases)
+
+
+def _ages_stay(s, rr, kk, jj):
+    """Goals exchanged, ages and right of way not."""
+
+
+def _no_end(s, rr, kk, jj):
+    """Ages and right of way exchanged; a task handed to the robot on its aim goes on."""
+    s.since[rr, kk], s.since[rr, jj] = s.since[rr, jj].copy(), s.since[rr, kk].copy()
+    tok = s.token[rr]
+    held_k, held_j = tok == kk, tok == jj
+    s.token[rr[held_k]] = jj[held_k]
+    s.token[rr[held_j]] = kk[held_j]
+
+
+def _token_stays(s, rr, kk, jj):
+    """Ages exchanged and handed tasks ended, but the holder keeps the right of way."""
+    tok = s.token.copy()
+    _EXCHANGE(s, rr, kk, jj)
+    s.token[:] = tok
+
+
+_EXCHANGE = traffic.exchange_plans
+
+
+@pytest.mark.parametrize("broken", [_ages_stay, _no_end, _token_stays])
+def test_an_exchange_before_meeting_that_leaves_the_task_behind_livelocks(monkeypatch, broken):
+    """Deliberate breaks of the exchange before meeting (``traffic.exchange_plans``),
+    each found on the map ``..#/...`` with two robots: the ages stay with the robots (a
+    robot handed back goal after goal keeps its age and never ends a task), a task handed
+    to the robot on its aim does not end (the old age comes back), or the holder keeps
+    the right of way after handing its task on (it pushes the robot carrying it back)."""
+    monkeypatch.setattr(traffic, "exchange_plans", broken)
+    res = mc.Checker(mc.Case("..#\n...\n", 2, adversary="goal", early=True)).explore()
+    assert res.complete and res.livelocks
 
 
 def test_no_task_starves_with_three_robots_and_two_stations():

@@ -120,12 +120,14 @@ def test_without_the_age_insisting_robots_starve(monkeypatch):
     assert (np.diff(stalls) > 0).all()
 
 
-def _on_ps_example(policy: str, agents: int, runs: int, steps: int, engine: str) -> list[dict]:
+def _on_ps_example(
+    policy: str, agents: int, runs: int, steps: int, engine: str, battery: bool = False
+) -> list[dict]:
     """``agents`` robots of ``policy`` on ps_example (a patrol graph with dead-end spurs),
-    battery off, ``exclusive``: ``runs`` x ``steps``, warm-up 500."""
+    battery off (or on), ``exclusive``: ``runs`` x ``steps``, warm-up 500."""
     flat = {
         "map": "ps_example", "policy": policy, "agents": agents, "runs": runs, "steps": steps,
-        "record.warmup": 500, "battery.enabled": False, "team.interaction": "exclusive",
+        "record.warmup": 500, "battery.enabled": battery, "team.interaction": "exclusive",
         "engine": engine,
     }  # fmt: skip
     return simulate(from_flat(flat)).summary
@@ -166,17 +168,27 @@ def test_plans_exchanged_without_their_ages_leave_a_robot_stalled(monkeypatch):
     assert runs[1]["max_stall"] > runs[1]["stall_bound"] and not runs[1]["live"], runs[1]
 
 
-def test_tasks_handed_to_robots_on_their_aims_must_end(monkeypatch):
-    """Deliberate break: ages go with the plans, but a task handed to the robot standing
-    on its aim does not end. 16 ``cyclic`` robots on ps_example: the holder of the right
-    of way, on the edge into the dead end 7, cannot push the robot waiting there; each
-    step the two exchange plans (and ages) and the world hands the tasks back (and the
-    ages), so the old age never ends and the team freezes."""
+def test_walk_followers_with_a_common_plan_exchange_nothing():
+    """16 ``cyclic`` robots with the battery on ps_example, one run of 4,000 steps: two
+    robots about to meet with the same plan (walk and target: one waits on it, the other
+    comes in) exchange nothing, so the right of way stays with the holder. The run is live
+    and the engines agree on every measure."""
+    by_engine = [_on_ps_example("cyclic", 16, 1, 4000, e, battery=True) for e in ("numpy", "numba")]
+    assert by_engine[0] == by_engine[1]
+    (r,) = by_engine[0]
+    assert r["live"] and r["coverage"] == 1.0 and r["max_stall"] <= r["stall_bound"], r
+
+
+def test_walk_followers_exchanging_a_common_plan_freeze(monkeypatch):
+    """Deliberate break: robots with the same plan exchange it before meeting. The
+    holder, on the edge into vertex 12 where a robot waits on their common target, hands
+    it the right of way at every step; the waiting robot does not use it, and the team
+    freezes (from step 1,641)."""
     from qpatrol.strategies import follow
 
-    monkeypatch.setattr(follow.WalkFollower, "handed_aims_end", False)
-    runs = _on_ps_example("cyclic", 16, 2, 2500, "numpy")
-    assert runs[1]["max_stall"] > runs[1]["stall_bound"] and not runs[1]["live"], runs[1]
+    monkeypatch.setattr(follow.WalkFollower, "skip_same_plans", False)
+    (r,) = _on_ps_example("cyclic", 16, 1, 4000, "numpy", battery=True)
+    assert r["max_stall"] > r["stall_bound"] and not r["live"], r
 
 
 def _far_goals(engine: str) -> dict:

@@ -492,6 +492,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                 w.aim[k] = -1
             if spec == SPEC_ANY:
                 compiled.act(code, r, t, w.uniforms, battery, p, s, w, sp)
+                tok = s.token[r]  # (walk followers exchanging plans pass it on)
                 if p.travels:
                     if avoid and compiled.walk_follower(code):
                         moves.turn_round(r, p, s, w)

@@ -45,6 +45,7 @@ import numpy as np
 
 from qpatrol.maps import bfs, core
 from qpatrol.strategies import base
+from qpatrol.world import traffic
 
 if TYPE_CHECKING:
     from qpatrol.config import Config
@@ -77,9 +78,10 @@ class WalkFollower(base.Strategy):
     #: a task handed to the robot standing on its aim ends (a test switches it off: a
     #: robot handed back plan after plan then shows no progress while its plans advance).
     ages_with_plans: bool = True
-    #: ... and a task handed so to the robot standing on its aim ends (a test switches it
-    #: off: a holder that cannot enter a dead end gets its old age back at each exchange).
-    handed_aims_end: bool = True
+    #: Two robots with the same plan (walk and target) exchange nothing (a test switches
+    #: it off: the holder, exchanging with a robot waiting on their common target, hands
+    #: it the right of way at every step, and a crowded team freezes).
+    skip_same_plans: bool = True
     plans_on_edges = True
 
     def __init__(
@@ -203,10 +205,10 @@ class WalkFollower(base.Strategy):
         return np.where(obs.choosing, self.step_towards(obs.state.pos, self.goal_cells()), -1)
 
     def _exchange_before_meeting(self, obs: Observation, ask: np.ndarray) -> np.ndarray:
-        """Two choosing robots each of whose next cell is the other's cell swap walks,
-        targets and spacings before they move, and the ages of their tasks
-        (``State.since``), as the world's exchange of tasks does; a task handed to the
-        robot standing on its aim (``State.aim`` of the step before) ends there, as if the
+        """Two choosing robots each of whose next cell is the other's cell, and whose
+        plans differ, swap walks, targets and spacings before they move, and their tasks go
+        with the plans (:func:`qpatrol.world.traffic.exchange_plans`: the ages and the
+        right of way; a task handed to the robot standing on its aim ends there), as if the
         two had passed through each other. Returns bool ``[R, K]``, the robots that swapped.
 
         A robot's next cell is the one it asks for, or for a robot waiting on its target
@@ -223,6 +225,12 @@ class WalkFollower(base.Strategy):
         k = np.arange(self.n_agents)
         meets = (nxt[:, :, None] == pos[:, None, :]) & (nxt[:, None, :] == pos[:, :, None])
         meets &= (k[:, None] < k[None, :])[None]  # [R, k, j], k < j
+        # robots with the same plan have nothing to exchange (a test switches it off)
+        if self.skip_same_plans:
+            same = (self.wid[:, :, None] == self.wid[:, None, :]) & (
+                self.target[:, :, None] == self.target[:, None, :]
+            )
+            meets &= ~same
         rr, kk, jj = np.nonzero(meets)
         swapped = np.zeros_like(obs.choosing)
         if rr.size == 0:
@@ -230,16 +238,8 @@ class WalkFollower(base.Strategy):
         for arr in (self.wid, self.target, self.spacing):
             arr[rr, kk], arr[rr, jj] = arr[rr, jj].copy(), arr[rr, kk].copy()
         swapped[rr, kk] = swapped[rr, jj] = True
-        if not self.ages_with_plans:
-            return swapped
-        # the tasks' ages go with the plans, as in the world's exchange of tasks (rule 2),
-        # and a task handed to the robot standing on its aim ends there
-        since = obs.state.since
-        since[rr, kk], since[rr, jj] = since[rr, jj].copy(), since[rr, kk].copy()
-        aim = obs.state.aim  # the aims of the tasks, as of the step before
-        ended = np.zeros_like(swapped)
-        ended[rr, kk], ended[rr, jj] = pos[rr, kk] == aim[rr, jj], pos[rr, jj] == aim[rr, kk]
-        since[ended & self.handed_aims_end] = obs.state.t + 1
+        if self.ages_with_plans:  # the tasks go with the plans (the world's rule)
+            traffic.exchange_plans(obs.state, rr, kk, jj)
         return swapped
 
     def _skip_held_pockets(self, obs: Observation) -> None:

@@ -267,6 +267,26 @@ def hand_on(s: State, r: int, k: int, b: int, res: Resolution) -> None:
     res.handoff[r] = b
 
 
+def exchange_plans(s: State, rr: np.ndarray, kk: np.ndarray, jj: np.ndarray) -> np.ndarray:
+    """Robots ``kk`` and ``jj`` of runs ``rr`` (int ``[B]`` each, pairs) exchanged plans
+    before the step, as two walk followers about to meet do (their cells entered are
+    those of passing through each other): their tasks' ages go with the plans, as in
+    :func:`hand_on`, and so does the right of way (``State.token``: the holder's task,
+    carried on by the other, moves first); a task handed to the robot standing on its
+    aim (``State.aim`` as of the step before) ends there (``since`` the step about to be
+    taken). Returns bool ``[R, K]``, the robots whose task so ended."""
+    since, aim, pos = s.since, s.aim, s.pos
+    since[rr, kk], since[rr, jj] = since[rr, jj].copy(), since[rr, kk].copy()
+    tok = s.token[rr]  # (a run's holder is in one pair at most; a run may have several)
+    held_k, held_j = tok == kk, tok == jj
+    s.token[rr[held_k]] = jj[held_k]
+    s.token[rr[held_j]] = kk[held_j]
+    ended = np.zeros(pos.shape, dtype=bool)
+    ended[rr, kk], ended[rr, jj] = pos[rr, kk] == aim[rr, jj], pos[rr, jj] == aim[rr, kk]
+    since[ended] = s.t + 1
+    return ended
+
+
 #: Neighbour lists of the maps seen (``id(neighbors) -> (neighbors, lists)``): the
 #: searches of pushes run on Python lists, several times faster than on array items.
 _LISTS: dict[int, tuple[np.ndarray, list[list[int]]]] = {}

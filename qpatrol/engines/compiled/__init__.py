@@ -166,7 +166,7 @@ def act(code, r, t, ur, battery, p, s, w, sp):
             walk, length = tour.routes(sp.cell_i, r, sp.ipar)
         follow.act(
             r, t, nbrs, p.target, battery, p.pocket_of, pos, s.reserved, s.mode, s.aim,
-            s.since, choosing, ask, sp.ipar, sp.robot_i, walk, length, sp.dist,
+            s.since, s.token, choosing, ask, sp.ipar, sp.robot_i, walk, length, sp.dist,
         )  # fmt: skip
         follow.aims(r, sp.robot_i, walk, w.aim)
         if p.travels:  # (base.walking: the world's choosing again)

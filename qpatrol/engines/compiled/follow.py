@@ -228,16 +228,17 @@ def _skip_and_ask(
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
 def act(
-    r, t, nbrs, target, battery, pocket_of, pos, reserved, mode, aim, since, choosing, ask,
-    ipar, robot_i, walk, length, dist,
+    r, t, nbrs, target, battery, pocket_of, pos, reserved, mode, aim, since, token, choosing,
+    ask, ipar, robot_i, walk, length, dist,
 ):  # fmt: skip
     """``ask[k]`` for every robot of run ``r`` at step ``t``: towards its target, -1 for
     robots not choosing (or on their target). ``mode`` int ``[R, K]``: the robots' modes
     (a robot that failed, GONE, is not of the team that gathers); ``aim``, ``since`` int
     ``[R, K]``: the robots' tasks (``State.aim`` as of the step before, ``State.since``;
-    robots that swap plans before they meet swap their ages, and a task handed to the
-    robot standing on its aim ends); ``target`` bool ``[C]``: the map's targets, the cells
-    a robot may wait on."""
+    robots that swap plans before they meet swap their ages and the right of way,
+    ``token`` int ``[R]``, and a task handed to the robot standing on its aim ends:
+    :func:`qpatrol.world.traffic.exchange_plans`); ``target`` bool ``[C]``: the map's
+    targets, the cells a robot may wait on."""
     n_agents = choosing.shape[0]
     ri = robot_i[r]
     if ipar[0] != 0:  # cyclic: the team holds until it has gathered on its slots
@@ -276,11 +277,17 @@ def act(
         if ri[k, SCRATCH] < 0:
             continue
         for j in range(k + 1, n_agents):
-            if ri[k, SCRATCH] == pos[r, j] and ri[j, SCRATCH] == pos[r, k]:
+            same = ri[k, WID] == ri[j, WID] and ri[k, TARGET] == ri[j, TARGET]
+            if ri[k, SCRATCH] == pos[r, j] and ri[j, SCRATCH] == pos[r, k] and not same:
                 for col in (WID, TARGET, SPACING):
                     ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
-                # the ages go with the plans; a task handed to the robot on its aim ends
+                # the tasks go with the plans (traffic.exchange_plans): the ages, and a
+                # task handed to the robot on its aim ends
                 since[r, k], since[r, j] = since[r, j], since[r, k]
+                if token[r] == k:
+                    token[r] = j
+                elif token[r] == j:
+                    token[r] = k
                 if pos[r, k] == aim[r, j]:
                     since[r, k] = t
                 if pos[r, j] == aim[r, k]:
