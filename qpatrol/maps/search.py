@@ -146,9 +146,12 @@ def relax(neighbors: np.ndarray, source: int, near: np.ndarray) -> None:
     near[:] = d
 
 
-def components(neighbors: np.ndarray) -> np.ndarray:
+def components(
+    neighbors: np.ndarray, cut: set[tuple[int, int]] | frozenset = frozenset()
+) -> np.ndarray:
     """int ``[cells]``: the connected component of each cell, numbered from 0 in order of
-    their lowest cell."""
+    their lowest cell; the moves ``(c, x)`` in ``cut`` left out (list both ways to cut
+    an edge)."""
     n = neighbors.shape[0]
     label = np.full(n, -1, dtype=np.int64)
     nb = neighbors.tolist()
@@ -162,7 +165,7 @@ def components(neighbors: np.ndarray) -> np.ndarray:
         while stack:
             c = stack.pop()
             for x in nb[c]:
-                if x >= 0 and lab[x] < 0:
+                if x >= 0 and lab[x] < 0 and (not cut or (c, x) not in cut):
                     lab[x] = count
                     stack.append(x)
         count += 1

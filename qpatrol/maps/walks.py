@@ -43,6 +43,7 @@ from functools import lru_cache
 import numpy as np
 
 from qpatrol.maps import Map, all_pairs_distances, bfs
+from qpatrol.maps.search import components
 from qpatrol.maps.tours import _double_bridge, _mst, _nearest_neighbour
 
 __all__ = [
@@ -127,27 +128,6 @@ def _local_neighbors(m: Map, cells: np.ndarray) -> np.ndarray:
     return np.where(nb >= 0, local[np.maximum(nb, 0)], -1)
 
 
-def _components(nb: np.ndarray, cut: set[tuple[int, int]] = frozenset()) -> np.ndarray:
-    """int ``[n]``: connected component of each node (numbered from 0), edges in ``cut`` removed."""
-    n = nb.shape[0]
-    adj = nb.tolist()
-    label = [-1] * n
-    count = 0
-    for s in range(n):
-        if label[s] >= 0:
-            continue
-        label[s] = count
-        stack = [s]
-        while stack:
-            v = stack.pop()
-            for w in adj[v]:
-                if w >= 0 and label[w] < 0 and (v, w) not in cut:
-                    label[w] = count
-                    stack.append(w)
-        count += 1
-    return np.array(label, dtype=np.int64)
-
-
 def _where(m: Map, c: int) -> str:
     """`` at (row, col)`` of a grid cell; on a graph, which vertex or waypoint it is."""
     if not m.is_graph:
@@ -156,7 +136,7 @@ def _where(m: Map, c: int) -> str:
 
 
 def _require_connected(m: Map, cells: np.ndarray, nb: np.ndarray) -> None:
-    label = _components(nb)
+    label = components(nb)
     if label.max() > 0:
         a, b = cells[0], cells[int(np.argmax(label > 0))]
         raise ValueError(
@@ -186,7 +166,7 @@ def _colours(nb: np.ndarray, label: np.ndarray | None = None) -> tuple[np.ndarra
     swap in each piece.
     """
     if label is None:
-        label = _components(nb)
+        label = components(nb)
     n = nb.shape[0]
     adj, lab = nb.tolist(), label.tolist()
     colour = [-1] * n
@@ -271,7 +251,7 @@ def _two_edge_components(nb: np.ndarray) -> tuple[int, np.ndarray]:
     """``(bridges, label [n])``: bridge count and 2-edge-connected component of each node."""
     bridges = _bridges(nb)
     cut = {(u, v) for u, v in bridges} | {(v, u) for u, v in bridges}
-    return len(bridges), _components(nb, cut)
+    return len(bridges), components(nb, cut)
 
 
 def _parity_bound(m: Map, cells: np.ndarray, nb: np.ndarray) -> int:
@@ -625,7 +605,7 @@ class _Corridors:
         adj, bk = nb.tolist(), back.tolist()
         bridges = _bridges(nb)
         self.bridges = [(u, adj[u].index(v)) for u, v in bridges]
-        lab = _components(nb, {(u, v) for u, v in bridges} | {(v, u) for u, v in bridges})
+        lab = components(nb, {(u, v) for u, v in bridges} | {(v, u) for u, v in bridges})
         label = lab.tolist()
         inside = (nb >= 0) & (lab[np.maximum(nb, 0)] == lab[:, None])
         degree = inside.sum(axis=1).tolist()
@@ -1525,7 +1505,7 @@ def _region_cost(m: Map, cells: np.ndarray) -> int | None:
     :func:`_parity_bound` of the region's cells, after dropping the dead-end chains of
     waypoints that no walk needs (:func:`_prune_dead_ends`; a grid keeps all its cells)."""
     nb = _local_neighbors(m, cells)
-    if cells.size > 1 and _components(nb).max() > 0:
+    if cells.size > 1 and components(nb).max() > 0:
         return None
     if not m.target[cells].any():
         return None
