@@ -879,3 +879,29 @@ def test_a_task_ends_when_its_aim_is_entered_not_while_its_robot_stands_on_it():
     out = world.step(w.s, w.p, obs, np.array([[-1, -1]]), np.array([[3, 5]]))
     assert out.progressed[0].tolist() == [False, False]
     assert w.s.since[0].tolist() == [1, 0]
+
+
+def test_plans_exchanged_before_meeting_carry_their_tasks():
+    """``traffic.exchange_plans`` by hand: two pairs in one run, (0, 1) and (2, 3), the
+    holder of the right of way (robot 3) in the second. The ages are swapped within each
+    pair; a task handed to the robot standing on its aim ends (since = t + 1); the right
+    of way goes to the holder's partner, and a pair without the holder leaves it alone
+    (two pairs of one run: a scatter over the run's rows would let the last pair win)."""
+    from qpatrol.world import traffic
+
+    w = build("........\n", starts=[0, 1, 4, 5], agents=4, **{"team.avoid_collisions": True})
+    s = w.s
+    s.t = 10
+    s.since[:] = [[1, 2, 3, 4]]
+    # robot 0 heads for cell 1 (robot 1's), robot 1 for cell 0, robot 2 for 7, robot 3 for 4
+    s.aim[:] = [[1, 0, 7, 4]]
+    s.token[:] = 3
+    ended = traffic.exchange_plans(s, np.array([0, 0]), np.array([0, 2]), np.array([1, 3]))
+    # robot 0 gets robot 1's task (aim 0, its cell: ends), robot 1 robot 0's (aim 1: ends),
+    # robot 2 robot 3's (aim 4, its cell: ends), robot 3 robot 2's (aim 7: goes on, age 3)
+    assert ended.tolist() == [[True, True, True, False]]
+    assert s.since.tolist() == [[11, 11, 11, 3]]
+    assert s.token.tolist() == [2]
+    s.token[:] = 0  # the holder in the first pair, the second pair after it
+    traffic.exchange_plans(s, np.array([0, 0]), np.array([0, 2]), np.array([1, 3]))
+    assert s.token.tolist() == [1]
