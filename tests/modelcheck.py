@@ -375,9 +375,7 @@ class Checker:
         out = [int(x) for x in pre]
         toward = self._toward()
         for k in movers:
-            on_path = toward[int(pos[k])][int(aim[k])]
-            open_ = [d for d in on_path if is_open[k][d]]
-            out[k] = (open_ or on_path)[0]
+            out[k] = _ask_toward(toward[int(pos[k])][int(aim[k])], is_open[k])
         return out
 
     def _exchange_options(self, s, obs, src, pre, aim):
@@ -470,9 +468,7 @@ class Checker:
                 row = [] if goals else [(-1, -1)]
                 is_open = open_all[r][k]
                 for g in goals:
-                    on_path = toward[c][g]
-                    open_ = [d for d in on_path if is_open[d]]
-                    row.append(((open_ or on_path)[0], g))
+                    row.append((_ask_toward(toward[c][g], is_open), g))
                 options.append(row)
             for combo in itertools.product(*options):
                 src.append(r)
@@ -787,6 +783,13 @@ def dense_rank(v: np.ndarray, mask: np.ndarray, with_zero: bool) -> np.ndarray:
         zero_present = (mask & (v == 0)).any(axis=1, keepdims=True)
         rank = rank + ((v > 0) & ~zero_present)
     return np.where(mask, rank, 0)
+
+
+def _ask_toward(on_path: list[int], is_open) -> int:
+    """The goal adversary's ask: the lowest open port of ``on_path`` (the ports on a
+    shortest path to the goal, lowest first), else the lowest of them (it insists)."""
+    open_ = [d for d in on_path if is_open[d]]
+    return (open_ or on_path)[0]
 
 
 def _rows_of(obj, src: np.ndarray):

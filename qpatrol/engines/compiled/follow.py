@@ -281,8 +281,8 @@ def act(
             if ri[k, SCRATCH] == pos[r, j] and ri[j, SCRATCH] == pos[r, k] and not same:
                 for col in (WID, TARGET, SPACING):
                     ri[k, col], ri[j, col] = ri[j, col], ri[k, col]
-                # the tasks go with the plans (traffic.exchange_plans): the ages, and a
-                # task handed to the robot on its aim ends
+                # the tasks go with the plans (traffic.exchange_plans): the ages and the
+                # right of way, and a task handed to the robot on its aim ends
                 since[r, k], since[r, j] = since[r, j], since[r, k]
                 if token[r] == k:
                     token[r] = j
