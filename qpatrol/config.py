@@ -191,6 +191,15 @@ SCHEMA: tuple[Field, ...] = (
         used_by=QL,
     ),
     F(
+        "learning.table",
+        "choice",
+        "auto",
+        "Q-tables dense, or lazily with rows only for the cells a robot reads (same "
+        "results); auto: lazily above 256 MiB of dense tables per run",
+        choices=("auto", "dense", "lazy"),
+        used_by=QL,
+    ),
+    F(
         "learning.state_space",
         "choice",
         "cell_heading",

@@ -468,6 +468,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
         when = episodes.deadline(s.ep_start[r], p.max_ep, never)
         if spec == SPEC_QLEARNING:  # (the tables flat: a reshape is a call)
             gamma, epsilon, use_heading, q_f, n_f = qlearning.tables(sp, r)
+            slot_r = qlearning.slots(sp, r)  # (dense: the loops of their own read cells)
         sums = observe.sums_of(m, r)  # the measures' sums, in registers for the block
         rows_r = observe.rows_of(m, r)
         t_next_mod = (t0 + 1) % n_agents  # t % n_agents of the first step
@@ -500,7 +501,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
             else:  # (compiled.act of qlearning, the others' code not compiled)
                 qlearning.act(
                     w.uniforms, s.pos[r], s.head[r], w.open_mask, w.choosing, w.ask,
-                    epsilon, use_heading, q_f, ports_of(p.entry, p.nbrs.shape[1]),
+                    epsilon, use_heading, q_f, slot_r, ports_of(p.entry, p.nbrs.shape[1]),
                 )  # fmt: skip
             if spec == SPEC_ANY and battery:
                 stations.ask(r, p, s, w)
@@ -531,7 +532,7 @@ def run_block(spec_marker, t0, n_steps, words, p, code, sp, s, m, o, w):
                     compiled.exchange(code, r, w, sp)
                 n_up = compiled.learn(code, r, t, p, s, w, sp, o, n_up)
             else:
-                n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
+                n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f, slot_r)
             if spec == SPEC_ANY and t == p.fail_at:  # robots fail, before the step is measured
                 waiting, longest = fail.apply(r, s)
             # --- the measures (Measures.observe), the timeline, the trajectory ring ----
@@ -686,6 +687,8 @@ class Loop:
         # (a graph with waypoints, whose learners decide at vertices: the general loop)
         plain = not p.battery and self.timeline is None and not p.failures_at
         plain = plain and p.onward is None and p.ball is None  # (no interference stops)
+        # (tables kept lazily: the general loop, whose learner reads rows by cell)
+        plain = plain and self.pack.slot.shape[2] == 1
         if self.code == compiled.QLEARNING and plain:
             self.spec = SPEC_QLEARNING
             if not rec.wants_updates:

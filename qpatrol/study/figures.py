@@ -43,6 +43,7 @@ from qpatrol.maps import DIR_LETTERS, EAST, Map, get_map, parse_map
 from qpatrol.maps.tours import dot_walk_lower_bound, dot_walk_tour
 from qpatrol.measures import FIELD_MEASURES
 from qpatrol.run import prepare
+from qpatrol.strategies.qlearning import dense_tables
 from qpatrol.study.sweep import FIELD_INTERACTIONS
 from qpatrol.util.csvio import read_csv
 from qpatrol.util.provenance import MAP_FILE, read_meta
@@ -773,8 +774,7 @@ def figure6_data(run_dir: str | Path, agent: int = 0, run: int = 0) -> pd.DataFr
     cfg = _run_config(d)
     m = folder_map(d, cfg)
     with np.load(d / "q_table.npz") as z:
-        q = z["q"][run, agent]  # [C, 4 heading, 4 action]
-        n = z["n"][run, agent]
+        q, n = dense_tables(z, run, agent)  # [C, 4 heading, 4 action] each
     with np.load(d / "visits.npz") as z:
         visits = z["visits"][run]  # [K, C]
     per_heading = n.sum(axis=2)  # [C, 4]

@@ -49,6 +49,22 @@ BASE_BYTES = 200 * 2**20
 ROW_BYTES = 17 * 8 * 2
 
 
+#: ``learning.table: auto`` keeps Q-tables lazily when one run's dense tables (``q``
+#: float64 and ``n`` int32) would take more bytes than this.
+LAZY_BYTES = 256 * 2**20
+
+
+def table_rows(cfg: Config, n_cells: int, n_agents: int, n_ports: int) -> int:
+    """The rows of each ``qlearning`` robot's table: ``C`` (dense), or, kept lazily
+    (``learning.table``), ``steps + 2`` when fewer: a robot stands in at most one new
+    cell a step, and in one before the first."""
+    mode = cfg["learning.table"]
+    dense_bytes = n_agents * n_cells * n_ports * n_ports * 12
+    if mode == "dense" or (mode == "auto" and dense_bytes <= LAZY_BYTES):
+        return n_cells
+    return min(n_cells, int(cfg["steps"]) + 2)
+
+
 @dataclass(frozen=True)
 class Estimate:
     """Bytes a batch needs: ``total``, and the part taken by the distance table."""
@@ -59,14 +75,17 @@ class Estimate:
 
 def bytes_per_run(cfg: Config, m: Map) -> int:
     """Estimated bytes one run adds to a batch of ``cfg`` on ``m``: the world state, the
-    strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, cells, D,
-    D]``, D = 4 on a grid), the measures (the intruder measures' per-cell counts among
-    them) and the recorders (trajectory ring, timeline, Q-update rows)."""
+    strategy's tables (Q-learning: ``q`` float64 and ``n`` int32, ``[agents, rows, D,
+    D]``, D = 4 on a grid, :func:`table_rows`), the measures (the intruder measures'
+    per-cell counts among them) and the recorders (trajectory ring, timeline, Q-update
+    rows)."""
     k, c, d = cfg["agents"], m.n_cells, m.n_ports
     g = 1 if cfg["team.communication"] else k
     policy = cfg["policy"]
     strategy = {
-        "qlearning": k * c * d * d * (8 + 4),  # q float64 and n int32
+        # q float64 and n int32, the rows of tables kept lazily
+        "qlearning": k * table_rows(cfg, c, k, d) * d * d * (8 + 4)
+        + (k * (c + 1) * 4 if table_rows(cfg, c, k, d) < c else 0),
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
         # q float64 and n int32 (one table, or one per robot), its own last-visit and
@@ -132,8 +151,9 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
     the batches: the learner's tables (``n`` also as the int64 written to
     ``q_table.npz``), visit counts, recorded rows and the summary."""
     k, c, d = cfg["agents"], m.n_cells, m.n_ports
+    rows = table_rows(cfg, c, k, d)
     tables = {
-        "qlearning": k * c * d * d * (8 + 4 + 8),
+        "qlearning": k * rows * d * d * (8 + 4 + 8) + (k * c * 4 if rows < c else 0),
         "qlearning-idleness": k * c * d**3 * (8 + 4 + 8),
     }.get(cfg["policy"], 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0

@@ -122,9 +122,11 @@ def act(code, r, t, ur, battery, p, s, w, sp):
     if code == QLEARNING:
         _, epsilon, use_heading, q_f, _ = qlearning.tables(sp, r)
         nd = ports_of(p.entry, nbrs.shape[1])
+        slot_r = qlearning.slots(sp, r)
         qlearning.act(
-            ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f, nd
-        )
+            ur, pos[r], s.head[r], open_mask, choosing, ask, epsilon, use_heading, q_f,
+            slot_r, nd,
+        )  # fmt: skip
     elif code == QLEARNING_IDLENESS:
         qlearning_idleness.act(
             r,
@@ -263,12 +265,13 @@ def learn(code, r, t, p, s, w, sp, o, n_up):
     ``r``)."""
     if code == QLEARNING:
         gamma, _, use_heading, q_f, n_f = qlearning.tables(sp, r)
+        slot_r = qlearning.slots(sp, r)
         if p.travels:  # decisions at a graph's vertices, completed at the next vertex
             n_up = qlearning.learn_pending(
-                r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, sp.robot_i[r]
+                r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, sp.robot_i[r], slot_r
             )
         else:
-            n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f)
+            n_up = qlearning.learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f, slot_r)
     elif code == QLEARNING_IDLENESS:
         n_up = qlearning_idleness.learn(r, t, p, s, w, sp, o, n_up)
     elif code == CONSCIENTIOUS:

@@ -29,6 +29,7 @@ class Pack(NamedTuple):
         table_i: int64 ``[W, L]``, a constant table (e.g. walks' cells).
         row_i: int64 ``[W]``, a constant row (e.g. walks' lengths).
         dist: int64 ``[C, C]`` shortest-path lengths (``[1, 1]`` when unused).
+        slot: int32 ``[R, K, C + 1]``, the rows of tables kept lazily (``qlearning``).
     """
 
     fpar: np.ndarray
@@ -43,11 +44,12 @@ class Pack(NamedTuple):
     table_i: np.ndarray
     row_i: np.ndarray
     dist: np.ndarray
+    slot: np.ndarray
 
 
 #: The fields with a leading runs axis (a strategy's state); the others are constants
 #: of the batch. A placeholder of a per-run field has one row whatever the runs.
-PER_RUN = ("row_f", "q", "n", "cell_i", "cell_f", "cell_b", "robot_i")
+PER_RUN = ("row_f", "q", "n", "cell_i", "cell_f", "cell_b", "robot_i", "slot")
 
 #: Each field's dtype and rank: every pack has the same, so the loop compiles once.
 LAYOUT = {
@@ -63,6 +65,7 @@ LAYOUT = {
     "table_i": (np.int64, 2),
     "row_i": (np.int64, 1),
     "dist": (np.int64, 2),
+    "slot": (np.int32, 3),
 }
 
 

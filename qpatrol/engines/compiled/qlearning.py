@@ -9,7 +9,9 @@ Pack (see :mod:`qpatrol.engines.compiled`): ``q`` float64 and ``n`` int32
 float64 ``[R, 2]``: each run's ``[gamma, epsilon]`` (they may differ between the runs of a batch);
 ``ipar = [use_heading]``; ``robot_i`` int64 ``[R, K, 3]``: the strategy's own
 ``pending`` decisions on a patrol graph with waypoints (cell, heading, port; -1: none),
-completed at the next vertex (:func:`learn_pending`).
+completed at the next vertex (:func:`learn_pending`); ``slot`` int32 ``[R, K, C + 1]``:
+tables kept lazily (the strategy's ``slot``, :func:`row`), a ``[1, 1, 1]`` placeholder
+when they are dense.
 """
 
 from __future__ import annotations
@@ -38,6 +40,7 @@ def pack(strategy) -> Pack:
         q=strategy.q,
         n=strategy.n,
         robot_i=strategy.pending,
+        **({} if strategy.slot is None else {"slot": strategy.slot}),
     )
 
 
@@ -125,18 +128,45 @@ def tables(sp, r):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f, nd):
+def slots(sp, r):
+    """Run ``r``'s rows of lazily kept tables (int32 ``[K, C + 1]``), or the dense
+    tables' ``[1, 1]`` placeholder (:func:`row`)."""
+    return sp.slot[r] if sp.slot.shape[2] > 1 else sp.slot[0]
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def row(slot_r, k, c, m):
+    """Robot ``k``'s table row of cell ``c``, as a row of the run's tables ``[K, m]``
+    (``m`` rows a robot): the cell itself when they are dense (``slot_r`` :func:`slots`
+    a placeholder), else ``slot_r[k, c]``, given out now, the next free one, where it is
+    -1 (the numpy twin: :meth:`qpatrol.strategies.qlearning.Strategy.row_of`)."""
+    if slot_r.shape[1] == 1:
+        return k * m + c
+    x = slot_r[k, c]
+    if x < 0:
+        last = slot_r.shape[1] - 1
+        x = slot_r[k, last]
+        if x >= m:
+            raise RuntimeError("qlearning: a robot stood in more cells than steps + 2")
+        slot_r[k, c] = x
+        slot_r[k, last] = x + 1
+    return k * m + x
+
+
+@njit(cache=True, nogil=True, _nrt=False, inline="always")
+def act(ur, pos_r, head_r, open_mask, choosing, ask, epsilon, use_heading, q_f, slot_r, nd):
     """``ask[k]`` for every choosing robot of a run (``pos_r``, ``head_r`` int ``[K]``;
     ``open_mask`` bool ``[K, D]``; ``ur`` float ``[K, 2]``: the step's uniforms;
-    ``q_f``: :func:`tables`; ``nd``: D, :func:`~qpatrol.engines.compiled.choice.ports_of`):
-    :func:`choose` over its open moves; -1 for the others."""
-    n_cells = q_f.shape[0] // (pos_r.shape[0] * nd * nd)
+    ``q_f``: :func:`tables`; ``slot_r``: :func:`slots`; ``nd``: D,
+    :func:`~qpatrol.engines.compiled.choice.ports_of`): :func:`choose` over its open
+    moves; -1 for the others."""
+    m = q_f.shape[0] // (pos_r.shape[0] * nd * nd)
     for k in range(pos_r.shape[0]):
         if not choosing[k]:
             ask[k] = -1
             continue
         hs = head_r[k] if use_heading else 0
-        at = ((k * n_cells + pos_r[k]) * nd + hs) * nd  # Q(c, hs, .), flat
+        at = (row(slot_r, k, pos_r[k], m) * nd + hs) * nd  # Q(c, hs, .), flat
         if nd == 4:
             free = (
                 (1 if open_mask[k, 0] else 0)
@@ -173,13 +203,15 @@ def update(q_f, n_f, at0, at1, legal1, reward, gamma, entry, nd):
 
 
 @njit(cache=True, nogil=True, _nrt=False, inline="always")
-def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
+def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f, slot_r):
     """The update of every robot of run ``r`` that made the move it chose, in robot
-    order (:func:`update`; ``q_f``, ``n_f``: :func:`tables`); Q-updates recorded as
+    order (:func:`update`; ``q_f``, ``n_f``: :func:`tables`; ``slot_r``: :func:`slots`,
+    the row of the cell left first, then of the cell entered); Q-updates recorded as
     :meth:`qpatrol.measures.records.Recorder.updates` wants them. ``p``, ``w``, ``o``:
     the loop's ``Params``, ``Work`` and ``Out`` (:mod:`qpatrol.engines.compiled.bundles`).
     Returns the number of update rows now written."""
-    n_cells, nd = p.nbrs.shape[0], ports_of(p.entry, p.nbrs.shape[1])
+    nd = ports_of(p.entry, p.nbrs.shape[1])
+    m = q_f.shape[0] // (w.prev_pos.shape[0] * nd * nd)
     for k in range(w.prev_pos.shape[0]):
         if not w.as_asked[k] or not w.choosing[k]:
             continue
@@ -188,8 +220,8 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
         aa = w.ask[k]
         cb = p.nbrs[ca, aa]
         hb = heading_of(p.entry, ca, aa) if use_heading else 0  # after the move
-        at = ((k * n_cells + ca) * nd + ha) * nd  # Q(ca, ha, .), flat
-        at1 = ((k * n_cells + cb) * nd + hb) * nd  # Q(cb, hb, .)
+        at = (row(slot_r, k, ca, m) * nd + ha) * nd  # Q(ca, ha, .), flat
+        at1 = (row(slot_r, k, cb, m) * nd + hb) * nd  # Q(cb, hb, .)
         legal1 = p.cell_moves[cb]
         reward = w.reward[k]
         top, alpha, q_sa = update(q_f, n_f, at + aa, at1, legal1, reward, gamma, p.entry, nd)
@@ -201,15 +233,17 @@ def learn(r, t, p, w, o, n_up, gamma, use_heading, q_f, n_f):
 
 
 @njit(cache=True, nogil=True, _nrt=False)
-def learn_pending(r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, pend):
+def learn_pending(r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, pend, slot_r):
     """:func:`learn` on a patrol graph with waypoints (``learner.pending_transitions``):
     a robot that chose a move and made it starts a decision (``pend`` int64 ``[K, 3]``:
     cell, heading, port; -1: none); one travelling its edge (``w.travel``) keeps it
     while it moves on as asked or waits; any other drops it. A decision whose robot has
     just entered a vertex completes: ``Q(s, a)`` of the decision is updated towards
     ``r + gamma max Q(s', .)``, ``r`` the reward of entering the vertex, ``s'`` (the
-    vertex, the port arrived by). Returns the number of update rows now written."""
-    n_cells, nd = p.nbrs.shape[0], ports_of(p.entry, p.nbrs.shape[1])
+    vertex, the port arrived by); ``slot_r``: :func:`slots`. Returns the number of update
+    rows now written."""
+    nd = ports_of(p.entry, p.nbrs.shape[1])
+    m = q_f.shape[0] // (w.prev_pos.shape[0] * nd * nd)
     for k in range(w.prev_pos.shape[0]):
         decided = w.as_asked[k] and w.choosing[k]
         keep = w.travel[k] >= 0 and pend[k, 0] >= 0 and (w.as_asked[k] or not w.moved[k])
@@ -227,8 +261,8 @@ def learn_pending(r, t, p, s, w, o, n_up, gamma, use_heading, q_f, n_f, pend):
         c_last, a_last = w.prev_pos[k], w.ask[k]  # the move into the vertex
         cb = p.nbrs[c_last, a_last]
         hb = heading_of(p.entry, c_last, a_last) if use_heading else 0
-        at = ((k * n_cells + ca) * nd + ha) * nd  # Q(ca, ha, .), flat
-        at1 = ((k * n_cells + cb) * nd + hb) * nd  # Q(cb, hb, .)
+        at = (row(slot_r, k, ca, m) * nd + ha) * nd  # Q(ca, ha, .), flat
+        at1 = (row(slot_r, k, cb, m) * nd + hb) * nd  # Q(cb, hb, .)
         reward = w.reward[k]
         top, alpha, q_sa = update(
             q_f, n_f, at + aa, at1, p.cell_moves[cb], reward, gamma, p.entry, nd
