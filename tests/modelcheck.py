@@ -50,16 +50,25 @@ Abstraction of the unbounded counters (why it is sound, and exact)
 
 Livelock (the fairness notion)
     A robot has a *task* while it patrols, homes or queues; the task ends when the robot
-    reaches its aim or, without one, enters a target (``Outcome.progressed``), and a
-    token holder that cannot push hands it on (``Outcome.swapped``). Robot i *fails* on
-    a step if it has a task that did not end and that it did not hand on. A task can fail
+    reaches its aim or, without one, enters a target (``Outcome.progressed``). A token
+    holder that cannot push hands it on, and when both patrol the robot in its way hands
+    its own task to the holder in exchange (``Outcome.swapped``, set for both; two robots
+    exchanging goals before the step hand theirs on too). Robot i *fails* on a step if it
+    has a task that did not end and that it did not hand on. A task can fail
     to end in two ways, and the criterion catches both: (1) a robot keeps a task that
     never ends, so it fails at every step of a cycle (edge bit i); (2) a task passes from
     robot to robot and never ends, so no robot fails at every step but the oldest age
     of the team is kept on every step (edge bit K: some robot still carries, at the end
     of the step, the oldest ``since`` of its beginning and did not end it). As every
     other task is younger, (1) implies (2) once the starving task is the oldest; both
-    are checked. In the finite graph a livelock is a strongly connected component (more
+    are checked. (2) alone catches every task that never ends: no task is older than one
+    that began before it (Lemma 1 of docs/model.md), so the oldest of the tasks that
+    never end is, after its elders have ended, the team's oldest for ever. A robot that
+    hands its tasks on for ever does not starve: they end elsewhere and its stall, the
+    age of the task it carries, stays bounded (three robots on ``......`` with the
+    exchange head on each shuttle on a third of the line, every task ending at an end of
+    it; counted as failing, robot b of each exchange made six such cycles look like
+    livelocks). In the finite graph a livelock is a strongly connected component (more
     than one state, or one state with a self-loop) of the subgraph of edges that carry
     the bit (iterative Tarjan, :func:`strong_components`). Every state is reachable, so
     each such component is a reachable livelock, along which ``max_stall`` grows without
@@ -309,7 +318,6 @@ class Checker:
         mode = s.mode[src]
         task = (mode == world.PATROL) | (mode == world.HOMING) | (mode == world.QUEUED)
         oldest = oldest_all[src][:, None]
-        holder = s.token[src][:, None] == np.arange(K)[None, :]
         s2 = _rows_of(s, src)
         obs2 = _rows_of(obs, src)
         obs2.state = s2
@@ -332,11 +340,11 @@ class Checker:
         if aim is None:
             aim = np.full(choice.shape, -1, dtype=np.int64)
         # robot i fails: it has a task, its task did not end, and it did not hand it on
-        # (as the holder, to the robot in its way: traffic.hand_on); the oldest age is
-        # kept: a robot on the map still has the age that was the oldest
-        # (or to the robot it exchanged goals with before the step: its task went on,
-        # or ended there)
-        gave = ((out.swapped >= 0) & holder) | exchanged
+        # (exchanged it: the holder and the robot in its way both patrolling, rule 2,
+        # traffic.hand_on, each carrying on the other's task; or the robot it exchanged
+        # goals with before the step: its task went on, or ended there); the oldest age
+        # is kept: a robot on the map still has the age that was the oldest
+        gave = (out.swapped >= 0) | exchanged
         fail = task & ~out.progressed & ~gave
         kept = ((s2.since == oldest) & (s2.mode != world.GONE) & ~out.progressed).any(axis=1)
         # the witnesses keep the asks before an exchange (the exchange and the asks after
