@@ -413,3 +413,11 @@ def test_tasks_passed_round_for_ever_are_a_livelock(monkeypatch):
     assert res.livelocks and {w.robot for w in res.livelocks} == {ck.case.k}
     ages = mc.replay(ck, res.livelocks[0], loops=3)
     assert (np.diff(ages) > 0).all()
+
+
+def test_robots_exchanging_tasks_head_on_hand_theirs_on():
+    """Three robots on a 6-cell line with the exchange head on: each shuttles on a third
+    of the line and hands its tasks on, which end at the line's ends; counted as keeping
+    its task, the robot in the holder's way made this look like six livelocks."""
+    res = mc.Checker(mc.Case("......\n", 3, adversary="goal", head_on=True)).explore()
+    assert res.complete and res.states > 100_000 and not res.livelocks
