@@ -1,7 +1,7 @@
 """Cold start: ``engine: auto`` before numba's cache holds the compiled loop a batch needs.
 
 Each loop of the compiled engine (:func:`qpatrol.engines.compiled_loop`) is compiled on
-its first use, 6 to 28 s of CPU here, and kept in numba's on-disk cache; a warm run loads it
+its first use, 11 to 124 s of CPU here, and kept in numba's on-disk cache; a warm run loads it
 in under a second. A fresh install has an empty cache, and a small batch (the paper's
 default experiment takes about 3 s on the numpy engine) would wait for the compile.
 So ``engine: auto`` runs a batch on the numpy engine when its loop is not cached yet
@@ -21,6 +21,7 @@ takes the marker with it.
 
 from __future__ import annotations
 
+import functools
 import json
 import os
 import subprocess
@@ -44,12 +45,13 @@ NUMPY_US: tuple[float, float, float] = (250.0, 120.0, 2.6)
 
 #: CPU seconds to compile each loop into an empty cache (fresh process, the loop run
 #: for a few steps), measured with ``benchmarks/cold_start.py --compile`` on this
-#: project's 2-core machine: 27.9, 8.9, 5.7 and 10.9 s.
+#: project's 2-core machine (6 December 2026, other work running at low priority):
+#: 123.5, 25.7, 10.7 and 20.4 s.
 COMPILE_SECONDS: dict[str, float] = {
-    "any": 28.0,
-    "qlearning": 9.0,
-    "qlearning-solo": 6.0,
-    "qlearning-team": 11.0,
+    "any": 124.0,
+    "qlearning": 26.0,
+    "qlearning-solo": 11.0,
+    "qlearning-team": 20.0,
 }
 
 #: Seconds a lock file of a loop being compiled (:func:`warm_in_background`) is
@@ -64,11 +66,29 @@ LOCK = "qpatrol-loop-{}.lock"
 
 def numpy_seconds(cfg: Config, rows: int | None = None) -> float:
     """Estimated CPU seconds of ``cfg``'s time loop on the numpy engine (``rows``: the
-    batch's runs, default ``cfg['runs']``)."""
+    batch's runs, default ``cfg['runs']``): :data:`NUMPY_US`, and the strategy's own
+    cost per robot-step and cell (:attr:`qpatrol.strategies.base.Strategy.numpy_cell_us`:
+    8 `dta-ssi-part` robots on facility take 12 times the world's step)."""
+    from qpatrol.strategies import strategy_class
+
     fixed, per_robot, per = NUMPY_US
     k = cfg["agents"]
     size = (cfg["runs"] if rows is None else rows) * k
+    per_cell = strategy_class(cfg["policy"]).numpy_cell_us
+    if per_cell:
+        per += per_cell * _cells(cfg["map"])
     return cfg["steps"] * (fixed + per_robot * k + per * size) * 1e-6
+
+
+@functools.lru_cache(maxsize=64)
+def _cells(name: str) -> int:
+    """Free cells of map ``name`` (a name or a file), 0 if it cannot be read."""
+    from qpatrol.maps import get_map
+
+    try:
+        return get_map(name).n_cells
+    except Exception:  # (a config error is reported where the map is loaded)
+        return 0
 
 
 def compile_seconds(loop: str) -> float:

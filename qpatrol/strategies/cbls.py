@@ -59,6 +59,7 @@ class Strategy(goals.GoalFollower):
     """
 
     name = "cbls"
+    numpy_cell_us = 0.13  # (base.Strategy.numpy_cell_us)
     learns = True
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):

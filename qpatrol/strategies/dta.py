@@ -164,6 +164,7 @@ class PartSSI(DTA):
     """
 
     name = "dta-ssi-part"
+    numpy_cell_us = 0.63  # (base.Strategy.numpy_cell_us)
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)

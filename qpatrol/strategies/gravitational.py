@@ -104,6 +104,7 @@ class Strategy(base.Strategy):
     target."""
 
     name = "gravitational"
+    numpy_cell_us = 0.07  # (base.Strategy.numpy_cell_us)
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
         super().__init__(cfg, m, p, start_cells)

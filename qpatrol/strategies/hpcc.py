@@ -65,6 +65,7 @@ class Strategy(goals.GoalFollower):
     """
 
     name = "hpcc"
+    numpy_cell_us = 0.63  # (base.Strategy.numpy_cell_us)
     neighbour_goals = False
 
     def __init__(self, cfg: Config, m: Map, p: Params, start_cells: np.ndarray):
