@@ -65,6 +65,14 @@ def table_rows(cfg: Config, n_cells: int, n_agents: int, n_ports: int) -> int:
     return min(n_cells, int(cfg["steps"]) + 2)
 
 
+def q_table_bytes(cfg: Config, m: Map, entry_bytes: int) -> int:
+    """Bytes of one run's ``qlearning`` tables at ``entry_bytes`` a value: the rows of
+    :func:`table_rows` and, kept lazily, each robot's int32 row of every cell."""
+    k, c, d = cfg["agents"], m.n_cells, m.n_ports
+    rows = table_rows(cfg, c, k, d)
+    return k * rows * d * d * entry_bytes + (k * (c + 1) * 4 if rows < c else 0)
+
+
 @dataclass(frozen=True)
 class Estimate:
     """Bytes a batch needs: ``total``, and the part taken by the distance table."""
@@ -83,9 +91,7 @@ def bytes_per_run(cfg: Config, m: Map) -> int:
     g = 1 if cfg["team.communication"] else k
     policy = cfg["policy"]
     strategy = {
-        # q float64 and n int32, the rows of tables kept lazily
-        "qlearning": k * table_rows(cfg, c, k, d) * d * d * (8 + 4)
-        + (k * (c + 1) * 4 if table_rows(cfg, c, k, d) < c else 0),
+        "qlearning": q_table_bytes(cfg, m, 8 + 4),  # q float64 and n int32
         "conscientious": k * c * 8,  # each robot's memory
         "evap": 2 * g * c * 8,  # pheromone and its time stamp
         # q float64 and n int32 (one table, or one per robot), its own last-visit and
@@ -151,9 +157,8 @@ def kept_bytes_per_run(cfg: Config, m: Map) -> int:
     the batches: the learner's tables (``n`` also as the int64 written to
     ``q_table.npz``), visit counts, recorded rows and the summary."""
     k, c, d = cfg["agents"], m.n_cells, m.n_ports
-    rows = table_rows(cfg, c, k, d)
     tables = {
-        "qlearning": k * rows * d * d * (8 + 4 + 8) + (k * c * 4 if rows < c else 0),
+        "qlearning": q_table_bytes(cfg, m, 8 + 4 + 8),
         "qlearning-idleness": k * c * d**3 * (8 + 4 + 8),
     }.get(cfg["policy"], 0)
     rows = cfg["steps"] * k if cfg["record.transitions"] else 0
