@@ -461,3 +461,38 @@ def test_a_walk_follower_does_not_turn_round_into_a_taken_cell():
     obs = world.begin_step(s, p)
     out = world.step(s, p, obs, np.array([[behind, -1]]), None, True)
     assert out.ask[0, 0] == port_to_1 and s.pos[0, 0] == 1
+
+
+def test_a_grid_and_a_graph_share_the_general_loops_machine_code(monkeypatch, tmp_path, rooms_map):
+    """The general loop and the recorders' loop take a grid's headings as an array, as a
+    graph's: their arguments have the same types on both kinds of map, so numba compiles
+    each once (a cold start would pay the general loop's compile twice otherwise). The
+    lone and team learners keep the grid's constant D = 4 (their types differ)."""
+    numba = pytest.importorskip("numba")
+    from qpatrol.engines import numba_core
+    from qpatrol.run import simulate
+
+    made: list = []
+
+    class Spy(numba_core.Loop):
+        def __init__(self, *a, **kw):
+            super().__init__(*a, **kw)
+            made.append(self)
+
+    monkeypatch.setattr(numba_core, "Loop", Spy)
+    graph = "ps_grid"  # (unit edges: its learners take the recorders' loop, not the general)
+
+    def types(path: Path | str, **keys) -> tuple:
+        made.clear()
+        flat = {**flat_of(path, "qlearning", 2, False), "engine": "numba", "steps": 5}
+        flat.update({"record.trajectory": 0, **keys})
+        simulate(from_flat(flat))
+        (loop,) = made
+        return loop.spec, tuple(numba.typeof(a) for a in (loop.spec_marker, *loop.args))
+
+    for keys in ({"policy": "random"}, {"battery.enabled": True}, {"record.transitions": True}):
+        assert types(rooms_map, **keys) == types(graph, **keys)
+    # the team learner: a grid's entry None (D = 4 fixed), a graph's an array
+    grid_team, graph_team = types(rooms_map), types(graph)
+    assert grid_team[0] == graph_team[0] == numba_core.SPEC_QLEARNING_TEAM
+    assert grid_team != graph_team

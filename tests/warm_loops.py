@@ -1,8 +1,9 @@
 """Compile the compiled engine's loops into numba's cache before a parallel test run.
 
 Each loop (:func:`qpatrol.engines.compiled_loop`: ``any``, ``qlearning``,
-``qlearning-solo``, ``qlearning-team``) is one machine code per kind of map (a grid, a
-graph), compiled on first use in tens of seconds on an empty cache. When the workers of
+``qlearning-solo``, ``qlearning-team``) is compiled on first use in tens of seconds on
+an empty cache: the lone and team learners' once per kind of map (a grid, a graph),
+``any`` and ``qlearning`` once for both. When the workers of
 a parallel run meet a loop at once, one compiles it and the others wait for it
 (:mod:`qpatrol.engines.coldstart`), idle. ``tests/conftest.py`` runs this module in two
 processes before the workers start, which share the loops out between them (each
@@ -29,19 +30,20 @@ LOOPS = {
 MAPS = {"grid": "map_b", "graph": "ps_grid"}
 
 #: Every loop, the longest to compile first (on an empty cache, one process each:
-#: ``any@grid`` about as long as all the others together, then ``any@graph``, the
-#: Q-learning loops on a grid and on a graph, ``vector@graph``); ``vector@graph`` is the
-#: batched env's kernel and features (:mod:`qpatrol.engines.vector`,
-#: :mod:`qpatrol.strategies.features`; its tests run on patrol graphs only).
+#: ``any@grid`` about as long as all the others together, then the Q-learning loops,
+#: ``vector@graph``). ``any`` and ``qlearning`` are one machine code for grids and
+#: graphs (:class:`qpatrol.engines.numba_core.Loop`): their graph's version is the
+#: grid's, loaded from the cache by the tests, and not listed (a second process would
+#: compile it again beside the first). ``vector@graph`` is the batched env's kernel and
+#: features (:mod:`qpatrol.engines.vector`, :mod:`qpatrol.strategies.features`; its
+#: tests run on patrol graphs only).
 ORDER = [
     "any@grid",
-    "any@graph",
     "qlearning@grid",
     "qlearning-team@graph",
     "vector@graph",
     "qlearning-solo@grid",
     "qlearning-team@grid",
-    "qlearning@graph",
     "qlearning-solo@graph",
 ]
 #: How many processes compile at once (one per core of the machine the suite is sized for).
@@ -64,8 +66,8 @@ def warm(names: list[str]) -> None:
 
     # the processes of the warm-up never compile one loop twice (each claims its own);
     # the engine's lock between processes is one per loop name, not per kind of map, so
-    # it would make a grid's compile of a loop wait for the graph's (``any@grid`` for
-    # ``any@graph``: the two longest, one after the other instead of side by side)
+    # it would make a grid's compile of a loop wait for the graph's (``qlearning-team``'s
+    # two, one after the other instead of side by side)
     coldstart._wait_for_others = lambda loop, poll=0.25: 0.0
     for name in names:
         if name.startswith("vector@"):

@@ -693,6 +693,13 @@ class Loop:
             self.spec = SPEC_QLEARNING
             if not rec.wants_updates:
                 self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
+        if self.spec in (SPEC_ANY, SPEC_QLEARNING) and bp.entry is None:
+            # the general loop and the recorders' take a grid's headings as an array
+            # too (not None, the lone and team learners' constant D = 4): one machine
+            # code for grids and graphs, compiled once (a loop compiled per kind of map
+            # costs a cold start its compile twice, for a few loads a step)
+            bp = bp._replace(entry=np.ascontiguousarray(p.entry, dtype=np.int64))
+            self.args = self.args[:1] + (bp,) + self.args[2:]
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self._lanes: list[tuple[int, tuple] | None] = [None]  # lane i > 0: (runs, args)
 

@@ -31,11 +31,13 @@ class Params(NamedTuple):
             (:func:`qpatrol.engines.compiled.choice.legal_bits`), read with ``MASKED``.
         entry: int64 ``[C, D]``, the heading after the move out of a cell by a port
             (:attr:`qpatrol.maps.Map.entry`), or None on a grid (4 ports, each move's
-            heading the move itself: :func:`compiled_entry`). None is a type of its
-            own to the compiler: a grid's loops are compiled with D = 4 a constant and
-            no load of a heading (:func:`qpatrol.engines.compiled.choice.ports_of`,
-            ``heading_of``), as before patrol graphs; every graph shares one machine
-            code, D read from ``nbrs``.
+            heading the move itself: :func:`compiled_entry`) in the lone and team
+            learners' loops. None is a type of its own to the compiler: those loops are
+            compiled for a grid with D = 4 a constant and no load of a heading
+            (:func:`qpatrol.engines.compiled.choice.ports_of`, ``heading_of``); the
+            general loop and the recorders' take a grid's ``entry`` as an array, as a
+            graph's (:class:`qpatrol.engines.numba_core.Loop`), so that each is one
+            machine code for every map, D read from ``nbrs``.
         dot_value: float64 ``[C]``; has_dot: bool ``[C]``; n_dots: their count.
         reward_w: float64 ``[R, 3]``, each run's reward weights (incremental value,
             idle horizon, lambda).
