@@ -599,7 +599,8 @@ class Observation:
         open: bool ``[R, K, D]``, legal moves into a cell no other robot stands in at the
             start of the step, and not into the pocket of a station another robot holds
             (:mod:`qpatrol.world.battery`); for the robot holding the right of way, every legal
-            move outside such pockets.
+            move outside such pockets into an empty cell or into one a push empties
+            (:func:`qpatrol.world.traffic.feasible_moves`).
         travel: int ``[R, K]``, on a patrol graph the port a patrolling robot standing
             on a waypoint asks for, the one that continues its edge (:func:`onward_ports`;
             it is not choosing, and no strategy is asked); -1 for every other robot.
