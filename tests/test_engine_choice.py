@@ -71,8 +71,13 @@ def test_the_paper_runs_on_numpy_until_its_loop_is_cached(monkeypatch):
     # asked for explicitly: always the engine asked for
     assert engines.choose(PAPER.replace(engine="numba")) == ("numba", "")
     assert engines.choose(PAPER.replace(engine="numpy")) == ("numpy", "")
-    small = PAPER.replace(runs=1, steps=1000)
-    assert "small batch" in engines.choose(small)[1]
+    # a batch numpy finishes within AUTO_NUMPY_SECONDS: numpy (loading the loop costs
+    # more); just above it, the compiled engine (the estimate is linear in the steps)
+    per_step = coldstart.numpy_seconds(PAPER.replace(runs=1, steps=1))
+    under = int(engines.AUTO_NUMPY_SECONDS / per_step * 0.9)
+    over = int(engines.AUTO_NUMPY_SECONDS / per_step * 1.1)
+    assert "small batch" in engines.choose(PAPER.replace(runs=1, steps=under))[1]
+    assert engines.choose_by_config(PAPER.replace(runs=1, steps=over)) == ("numba", "")
 
 
 def test_cold_note_weighs_numpy_against_the_compile_left(monkeypatch):

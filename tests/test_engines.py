@@ -368,7 +368,7 @@ def test_engine_choice(monkeypatch):
     cfg = from_flat({"battery.enabled": False, "engine": "numpy", "runs": 16})
     assert engines.choose(cfg) == ("numpy", "")
     assert engines.choose(cfg.replace(engine="auto")) == ("numba", "")
-    small = cfg.replace(engine="auto", runs=1, steps=1000)
+    small = cfg.replace(engine="auto", runs=1, steps=300)
     assert engines.choose(small)[0] == "numpy" and "small batch" in engines.choose(small)[1]
     assert engines.choose(small.replace(engine="numba")) == ("numba", "")
     monkeypatch.setattr(engines, "numba_installed", lambda: False)

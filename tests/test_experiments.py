@@ -150,7 +150,7 @@ def test_quick_reproduction_matches_the_committed_references(tmp_path: Path, mon
     if importlib.util.find_spec("numba") is not None:
         from qpatrol.engines import coldstart
 
-        monkeypatch.setattr(engines, "AUTO_MIN_AGENT_STEPS", 0)
+        monkeypatch.setattr(engines, "AUTO_NUMPY_SECONDS", 0.0)
         monkeypatch.setattr(coldstart, "cold_note", lambda *args, **kwargs: None)
     rp.reproduce(tmp_path, quick=True, jobs=1, draw=False, log=lambda s: None)
     fresh = {f"{p.parent.name}/{p.name}" for p in tmp_path.glob("*/*.csv")}

@@ -6,10 +6,10 @@
   dependency), for the configs :func:`compiled_gap` accepts; any other config
   runs on the numpy engine and says so (:func:`choose` returns the reason).
 
-Config key ``engine``: ``auto`` (numba when installed, for batches of at least
-:data:`AUTO_MIN_AGENT_STEPS` agent-steps, unless the compiled loop the batch needs is
-not in numba's cache yet and the numpy engine would finish sooner than compiling it:
-:mod:`qpatrol.engines.coldstart`), ``numpy`` or ``numba``. Every engine writes the
+Config key ``engine``: ``auto`` (numba when installed, for batches the numpy engine
+would take more than :data:`AUTO_NUMPY_SECONDS` on, unless the compiled loop the batch
+needs is not in numba's cache yet and the numpy engine would finish sooner than
+compiling it: :mod:`qpatrol.engines.coldstart`), ``numpy`` or ``numba``. Every engine writes the
 same files to the bit; ``meta.json`` records which one ran, and why.
 """
 
@@ -68,10 +68,14 @@ def compiled_gap(cfg: Config) -> str | None:
     return None
 
 
-#: ``engine: auto`` takes numba for batches of at least this many agent-steps (runs x
-#: agents x steps); smaller ones run on numpy, where they take seconds at most. (It also
-#: keeps the progress of a small sweep point observable: tests/test_progress.py.)
-AUTO_MIN_AGENT_STEPS = 20_000
+#: ``engine: auto`` runs a batch on numpy when the numpy engine would take less than
+#: this many seconds of CPU on it (:func:`qpatrol.engines.coldstart.numpy_seconds`):
+#: loading a compiled loop from numba's cache costs a fresh process about 0.65 s (a
+#: 50-step `conscientious` run on map_a: 1.73 s on numba against 1.08 s on numpy, wall,
+#: median of five pairs). Counted in agent-steps, as before (20,000), the rule sent a
+#: sweep's 4,000-step points of one and two robots (8,000 and 16,000 agent-steps; those
+#: not batched with other points) to numpy, about 1.5 s each against 0.07 s compiled.
+AUTO_NUMPY_SECONDS = 0.5
 
 
 def choose(cfg: Config, rows: int | None = None) -> tuple[str, str]:
@@ -85,7 +89,7 @@ def choose(cfg: Config, rows: int | None = None) -> tuple[str, str]:
     numba's cache (and imports numba). ``rows``: the batch's runs when not
     ``cfg['runs']`` (points of a sweep sharing a batch). :func:`choose_by_config` is
     the choice from the config alone."""
-    engine, note = choose_by_config(cfg)
+    engine, note = choose_by_config(cfg, rows)
     if engine == "numba" and cfg["engine"] == "auto":
         from qpatrol.engines import coldstart
 
@@ -96,15 +100,20 @@ def choose(cfg: Config, rows: int | None = None) -> tuple[str, str]:
     return engine, note
 
 
-def choose_by_config(cfg: Config) -> tuple[str, str]:
+def choose_by_config(cfg: Config, rows: int | None = None) -> tuple[str, str]:
     """:func:`choose` from the config alone (numba's cache unread: every loop taken as
     cached)."""
     asked = cfg["engine"]
     if asked == "numpy":
         return "numpy", ""
-    size = cfg["runs"] * cfg["agents"] * cfg["steps"]
-    if asked == "auto" and size < AUTO_MIN_AGENT_STEPS:
-        return "numpy", f"auto: a small batch ({size:,} < {AUTO_MIN_AGENT_STEPS:,} agent-steps)"
+    if asked == "auto":
+        from qpatrol.engines.coldstart import numpy_seconds
+
+        est = numpy_seconds(cfg, rows)
+        if est < AUTO_NUMPY_SECONDS:
+            return "numpy", (
+                f"auto: a small batch (numpy about {est:.2f} s < {AUTO_NUMPY_SECONDS} s)"
+            )
     if not numba_installed():
         if asked == "numba":
             raise ConfigError(
