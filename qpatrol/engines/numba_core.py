@@ -618,6 +618,23 @@ class Loop:
         self.strategy = strategy
         self.code, self.pack = compiled.pack(strategy)
         n_runs, k = s.pos.shape
+        self.timeline = timeline if timeline is not None and timeline.window else None
+        self.spec = SPEC_ANY
+        # (a graph with waypoints, whose learners decide at vertices: the general loop)
+        plain = not p.battery and self.timeline is None and not p.failures_at
+        plain = plain and p.onward is None and p.ball is None  # (no interference stops)
+        # (tables kept lazily: the general loop, whose learner reads rows by cell)
+        plain = plain and self.pack.slot.shape[2] == 1
+        if self.code == compiled.QLEARNING and plain:
+            self.spec = SPEC_QLEARNING
+            if not rec.wants_updates:
+                self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
+        # the lone and team learners take a grid's headings as None (D = 4 a constant of
+        # their code); the general loop and the recorders' take them as an array, as a
+        # graph's: one machine code for grids and graphs, compiled once (a loop compiled
+        # per kind of map costs a cold start its compile twice, for a few loads a step)
+        fixed_d = self.spec in (SPEC_QLEARNING_SOLO, SPEC_QLEARNING_TEAM)
+        entry = bundles.compiled_entry(p.neighbors, p.entry) if fixed_d else p.entry
         n_dots = int(p.has_dot.sum())
         shortest = -(-n_dots // k)
         if p.max_episode_steps:
@@ -638,7 +655,7 @@ class Loop:
         pockets = (p.depart_len, p.pocket_of, p.pocket_depth, p.pocket_entry)
         consts = (
             p.neighbors, p.wall_legal, legal_bits(p.neighbors),
-            bundles.compiled_entry(p.neighbors, p.entry), p.dot_value, p.has_dot,
+            entry, p.dot_value, p.has_dot,
         )  # fmt: skip
         rules = (p.communication, p.avoid_collisions, p.diameter, p.max_episode_steps)
         bp = bundles.Params(
@@ -666,7 +683,6 @@ class Loop:
         bo = bundles.Out(tail_pos, tail.n, ep_buf, rec.transitions, watched, *ups, *tl)
         self.args = (self.words, bp, self.code, self.pack, bs, bm, bo)
         self.args += (bundles.work(k, p.n_groups, p.n_cells, p.neighbors.shape[1]),)
-        self.timeline = timeline if timeline is not None and timeline.window else None
         # the arrays with a leading runs axis, sliced for a call on some runs only
         owners = [s, m, tail] + ([timeline] if self.timeline is not None else [])
         self._per_run = {
@@ -683,23 +699,6 @@ class Loop:
             if name in PER_RUN and n_runs > 1 and self.pack[f].shape[0] == n_runs
         ]
         self.n_runs = n_runs
-        self.spec = SPEC_ANY
-        # (a graph with waypoints, whose learners decide at vertices: the general loop)
-        plain = not p.battery and self.timeline is None and not p.failures_at
-        plain = plain and p.onward is None and p.ball is None  # (no interference stops)
-        # (tables kept lazily: the general loop, whose learner reads rows by cell)
-        plain = plain and self.pack.slot.shape[2] == 1
-        if self.code == compiled.QLEARNING and plain:
-            self.spec = SPEC_QLEARNING
-            if not rec.wants_updates:
-                self.spec = SPEC_QLEARNING_SOLO if k == 1 else SPEC_QLEARNING_TEAM
-        if self.spec in (SPEC_ANY, SPEC_QLEARNING) and bp.entry is None:
-            # the general loop and the recorders' take a grid's headings as an array
-            # too (not None, the lone and team learners' constant D = 4): one machine
-            # code for grids and graphs, compiled once (a loop compiled per kind of map
-            # costs a cold start its compile twice, for a few loads a step)
-            bp = bp._replace(entry=np.ascontiguousarray(p.entry, dtype=np.int64))
-            self.args = self.args[:1] + (bp,) + self.args[2:]
         self.spec_marker = np.zeros((1,) * self.spec, dtype=np.int8)
         self._lanes: list[tuple[int, tuple] | None] = [None]  # lane i > 0: (runs, args)
 
