@@ -53,12 +53,7 @@ def main() -> None:
         for pol in a.policies.split(","):
             for k in (int(x) for x in a.agents.split(",")):
                 for bat in (False, True):
-                    flat = {
-                        "map": mp, "policy": pol, "agents": k, "runs": a.runs,
-                        "steps": a.steps, "record.warmup": a.warmup, "seed": 0,
-                        "battery.enabled": bat, "team.interaction": "exclusive",
-                        "engine": "numba",
-                    }  # fmt: skip
+                    flat = point(a, mp, pol, k, bat, a.runs, "exclusive")
                     try:
                         res = simulate(from_flat(flat))
                     except ConfigError as e:
@@ -111,12 +106,7 @@ def main() -> None:
         for mp, pol, k, bat in points.itertuples(index=False):
             counts = []
             for inter in ("exclusive", "none"):
-                flat = {
-                    "map": mp, "policy": pol, "agents": int(k), "runs": a.rates,
-                    "steps": a.steps, "record.warmup": a.warmup, "seed": 0,
-                    "battery.enabled": bool(bat), "team.interaction": inter,
-                    "engine": "numba",
-                }  # fmt: skip
+                flat = point(a, mp, pol, int(k), bool(bat), a.rates, inter)
                 summary = simulate(from_flat(flat)).summary
                 counts.append(sum(r["coverage"] < 1.0 for r in summary))
             p = fisher_greater(counts[0], counts[1], a.rates)
@@ -126,6 +116,17 @@ def main() -> None:
                 f"{counts[0]}, none {counts[1]}, p = {p:.3g} ({verdict})",
                 flush=True,
             )
+
+
+def point(
+    a: argparse.Namespace, mp: str, pol: str, k: int, bat: bool, runs: int, inter: str
+) -> dict:
+    """The flat config of ``runs`` runs of one point under interaction model ``inter``."""
+    return {
+        "map": mp, "policy": pol, "agents": k, "runs": runs, "steps": a.steps,
+        "record.warmup": a.warmup, "seed": 0, "battery.enabled": bat,
+        "team.interaction": inter, "engine": "numba",
+    }  # fmt: skip
 
 
 def fisher_greater(a: int, c: int, n: int) -> float:
