@@ -43,6 +43,12 @@ def test_port_reductions_are_numpys(seed, d):
     q = rng.choice([-np.inf, -0.0, 0.0, 1.5, 2.0, np.nan, 3.0], (6, 5, d))
     got, want = port_max(q), q.max(axis=-1)
     assert np.array_equal(got, want, equal_nan=True)
-    assert np.array_equal(np.signbit(got), np.signbit(want))
+    # the sign of a zero maximum is numpy's where the zeros agree in sign; among zeros of
+    # both signs neither IEEE 754 nor numpy fixes it (numpy's own max gives either,
+    # depending on the processor's vector instructions)
+    zero = q == 0
+    mixed = (zero & np.signbit(q)).any(axis=-1) & (zero & ~np.signbit(q)).any(axis=-1)
+    defined = ~((want == 0) & mixed)
+    assert np.array_equal(np.signbit(got)[defined], np.signbit(want)[defined])
     legal = rng.random((6, 5, d)) < 0.3
     assert (port_any(legal) == legal.any(axis=-1)).all()

@@ -42,7 +42,8 @@ def take_rows(a: np.ndarray, pos: np.ndarray) -> np.ndarray:
 
 
 def port_max(a: np.ndarray) -> np.ndarray:
-    """``a.max(axis=-1)`` (the same values, taken left to right) for a short last axis."""
+    """``a.max(axis=-1)`` (the same values, taken left to right) for a short last axis.
+    The sign of a zero maximum among zeros of both signs is unspecified, as in numpy."""
     out = a[..., 0].copy()
     for d in range(1, a.shape[-1]):
         np.maximum(out, a[..., d], out=out)
