@@ -86,6 +86,7 @@ from collections import deque
 from dataclasses import dataclass, field, fields
 
 import numpy as np
+from numba import njit
 
 from qpatrol import world
 from qpatrol.config import ConfigError, from_flat
@@ -721,59 +722,73 @@ def replay(ck: Checker, w: Livelock, loops: int = 3) -> np.ndarray:
 
 
 def strong_components(n: int, src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """int ``[n]``: the strongly connected component of each node (iterative Tarjan) of
-    the graph with edges ``src[j] -> dst[j]``."""
+    """int ``[n]``: the strongly connected component of each node (iterative Tarjan,
+    compiled: a family's graphs have millions of edges) of the graph with edges
+    ``src[j] -> dst[j]``; nodes without out-edges are components of their own."""
+    src = np.asarray(src, dtype=np.int64)
     order = np.argsort(src, kind="stable")
-    heads = np.searchsorted(src[order], np.arange(n + 1))
-    succ = dst[order].tolist()
-    heads = heads.tolist()
-    index = [-1] * n
-    low = [0] * n
-    on_stack = [False] * n
-    comp = [-1] * n
-    stack: list[int] = []
+    heads = np.searchsorted(src[order], np.arange(n + 1)).astype(np.int64)
+    return _tarjan(n, heads, np.asarray(dst, dtype=np.int64)[order])
+
+
+@njit(cache=True)
+def _tarjan(n, heads, succ):  # pragma: no cover - compiled
+    index = np.full(n, -1, dtype=np.int64)
+    low = np.zeros(n, dtype=np.int64)
+    on_stack = np.zeros(n, dtype=np.bool_)
+    comp = np.full(n, -1, dtype=np.int64)
+    stack = np.empty(n, dtype=np.int64)
+    work_v = np.empty(n, dtype=np.int64)  # the depth-first path: node, next edge
+    work_j = np.empty(n, dtype=np.int64)
+    top = 0  # stack size
+    depth = 0  # work size
     counter = 0
     n_comp = 0
     for root in range(n):
         if index[root] >= 0 or heads[root] == heads[root + 1]:
             continue
-        work = [(root, heads[root])]
+        work_v[0], work_j[0] = root, heads[root]
+        depth = 1
         index[root] = low[root] = counter
         counter += 1
-        stack.append(root)
+        stack[top] = root
+        top += 1
         on_stack[root] = True
-        while work:
-            v, j = work[-1]
+        while depth:
+            v, j = work_v[depth - 1], work_j[depth - 1]
             if j < heads[v + 1]:
-                work[-1] = (v, j + 1)
+                work_j[depth - 1] = j + 1
                 w = succ[j]
                 if index[w] < 0:
                     index[w] = low[w] = counter
                     counter += 1
-                    stack.append(w)
+                    stack[top] = w
+                    top += 1
                     on_stack[w] = True
-                    work.append((w, heads[w]))
+                    work_v[depth], work_j[depth] = w, heads[w]
+                    depth += 1
                 elif on_stack[w] and index[w] < low[v]:
                     low[v] = index[w]
                 continue
-            work.pop()
-            if work:
-                u = work[-1][0]
+            depth -= 1
+            if depth:
+                u = work_v[depth - 1]
                 if low[v] < low[u]:
                     low[u] = low[v]
             if low[v] == index[v]:
                 while True:
-                    w = stack.pop()
+                    top -= 1
+                    w = stack[top]
                     on_stack[w] = False
                     comp[w] = n_comp
                     if w == v:
                         break
                 n_comp += 1
-    # nodes without out-edges are their own components
-    out = np.array(comp, dtype=np.int64)
-    lone = out < 0
-    out[lone] = n_comp + np.arange(int(lone.sum()))
-    return out
+    for v in range(n):  # nodes without out-edges are their own components
+        if comp[v] < 0:
+            comp[v] = n_comp
+            n_comp += 1
+    return comp
 
 
 def dense_rank(v: np.ndarray, mask: np.ndarray, with_zero: bool) -> np.ndarray:

@@ -245,10 +245,13 @@ def queued_ask(s: State, p: Params) -> np.ndarray:
     return way_out(s, p, station)
 
 
-def held_pockets(s: State, p: Params, r: int) -> np.ndarray:
-    """bool ``[C]``: cells of run ``r`` in the pocket of a held station: no push may move
-    a robot into them (the holder enters on its own, once the pocket is empty)."""
-    return (p.pocket_of >= 0) & (s.reserved[r, np.maximum(p.pocket_of, 0)] >= 0)
+def in_held_pocket(c: int, pocket_of: list[int], reserved_r: list[int]) -> bool:
+    """Cell ``c`` lies in the pocket of a held station (``pocket_of``: each cell's pocket's
+    station or -1; ``reserved_r``: the robot holding each station of one run, or -1): no
+    push may move a robot into it (the holder enters on its own, once the pocket is
+    empty). Scalars on lists: the pushes' searches ask it of a few cells each."""
+    h = pocket_of[c]
+    return h >= 0 and reserved_r[h] >= 0
 
 
 def closed_cells(s: State, p: Params, targets: np.ndarray) -> np.ndarray:

@@ -98,12 +98,12 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
     return ok
 
 
-def _keep_out(s: State, p: Params, r: int) -> tuple[list[bool], list[int], list[int]]:
+def _keep_out(s: State, p: Params, r: int) -> tuple[list[int], list[int], list[int]]:
     """What a push may not do in run ``r``: move a robot into a held pocket or deeper
-    inside one (:func:`battery.held_pockets`); ``(held, pocket_of, pocket_depth)`` as
-    lists (a push may shift a robot out of a held pocket, towards its junction)."""
+    inside one (:func:`battery.in_held_pocket`); ``(reserved, pocket_of, pocket_depth)``
+    as lists (a push may shift a robot out of a held pocket, towards its junction)."""
     return (
-        battery.held_pockets(s, p, r).tolist(),
+        s.reserved[r].tolist(),
         _cell_list(p, "pocket_of"),
         _cell_list(p, "pocket_depth"),
     )
@@ -223,7 +223,7 @@ def _holder_move(
     k: int,
     asked: int,
     movable: np.ndarray,
-    keep_out: tuple[list[bool], list[int], list[int]] | None,
+    keep_out: tuple[list[int], list[int], list[int]] | None,
 ) -> tuple[int, list[int]]:
     """``(cell, push path)``: the cell the token holder asks for, if it is empty or a push
     empties it; ``(-1, [])`` if not."""
@@ -320,21 +320,21 @@ def _push_path(
     own: int,
     start: int,
     movable: list[bool],
-    keep_out: tuple[list[bool], list[int], list[int]] | None,
+    keep_out: tuple[list[int], list[int], list[int]] | None,
 ) -> list[int] | None:
     """Cells ``[start, ..., empty]`` along which the robots from ``start`` on can shift.
 
     Breadth-first from ``start`` (whose robot must be movable), never through the
     holder's own cell ``own``, through immovable robots, nor into a held pocket or
-    deeper inside one (``keep_out``: held cells ``[C]``, ``pocket_of`` and
-    ``pocket_depth``; a step towards the pocket's junction is allowed, so a push may
+    deeper inside one (``keep_out``: the run's ``reserved``, ``pocket_of`` and
+    ``pocket_depth``, each per cell; a step towards the pocket's junction is allowed, so a push may
     shift robots out of a held pocket); neighbours in N, E, S, W order. ``nbrs``:
     each cell's neighbours (-1: wall); ``occ``: the robot on each cell of the run (-1:
     none); ``movable``: per robot. None if no empty cell can be reached.
     """
     if not movable[occ[start]]:
         return None
-    held, pocket_of, depth = keep_out if keep_out is not None else (None, None, None)
+    reserved, pocket_of, depth = keep_out if keep_out is not None else (None, None, None)
     parent = {start: -1}
     queue = deque([start])
     while queue:
@@ -342,7 +342,7 @@ def _push_path(
         for nb in nbrs[c]:
             if nb < 0 or nb == own or nb in parent:
                 continue
-            if held is not None and held[nb]:
+            if reserved is not None and battery.in_held_pocket(nb, pocket_of, reserved):
                 if pocket_of[nb] != pocket_of[c] or depth[nb] >= depth[c]:
                     continue
             j = occ[nb]

@@ -18,7 +18,7 @@ PATROL, HOMING, QUEUED, CHARGING, GONE = 0, 1, 2, 3, 4  # battery.PATROL ...
 
 @njit(cache=True, nogil=True, _nrt=False, error_model="numpy")
 def kept_out(c, pocket_of, reserved_r):
-    """:func:`qpatrol.world.battery.held_pockets`: cell c lies in the pocket of a held station."""
+    """:func:`qpatrol.world.battery.in_held_pocket`: cell c lies in the pocket of a held station."""
     h = pocket_of[c]
     return h >= 0 and reserved_r[h] >= 0
 
