@@ -232,6 +232,7 @@ class Checker:
         # every choice vector of K robots, directions 0..3
         self.table = np.array(list(itertools.product(range(4), repeat=case.k)), dtype=np.int64)
         self._toward_ports: list | None = None
+        self._ask_table: list | None = None
 
     # --- abstract states <-> world states -------------------------------------------
     def encode(self, s: world.State, tmod: int) -> np.ndarray:
@@ -447,6 +448,19 @@ class Checker:
             ]
         return self._toward_ports
 
+    def _asks(self) -> list[list[list[int]]]:
+        """``[c][g][bits]``: the goal adversary's ask at cell c for goal g
+        (:func:`_ask_toward`) when the open ports are the bits of ``bits`` (-1 if c is
+        g): a table, as a family asks it millions of times."""
+        if self._ask_table is None:
+            D = self.p.neighbors.shape[1]
+            masks = [[bool(b >> d & 1) for d in range(D)] for b in range(1 << D)]
+            self._ask_table = [
+                [[_ask_toward(on, m) if on else -1 for m in masks] for on in row]
+                for row in self._toward()
+            ]
+        return self._ask_table
+
     def _goal_options(self, s: world.State, obs: world.Observation):
         """The goal adversary's options: ``(src [M], choice [M, K], aim [M, K])``. A
         choosing robot keeps its aim (``State.aim``) until it reaches it; then, or
@@ -456,10 +470,12 @@ class Checker:
         followers do)."""
         n_cells = self.p.n_cells
         targets = np.flatnonzero(self.p.target).tolist()
-        toward = self._toward()
+        asks = self._asks()
         held = self._held_by_other(s)
         pos, aim_all = s.pos.tolist(), s.aim.tolist()
-        choosing, open_all = obs.choosing.tolist(), obs.open.tolist()
+        D = obs.open.shape[-1]
+        bits = (obs.open.astype(np.int64) << np.arange(D)).sum(axis=-1)  # [R, K]
+        choosing, bits_all = obs.choosing.tolist(), bits.tolist()
         src, choices, aims = [], [], []
         for r in range(s.pos.shape[0]):
             options = []
@@ -474,11 +490,8 @@ class Checker:
                     goals = [a]
                 else:
                     goals = [x for x in targets if x != c and (held_r[x] < 0 or held_r[x] == k)]
-                row = [] if goals else [(-1, -1)]
-                is_open = open_all[r][k]
-                for g in goals:
-                    row.append((_ask_toward(toward[c][g], is_open), g))
-                options.append(row)
+                ask_c, b = asks[c], bits_all[r][k]
+                options.append([(ask_c[g][b], g) for g in goals] if goals else [(-1, -1)])
             for combo in itertools.product(*options):
                 src.append(r)
                 choices.append([d for d, _ in combo])
