@@ -231,6 +231,29 @@ def test_the_real_dispatchers_and_their_folder():
     assert coldstart.cache_folder(disp) == Path(numba_core.run_block._cache.cache_path)
 
 
+def test_a_loop_found_cached_is_not_read_again(monkeypatch, tmp_path):
+    """The engine's own loops: once found cached, a process does not read numba's
+    index again (a sweep asks at every point); not found, it reads again (another
+    process may be compiling it). The dispatchers are scanned again only when a module
+    of the engine is loaded."""
+    reads: list[str] = []
+    found = {"any": False}
+
+    def index_lists(loop, disp, folder):
+        reads.append(loop)
+        return found[loop]
+
+    monkeypatch.setattr(coldstart, "_index_lists", index_lists)
+    monkeypatch.setattr(coldstart, "_CACHED", set())
+    assert not real_cached("any", folder=tmp_path)
+    assert not real_cached("any", folder=tmp_path)
+    found["any"] = True
+    assert real_cached("any", folder=tmp_path)
+    assert real_cached("any", folder=tmp_path)
+    assert reads == ["any"] * 3
+    assert coldstart.dispatchers() is coldstart.dispatchers()
+
+
 # ------------------------------------------------------------------ lock and warm-up
 
 

@@ -149,23 +149,36 @@ def cold_note(
 # ------------------------------------------------------------------ numba's cache
 
 
+#: :func:`dispatchers` of the modules of :mod:`qpatrol.engines` loaded so far, by their
+#: names: ``(names, dispatchers)`` (scanning every module's names costs milliseconds, and
+#: a sweep asks at every point).
+_DISPATCHERS: tuple[tuple[str, ...], dict[str, Any]] | None = None
+
+
 def dispatchers() -> dict[str, Any]:
     """The compiled engine's numba dispatchers that keep an on-disk cache, by qualified
     name (those of the modules of :mod:`qpatrol.engines` loaded so far; importing
-    :mod:`qpatrol.engines.numba_core` loads them all)."""
-    from numba.core.dispatcher import Dispatcher
-
+    :mod:`qpatrol.engines.numba_core` loads them all). The same dict while no module
+    of the package is loaded (do not modify it)."""
+    global _DISPATCHERS
     from qpatrol.engines import numba_core  # noqa: F401  (defines them all)
 
+    names = tuple(sorted(n for n in list(sys.modules) if n.startswith("qpatrol.engines")))
+    if _DISPATCHERS is not None and _DISPATCHERS[0] == names:
+        return _DISPATCHERS[1]
+    from numba.core.dispatcher import Dispatcher
+
     out: dict[str, Any] = {}
-    for name, mod in list(sys.modules.items()):
-        if not name.startswith("qpatrol.engines") or mod is None:
+    for name in names:
+        mod = sys.modules.get(name)
+        if mod is None:
             continue
         for attr, v in list(vars(mod).items()):
             if not isinstance(v, Dispatcher) or v.py_func.__module__ != name:
                 continue  # (a dispatcher is counted in the module defining it)
             if hasattr(getattr(v, "_cache", None), "cache_path"):  # a NullCache has none
                 out[f"{name}.{attr}"] = v
+    _DISPATCHERS = (names, out)
     return out
 
 
@@ -224,17 +237,38 @@ def _read_marker(path: Path) -> dict[str, list[str]] | None:
     return {str(k): [str(x) for x in v] for k, v in sigs.items()}
 
 
+#: ``(loop, cache folder)`` found cached by this process (:func:`cached`): a loop once
+#: in the cache stays there while the process lives, and reading numba's index of every
+#: dispatcher (some 60 pickles) costs tens of milliseconds at every point of a sweep.
+_CACHED: set[tuple[str, str]] = set()
+
+
 def cached(loop: str, disp: Mapping[str, Any] | None = None, folder: Path | None = None) -> bool:
     """True when numba's cache holds ``loop``: its marker (:func:`record`) names
     signatures, and numba's current index of each dispatcher lists every one of them
     (an index numba would not use, of older sources or another numba, lists none).
     True too when numba's cache objects are not the ones this reads (another numba
-    version): the compiled engine then runs, as without this check."""
+    version): the compiled engine then runs, as without this check. A loop of the
+    engine's own dispatchers (``disp`` None) found cached is not read again by this
+    process."""
+    own = disp is None
     try:
         disp = dispatchers() if disp is None else disp
         folder = cache_folder(disp) if folder is None else Path(folder)
     except Exception:  # noqa: BLE001
         return True
+    key = (loop, str(folder))
+    if own and key in _CACHED:
+        return True
+    if not _index_lists(loop, disp, folder):
+        return False
+    if own:
+        _CACHED.add(key)
+    return True
+
+
+def _index_lists(loop: str, disp: Mapping[str, Any], folder: Path) -> bool:
+    """:func:`cached`, read from the loop's marker and numba's index files."""
     sigs = _read_marker(folder / MARKER.format(loop))
     if not sigs:
         return False
