@@ -31,12 +31,6 @@ from qpatrol.util.inputs import (
     short_repr,
 )
 
-#: The YAML emitter of ``config.yaml``: libyaml's where PyYAML has it (4 times as fast as
-#: PyYAML's own, and a sweep writes one per point), else PyYAML's. They write the same
-#: text (a test checks) but fold long lines differently, so no line is folded.
-YAML_DUMPER = getattr(yaml, "CSafeDumper", yaml.SafeDumper)
-YAML_WIDTH = 1 << 30
-
 
 class ConfigError(ValueError):
     """An invalid configuration; the message names the key and what is allowed."""
@@ -828,13 +822,7 @@ class Config:
 
     def to_yaml(self) -> str:
         """The fully resolved config as YAML text (keys in schema order)."""
-        return yaml.dump(
-            self.tree(),
-            Dumper=YAML_DUMPER,
-            sort_keys=False,
-            default_flow_style=None,
-            width=YAML_WIDTH,
-        )
+        return yaml.safe_dump(self.tree(), sort_keys=False, default_flow_style=None)
 
     def digest(self) -> str:
         """A short hash of the resolved values, used to name run folders."""

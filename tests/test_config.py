@@ -5,7 +5,6 @@ import pytest
 from qpatrol.config import (
     ALIASES,
     KEYS,
-    YAML_WIDTH,
     ConfigError,
     defaults,
     from_flat,
@@ -154,28 +153,3 @@ def test_interference_keys_are_checked_together():
         from_flat({"team.interference_steps": 3, "team.interference_cooldown": 3})
     with pytest.raises(ConfigError, match="team.interaction: got 'pass'"):
         from_flat({"team.interaction": "pass"})
-
-
-def test_config_yaml_is_the_python_emitters_text():
-    """``config.yaml`` is written by libyaml's emitter where PyYAML has it: the same text
-    as PyYAML's own emitter, for every shipped config and the points of every named
-    sweep (quick mode: every key a sweep sets, with the values it sets)."""
-    import yaml
-
-    from qpatrol.study.sweep import NAMED_SWEEPS
-
-    configs = [load_config(p) for p in sorted(Path("configs").glob("*.yaml"))]
-    for sweep in NAMED_SWEEPS.values():
-        base = load_config(sweep.config)
-        configs += [base.replace(**p.overrides) for p in sweep.points(True)]
-    odd = 'odd: name\'s "quoted"\tand long, é ☃ ' * 4  # quoting, unicode, no folding
-    configs.append(from_flat({"map": odd, "record.watch": [3, 1]}))
-    for cfg in configs:
-        want = yaml.dump(
-            cfg.tree(), Dumper=yaml.SafeDumper, sort_keys=False, default_flow_style=None,
-            width=YAML_WIDTH,
-        )  # fmt: skip
-        assert cfg.to_yaml() == want
-    # the long value on one line of its own, read back as written
-    (line,) = [x for x in cfg.to_yaml().splitlines() if x.startswith("map:")]
-    assert yaml.safe_load(line)["map"] == odd
