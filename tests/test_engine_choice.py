@@ -234,8 +234,7 @@ def test_the_real_dispatchers_and_their_folder():
 def test_a_loop_found_cached_is_not_read_again(monkeypatch, tmp_path):
     """The engine's own loops: once found cached, a process does not read numba's
     index again (a sweep asks at every point); not found, it reads again (another
-    process may be compiling it). The dispatchers are scanned again only when a module
-    of the engine is loaded."""
+    process may be compiling it). The scan for the dispatchers is kept too."""
     reads: list[str] = []
     found = {"any": False}
 

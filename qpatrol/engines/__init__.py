@@ -9,8 +9,8 @@
 Config key ``engine``: ``auto`` (numba when installed, for batches the numpy engine
 would take more than :data:`AUTO_NUMPY_SECONDS` on, unless the compiled loop the batch
 needs is not in numba's cache yet and the numpy engine would finish sooner than
-compiling it: :mod:`qpatrol.engines.coldstart`), ``numpy`` or ``numba``. Every engine writes the
-same files to the bit; ``meta.json`` records which one ran, and why.
+compiling it: :mod:`qpatrol.engines.coldstart`), ``numpy`` or ``numba``. Every engine
+writes the same files to the bit; ``meta.json`` records which one ran, and why.
 """
 
 from __future__ import annotations

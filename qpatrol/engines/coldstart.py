@@ -158,8 +158,8 @@ _DISPATCHERS: tuple[tuple[str, ...], dict[str, Any]] | None = None
 def dispatchers() -> dict[str, Any]:
     """The compiled engine's numba dispatchers that keep an on-disk cache, by qualified
     name (those of the modules of :mod:`qpatrol.engines` loaded so far; importing
-    :mod:`qpatrol.engines.numba_core` loads them all). The same dict while no module
-    of the package is loaded (do not modify it)."""
+    :mod:`qpatrol.engines.numba_core` loads them all). The same dict until another
+    module of :mod:`qpatrol.engines` is loaded (do not modify it)."""
     global _DISPATCHERS
     from qpatrol.engines import numba_core  # noqa: F401  (defines them all)
 

@@ -328,9 +328,9 @@ def _push_path(
     holder's own cell ``own``, through immovable robots, nor into a held pocket or
     deeper inside one (``keep_out``: the run's ``reserved``, ``pocket_of`` and
     ``pocket_depth``, each per cell; a step towards the pocket's junction is allowed,
-    so a push may shift robots out of a held pocket); neighbours in N, E, S, W order. ``nbrs``:
-    each cell's neighbours (-1: wall); ``occ``: the robot on each cell of the run (-1:
-    none); ``movable``: per robot. None if no empty cell can be reached.
+    so a push may shift robots out of a held pocket); neighbours in N, E, S, W order.
+    ``nbrs``: each cell's neighbours (-1: wall); ``occ``: the robot on each cell of the
+    run (-1: none); ``movable``: per robot. None if no empty cell can be reached.
     """
     if not movable[occ[start]]:
         return None
