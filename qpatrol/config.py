@@ -670,13 +670,19 @@ def defaults() -> dict[str, Any]:
     return {f.key: copy.deepcopy(f.default) for f in SCHEMA}
 
 
+#: Every group of keys: each dotted prefix of a key (``learning``, ``learning.q_init``).
+GROUPS: frozenset[str] = frozenset(
+    k.rsplit(".", n)[0] for k in FIELDS for n in range(1, k.count(".") + 1)
+)
+
+
 def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
     flat: dict[str, Any] = {}
     for k, v in tree.items():
         if not isinstance(k, str):
             raise ConfigError(f"{prefix}{short_repr(k)}: keys must be strings")
         key = f"{prefix}{k}"
-        is_group = any(f.startswith(key + ".") for f in FIELDS) and key not in ALIASES
+        is_group = key in GROUPS and key not in ALIASES
         if key == "battery" and isinstance(v, bool):  # shorthand `battery: off`
             flat["battery.enabled"] = v
         elif is_group and key not in FIELDS:
@@ -970,13 +976,20 @@ def find_config(path: str | Path) -> Path:
     raise ConfigError(f"{p}: no such config file (shipped configs: {names})")
 
 
+#: Configs read in this process, by ``(folder, text)`` (:func:`load_config`): a figure
+#: reads every point of a sweep, and several figures the same sweep, and PyYAML's pure-
+#: Python parser takes some milliseconds a file.
+_READ: dict[tuple[str, str], Config] = {}
+
+
 def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
     """Read a YAML config, apply ``KEY=VALUE`` overrides, validate.
 
     ``path`` may also name a shipped config (``paper``, see :func:`find_config`). A
     relative map path in the file (``map: floors/a.txt``) is taken relative to the
     file's folder and stored absolute. Errors in the file name the file; errors in an
-    override name ``--set``.
+    override name ``--set``. The file is read every time; a text read before from the
+    same folder is not parsed again (the config depends only on the two).
     """
     p = find_config(path)
     try:
@@ -986,6 +999,26 @@ def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
     except (OSError, UnicodeDecodeError) as e:
         why = getattr(e, "strerror", None) or str(e)
         raise ConfigError(f"{p}: cannot read config ({why})") from None
+    key = (os.path.abspath(p.parent), text)
+    cfg = _READ.get(key)
+    if cfg is None:
+        cfg = _parse_config(p, text)
+        if len(_READ) >= 4096:
+            _READ.clear()
+        _READ[key] = cfg
+    cfg = Config(dict(cfg.values))  # a copy: a caller may not change another's
+    overrides = list(overrides)
+    if not overrides:
+        return cfg
+    try:
+        return cfg.with_overrides(overrides)
+    except ConfigError as e:
+        text = str(e)
+        raise ConfigError(text if text.startswith("--set") else f"--set: {text}") from None
+
+
+def _parse_config(p: Path, text: str) -> Config:
+    """The validated config of the text of file ``p`` (:func:`load_config`)."""
     try:
         tree = yaml.load(text, Loader=_StrictLoader)  # noqa: S506 (a SafeLoader)
     except _DuplicateKey as e:
@@ -1008,17 +1041,9 @@ def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
         if _looks_like_path(value) and not Path(value).is_absolute():
             tree = {**tree, "map": os.path.normpath(os.path.abspath(p.parent / value))}
     try:
-        cfg = from_mapping(tree)
+        return from_mapping(tree)
     except ConfigError as e:
         raise ConfigError(f"{p}: {e}") from None
-    overrides = list(overrides)
-    if not overrides:
-        return cfg
-    try:
-        return cfg.with_overrides(overrides)
-    except ConfigError as e:
-        text = str(e)
-        raise ConfigError(text if text.startswith("--set") else f"--set: {text}") from None
 
 
 def keys_table(fmt: Callable[[Field], str] | None = None) -> str:

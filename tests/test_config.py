@@ -153,3 +153,34 @@ def test_interference_keys_are_checked_together():
         from_flat({"team.interference_steps": 3, "team.interference_cooldown": 3})
     with pytest.raises(ConfigError, match="team.interaction: got 'pass'"):
         from_flat({"team.interaction": "pass"})
+
+
+def test_a_config_read_again_is_the_files_as_it_is_now(tmp_path: Path, monkeypatch):
+    """load_config parses a text once per folder (a figure reads a sweep's points several
+    times): the same file again gives an equal config, not parsed again; a changed file
+    is read as changed; the same text in another folder takes its relative map from
+    there; an error is raised every time; and a caller changing its config's values
+    does not change another's."""
+    import qpatrol.config as config
+
+    parsed = []
+    parse = config._parse_config
+    monkeypatch.setattr(config, "_parse_config", lambda p, t: parsed.append(p) or parse(p, t))
+    a, b = tmp_path / "a", tmp_path / "b"
+    a.mkdir(), b.mkdir()
+    for d in (a, b):
+        (d / "c.yaml").write_text("agents: 2\nmap: floor.txt\n")
+    first = load_config(a / "c.yaml")
+    again = load_config(a / "c.yaml")
+    assert again.values == first.values and again["map"] == str(a / "floor.txt")
+    assert len(parsed) == 1
+    first.values["agents"] = 99
+    assert load_config(a / "c.yaml")["agents"] == 2
+    assert load_config(b / "c.yaml")["map"] == str(b / "floor.txt") and len(parsed) == 2
+    (a / "c.yaml").write_text("agents: 3\nmap: floor.txt\n")
+    assert load_config(a / "c.yaml")["agents"] == 3 and len(parsed) == 3
+    (a / "c.yaml").write_text("agents: 0\n")
+    for _ in range(2):
+        with pytest.raises(ConfigError, match="agents"):
+            load_config(a / "c.yaml")
+    assert len(parsed) == 5

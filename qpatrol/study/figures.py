@@ -27,6 +27,7 @@ Which heading the Q-value figures follow (Fig. 2, 3, 4)
 from __future__ import annotations
 
 import dataclasses
+import functools
 import json
 import math
 from collections.abc import Iterable
@@ -114,8 +115,10 @@ def _t_cdf(t: float, df: float) -> float:
     return 1.0 - tail if t >= 0 else tail
 
 
+@functools.lru_cache(maxsize=1024)
 def t_quantile(p: float, df: float) -> float:
-    """Quantile of Student's t distribution (bisection on the CDF; no SciPy needed)."""
+    """Quantile of Student's t distribution (bisection on the CDF; no SciPy needed;
+    remembered, as a figure asks the same few thousands of times)."""
     if not 0.0 < p < 1.0 or df <= 0:
         raise ValueError(f"t_quantile: need 0 < p < 1 and df > 0, got p={p}, df={df}")
     if p < 0.5:

@@ -89,12 +89,18 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
     nbrs = _neighbour_lists(p)
     own = int(s.pos[r, k])
     occ = s.occ[r].tolist()
-    may_move = (s.mode[r] != battery.CHARGING).tolist()
-    out = _keep_out(s, p, r) if p.battery else None
+    may_move = out = None  # for the searches of pushes: made on the first one
     ok = np.zeros(len(legal_open), dtype=bool)
     for d, cell in enumerate(nbrs[own]):
-        if cell >= 0 and legal_open[d]:
-            ok[d] = occ[cell] < 0 or _push_path(nbrs, occ, own, cell, may_move, out) is not None
+        if cell < 0 or not legal_open[d]:
+            continue
+        if occ[cell] < 0:
+            ok[d] = True
+            continue
+        if may_move is None:
+            may_move = (s.mode[r] != battery.CHARGING).tolist()
+            out = _keep_out(s, p, r) if p.battery else None
+        ok[d] = _push_path(nbrs, occ, own, cell, may_move, out) is not None
     return ok
 
 
@@ -197,8 +203,7 @@ def holder_step(
         res.push_failed[r] = True
         hand_on(s, r, k, b, res)
         return
-    keep_out = _keep_out(s, p, r) if p.battery else None
-    cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable, keep_out)
+    cell, path = _holder_move(s, p, r, k, int(want[r, k]), movable)
     if cell < 0:
         res.push_failed[r] = True
         b = int(s.occ[r, want[r, k]])
@@ -223,16 +228,14 @@ def _holder_move(
     k: int,
     asked: int,
     movable: np.ndarray,
-    keep_out: tuple[list[int], list[int], list[int]] | None,
 ) -> tuple[int, list[int]]:
     """``(cell, push path)``: the cell the token holder asks for, if it is empty or a push
     empties it; ``(-1, [])`` if not."""
-    nbrs = _neighbour_lists(p)
-    own = int(s.pos[r, k])
-    occ = s.occ[r].tolist()
-    if occ[asked] < 0:
+    if s.occ[r, asked] < 0:
         return asked, []
-    path = _push_path(nbrs, occ, own, asked, movable.tolist(), keep_out)
+    nbrs = _neighbour_lists(p)
+    keep_out = _keep_out(s, p, r) if p.battery else None
+    path = _push_path(nbrs, s.occ[r].tolist(), int(s.pos[r, k]), asked, movable.tolist(), keep_out)
     return (asked, path) if path is not None else (-1, [])
 
 
