@@ -15,6 +15,8 @@ from pathlib import Path
 
 import pytest
 import yaml
+from hypothesis import given, settings
+from hypothesis import strategies as st
 
 from qpatrol import __version__, cli
 from qpatrol.run import outputs
@@ -404,3 +406,35 @@ def test_force_keeps_a_users_file_in_the_checkpoint_folder(tmp_path):
     (cp / "thesis.tex").unlink()
     assert run("train", cfg, "--out", out, "-q", "--force")[0] == 0
     assert not cp.exists() and (out / "manifest.json").is_file()
+
+
+#: The entries of the folder :func:`test_a_manifest_lists_what_is_there` builds: a file, a
+#: folder, links to each and a broken link, at the top and one level down, and a file
+#: that stands where a folder would be.
+TREE = {
+    "f": "file", "d": "dir", "lf": "link:f", "ld": "link:d", "lx": "link:missing",
+    "d/f": "file", "d/e": "dir", "d/lf": "link:../f", "d/lx": "link:nothing", "d/e/g": "file",
+}  # fmt: skip
+NAMES = [*TREE, "missing", "d/missing", "f/x", "missing/x", "ld/f", "lf/x", "d/e/g/x", "ld/e"]
+
+
+@settings(max_examples=60, deadline=None)
+@given(rels=st.lists(st.sampled_from(NAMES), unique=True))
+def test_a_manifest_lists_what_is_there(tmp_path_factory, rels):
+    """The manifest lists a file (or folder) exactly when ``Path.is_file`` (``is_dir``)
+    says it is one: a listing per parent folder answers as a ``stat`` per path would,
+    links followed, missing and misplaced parents included."""
+    folder = tmp_path_factory.mktemp("tree")
+    for rel, kind in TREE.items():
+        path = folder / rel
+        if kind == "file":
+            path.write_text(rel)
+        elif kind == "dir":
+            path.mkdir()
+        else:
+            path.symlink_to(kind.split(":", 1)[1])
+    files, dirs = manifest._present(folder, rels)
+    assert files == {r for r in rels if (folder / r).is_file()}
+    assert dirs == {r for r in rels if (folder / r).is_dir()}
+    m = manifest.write(folder, "run", rels, rels)
+    assert set(m.files) == files and set(m.folders) == dirs

@@ -726,10 +726,10 @@ class _Ledger:
     def wrote(self, *names: str) -> None:
         manifest.add(self.out, "sweep", names, (), self.config, [provenance.META_FILE])
 
-    def point(self, pid: str) -> None:
-        """List point ``pid``'s folder or failure record, whichever is there now."""
-        rel = f"{POINTS_DIR}/{pid}"
-        manifest.add(self.out, "sweep", [rel + FAILED_SUFFIX], [rel], self.config)
+    def point(self, *pids: str) -> None:
+        """List each point's folder or failure record, whichever is there now."""
+        rels = [f"{POINTS_DIR}/{pid}" for pid in pids]
+        manifest.add(self.out, "sweep", [r + FAILED_SUFFIX for r in rels], rels, self.config)
 
 
 def adoptable(out: Path) -> list[str]:
@@ -830,11 +830,12 @@ def _open(
     for point, cfg in zip(points, configs, strict=True):
         if (pdir / point.id).is_dir():
             (pdir / f"{point.id}{FAILED_SUFFIX}").unlink(missing_ok=True)
-            ledger.point(point.id)
             result.skipped.append(point.id)
             done_runs += cfg["runs"]
         else:
             todo.append((point, cfg))
+    if result.skipped:
+        ledger.point(*result.skipped)
     total = sum(c["runs"] for c in configs)
     return _Open(out, list(points), pdir, maps, todo, result, done_runs, total, ledger)
 

@@ -165,17 +165,49 @@ def write(
     are gone are left out."""
     folder = Path(folder)
     known = known or {}
-    prov = [rel for rel in provenance if (folder / rel).is_file()]
+    files, folders, provenance = list(files), list(folders), list(provenance)
+    is_file, is_dir = _present(folder, [*files, *folders, *provenance])
+    prov = [rel for rel in provenance if rel in is_file]
     entries: dict[str, dict[str, Any]] = {}
     for rel in files:
         if rel in prov:
             continue
-        if (folder / rel).is_file():
+        if rel in is_file:
             entries[rel] = known[rel] if rel in known else file_entry(folder / rel)
-    dirs = [d for d in folders if (folder / d).is_dir()]
+    dirs = [d for d in folders if d in is_dir]
     m = Manifest(kind, __version__, config, entries, dirs, prov)
     atomic.write_text(folder / MANIFEST_FILE, m.to_json())
     return m
+
+
+def _present(folder: Path, rels: Iterable[str]) -> tuple[set[str], set[str]]:
+    """``(files, folders)``: those of ``rels`` (paths relative to ``folder``, with ``/``)
+    that are a file, or a folder, now (symbolic links followed, as ``Path.is_file``
+    does). One listing per parent folder, not a ``stat`` per path: a sweep's manifest
+    lists every point, and is written again as each point finishes."""
+    by_parent: dict[str, set[str]] = {}
+    for rel in rels:
+        parent, _, name = rel.rpartition("/")
+        by_parent.setdefault(parent, set()).add(name)
+    files: set[str] = set()
+    dirs: set[str] = set()
+    for parent, names in by_parent.items():
+        try:
+            with os.scandir(folder / parent if parent else folder) as listing:
+                for e in listing:
+                    if e.name not in names:
+                        continue
+                    rel = f"{parent}/{e.name}" if parent else e.name
+                    try:
+                        if e.is_file():
+                            files.add(rel)
+                        elif e.is_dir():
+                            dirs.add(rel)
+                    except OSError:
+                        pass
+        except (FileNotFoundError, NotADirectoryError):
+            pass
+    return files, dirs
 
 
 def add(
