@@ -42,7 +42,7 @@ import numpy as np
 from qpatrol.config import INTERACTIONS, Config, ConfigError
 from qpatrol.maps import BIG, DIRECTIONS, SMALL_DOT, Map, bfs, search
 from qpatrol.maps.core import balls, far_targets
-from qpatrol.util.arrays import at, flat
+from qpatrol.util.arrays import at, flat, port_any
 from qpatrol.world import battery, interference, traffic
 
 PATROL, HOMING, QUEUED, CHARGING = battery.PATROL, battery.HOMING, battery.QUEUED, battery.CHARGING
@@ -638,9 +638,12 @@ def begin_step(state: State, p: Params) -> Observation:
         occupied = flat(s.occ)[at(s.occ.shape, rows, np.maximum(targets, 0))] >= 0
         open_ = legal_open & ~occupied
         r_tok = np.flatnonzero(s.token >= 0)
-        open_[r_tok, s.token[r_tok]] = legal_open[r_tok, s.token[r_tok]]
+        k_tok = s.token[r_tok]
+        open_[r_tok, k_tok] = legal_open[r_tok, k_tok]
         # the holder of the right of way: the moves it can make, pushing if need be
-        for r in np.flatnonzero((s.token >= 0) & s.active).tolist():
+        # (feasible_moves; one whose open moves all lead into empty cells makes any)
+        pushing = s.active[r_tok] & port_any(legal_open[r_tok, k_tok] & occupied[r_tok, k_tok])
+        for r in r_tok[pushing].tolist():
             k = int(s.token[r])
             open_[r, k] = traffic.feasible_moves(s, p, r, k, legal_open[r, k])
     else:
