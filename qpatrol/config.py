@@ -1006,7 +1006,7 @@ def load_config(path: str | Path, overrides: Iterable[str] = ()) -> Config:
         if len(_READ) >= 4096:
             _READ.clear()
         _READ[key] = cfg
-    cfg = Config(dict(cfg.values))  # a copy: a caller may not change another's
+    cfg = Config(copy.deepcopy(cfg.values))  # a copy: a caller may not change another's
     overrides = list(overrides)
     if not overrides:
         return cfg

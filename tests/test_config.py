@@ -175,7 +175,9 @@ def test_a_config_read_again_is_the_files_as_it_is_now(tmp_path: Path, monkeypat
     assert again.values == first.values and again["map"] == str(a / "floor.txt")
     assert len(parsed) == 1
     first.values["agents"] = 99
+    first.values["record.watch"].append(7)
     assert load_config(a / "c.yaml")["agents"] == 2
+    assert load_config(a / "c.yaml")["record.watch"] == again["record.watch"] != [7]
     assert load_config(b / "c.yaml")["map"] == str(b / "floor.txt") and len(parsed) == 2
     (a / "c.yaml").write_text("agents: 3\nmap: floor.txt\n")
     assert load_config(a / "c.yaml")["agents"] == 3 and len(parsed) == 3
