@@ -643,8 +643,7 @@ def begin_step(state: State, p: Params) -> Observation:
         # the holder of the right of way: the moves it can make, pushing if need be
         # (feasible_moves; one whose open moves all lead into empty cells makes any)
         pushing = s.active[r_tok] & port_any(legal_open[r_tok, k_tok] & occupied[r_tok, k_tok])
-        for r in r_tok[pushing].tolist():
-            k = int(s.token[r])
+        for r, k in zip(r_tok[pushing].tolist(), k_tok[pushing].tolist(), strict=True):
             open_[r, k] = traffic.feasible_moves(s, p, r, k, legal_open[r, k])
     else:
         open_ = legal_open.copy()

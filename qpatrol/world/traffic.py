@@ -99,15 +99,18 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
             continue
         if may_move is None:
             may_move = (s.mode[r] != battery.CHARGING).tolist()
-            out = _keep_out(s, p, r) if p.battery else None
+            out = _keep_out(s, p, r)
         ok[d] = _push_path(nbrs, occ, own, cell, may_move, out) is not None
     return ok
 
 
-def _keep_out(s: State, p: Params, r: int) -> tuple[list[int], list[int], list[int]]:
+def _keep_out(s: State, p: Params, r: int) -> tuple[list[int], list[int], list[int]] | None:
     """What a push may not do in run ``r``: move a robot into a held pocket or deeper
     inside one (:func:`battery.in_held_pocket`); ``(reserved, pocket_of, pocket_depth)``
-    as lists (a push may shift a robot out of a held pocket, towards its junction)."""
+    as lists (a push may shift a robot out of a held pocket, towards its junction).
+    None without the battery (no pocket is ever held)."""
+    if not p.battery:
+        return None
     return (
         s.reserved[r].tolist(),
         _cell_list(p, "pocket_of"),
@@ -234,7 +237,7 @@ def _holder_move(
     if s.occ[r, asked] < 0:
         return asked, []
     nbrs = _neighbour_lists(p)
-    keep_out = _keep_out(s, p, r) if p.battery else None
+    keep_out = _keep_out(s, p, r)
     path = _push_path(nbrs, s.occ[r].tolist(), int(s.pos[r, k]), asked, movable.tolist(), keep_out)
     return (asked, path) if path is not None else (-1, [])
 
