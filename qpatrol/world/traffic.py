@@ -85,22 +85,18 @@ def feasible_moves(s: State, p: Params, r: int, k: int, legal_open: np.ndarray) 
     of way: among ``legal_open`` (bool ``[D]``), those into an empty cell or into one a
     push empties (:func:`_push_path`: not through the holder's cell, charging robots nor
     held pockets). The world offers the holder these as its open moves, so a holder
-    whose strategy chooses among open moves always makes the move it chose."""
+    whose strategy chooses among open moves always makes the move it chose. (The world
+    asks only for a holder with an open move into an occupied cell: one without makes
+    every open move, :func:`qpatrol.world.begin_step`.)"""
     nbrs = _neighbour_lists(p)
     own = int(s.pos[r, k])
     occ = s.occ[r].tolist()
-    may_move = out = None  # for the searches of pushes: made on the first one
+    may_move = (s.mode[r] != battery.CHARGING).tolist()
+    out = _keep_out(s, p, r)
     ok = np.zeros(len(legal_open), dtype=bool)
     for d, cell in enumerate(nbrs[own]):
-        if cell < 0 or not legal_open[d]:
-            continue
-        if occ[cell] < 0:
-            ok[d] = True
-            continue
-        if may_move is None:
-            may_move = (s.mode[r] != battery.CHARGING).tolist()
-            out = _keep_out(s, p, r)
-        ok[d] = _push_path(nbrs, occ, own, cell, may_move, out) is not None
+        if cell >= 0 and legal_open[d]:
+            ok[d] = occ[cell] < 0 or _push_path(nbrs, occ, own, cell, may_move, out) is not None
     return ok
 
 
